@@ -1,0 +1,5 @@
+import sys
+
+from rtlift.cli import main
+
+sys.exit(main())

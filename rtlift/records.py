@@ -1,0 +1,151 @@
+"""Record files: one experiment per CSV, sampled uniformly (INTERFACES.md, "Record files").
+
+``# key: value`` lines before the header are metadata; the header names the columns; the
+required columns are ``t`` (s), ``cmu``, ``cmu_envelope`` and ``dcl``; any other column is
+kept in :attr:`Record.extra`. Reading validates everything and raises :class:`RecordError`
+with a one-line message naming the file, line and column.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rtlift.errors import RecordError
+
+REQUIRED = ("t", "cmu", "cmu_envelope", "dcl")
+
+
+@dataclass
+class Record:
+    """One experiment: uniformly sampled arrays of equal length."""
+
+    t: np.ndarray
+    cmu: np.ndarray
+    cmu_envelope: np.ndarray
+    dcl: np.ndarray
+    meta: dict[str, str] = field(default_factory=dict)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    name: str = "record"
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        for col in ("cmu", "cmu_envelope", "dcl"):
+            if len(getattr(self, col)) != n:
+                raise ValueError(f"column {col!r} has {len(getattr(self, col))} samples, t has {n}")
+        for col, arr in self.extra.items():
+            if len(arr) != n:
+                raise ValueError(f"column {col!r} has {len(arr)} samples, t has {n}")
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def fs_hz(self) -> float:
+        """Sample rate: the ``fs_hz`` metadata if present, else from the median time step."""
+        if "fs_hz" in self.meta:
+            return float(self.meta["fs_hz"])
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    def slice(self, start: int, stop: int) -> Record:
+        """Samples ``start:stop`` as a new record (metadata kept)."""
+        return Record(
+            self.t[start:stop], self.cmu[start:stop], self.cmu_envelope[start:stop],
+            self.dcl[start:stop], dict(self.meta),
+            {k: v[start:stop] for k, v in self.extra.items()}, self.name,
+        )
+
+
+def _fail(path: str | os.PathLike, line: int, message: str) -> RecordError:
+    return RecordError(f"{path}:{line}: {message}")
+
+
+def read_record(path: str | os.PathLike, min_samples: int = 2) -> Record:
+    """Read and validate a record CSV; raise :class:`RecordError` (one line) on any problem."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RecordError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise RecordError(f"{path}: is a directory, not a record file") from None
+    except UnicodeDecodeError:
+        raise RecordError(f"{path}: not a text (UTF-8) file") from None
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read ({exc.strerror})") from None
+
+    lines = text.splitlines()
+    meta: dict[str, str] = {}
+    i = 0
+    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
+        body = lines[i][1:].strip() if lines[i].startswith("#") else ""
+        if ":" in body:
+            key, value = body.split(":", 1)
+            meta[key.strip()] = value.strip()
+        i += 1
+    if i >= len(lines):
+        raise _fail(path, i, "no header line (expected columns t,cmu,cmu_envelope,dcl)")
+    header_line = i + 1
+    header = [h.strip() for h in next(csv.reader([lines[i]]))]
+    for col in REQUIRED:
+        if col not in header:
+            raise _fail(path, header_line, f"column '{col}' is missing from the header")
+    ncol = len(header)
+    rows = list(csv.reader(io.StringIO("\n".join(lines[i + 1:]))))
+    data = np.empty((len(rows), ncol))
+    n = 0
+    for r, row in enumerate(rows):
+        lineno = header_line + 1 + r
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != ncol:
+            raise _fail(path, lineno, f"{len(row)} cells, the header has {ncol}")
+        for c, cell in enumerate(row):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise _fail(path, lineno, f"column '{header[c]}': not a number: {cell.strip()!r}") from None
+            if header[c] in REQUIRED and not math.isfinite(v):
+                raise _fail(path, lineno, f"column '{header[c]}': {cell.strip()} is not a finite number")
+            data[n, c] = v
+        n += 1
+    data = data[:n]
+    if n < min_samples:
+        raise _fail(path, header_line, f"{n} samples, at least {min_samples} needed")
+    cols = {h: data[:, c].copy() for c, h in enumerate(header)}
+    dt = np.diff(cols["t"])
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise _fail(path, _data_line(rows, header_line, k), "column 't': not strictly increasing")
+    extra = {h: v for h, v in cols.items() if h not in REQUIRED}
+    return Record(cols["t"], cols["cmu"], cols["cmu_envelope"], cols["dcl"], meta, extra, p.stem)
+
+
+def _data_line(rows: list[list[str]], header_line: int, k: int) -> int:
+    """File line number of the k-th non-blank data row."""
+    seen = -1
+    for r, row in enumerate(rows):
+        if row and any(c.strip() for c in row):
+            seen += 1
+            if seen == k:
+                return header_line + 1 + r
+    return header_line + 1 + k
+
+
+def write_record(path: str | os.PathLike, record: Record) -> None:
+    """Write a record CSV (metadata, header, one row per sample, full float precision)."""
+    cols = [("t", record.t), ("cmu", record.cmu), ("cmu_envelope", record.cmu_envelope),
+            ("dcl", record.dcl), *record.extra.items()]
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        for key, value in record.meta.items():
+            f.write(f"# {key}: {value}\n")
+        f.write(",".join(name for name, _ in cols) + "\n")
+        table = np.column_stack([np.asarray(v, dtype=float) for _, v in cols])
+        np.savetxt(f, table, delimiter=",", fmt="%.17g")
