@@ -1,0 +1,132 @@
+"""The CAN wire format (PROTOCOL.md, "CAN bus"): three 8-byte frames per sample, described
+by the DBC file shipped in this package (``rtlift_daq.dbc``) and coded with cantools.
+
+:class:`CanAssembler` collects the frames ``ACT`` (0x101), ``FT_FORCE`` (0x102) and
+``FT_TORQUE`` (0x103) by their u8 ``seq``; a sample is complete when all three arrived.
+An incomplete sample is counted lost when a newer ``seq`` completes (the gap of ``seq``
+with wrap at 256). No I/O; never raises on any frame.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from functools import cache
+from pathlib import Path
+
+import cantools
+from cantools.database.can import Database
+
+from firmware_io.samples import Counters, Sample
+
+DBC_PATH = Path(__file__).with_name("rtlift_daq.dbc")
+ACT_ID = 0x101
+FT_FORCE_ID = 0x102
+FT_TORQUE_ID = 0x103
+FRAME_IDS = (ACT_ID, FT_FORCE_ID, FT_TORQUE_ID)
+SEQ_MODULUS = 256
+DLC = 8
+PENDING_WINDOW = 8
+"""Incomplete samples up to this many ``seq`` ahead of the last complete one are kept."""
+
+
+@cache
+def load_dbc() -> Database:
+    """The package's DBC (parsed once; treat it as read-only)."""
+    return cantools.database.load_file(str(DBC_PATH))
+
+
+def encode_sample_frames(seq: int, t_10us: int, volt_cv: int, envelope_cv: int, status: int,
+                         force_raw: tuple[int, int, int], torque_raw: tuple[int, int, int],
+                         db: Database | None = None) -> list[tuple[int, bytes]]:
+    """The three frames ``(arbitration_id, data)`` of one sample, raw DBC values
+    (forces in 0.001 N, torques in 0.00001 N·m, i16; the caller saturates)."""
+    db = db or load_dbc()
+    seq &= 0xFF
+    act = db.get_message_by_frame_id(ACT_ID).encode(
+        {"seq": seq, "volt_cv": volt_cv, "envelope_cv": envelope_cv, "status": status,
+         "t_10us": t_10us & 0xFFFF}, scaling=False)
+    fx, fy, fz = force_raw
+    tx, ty, tz = torque_raw
+    force = db.get_message_by_frame_id(FT_FORCE_ID).encode(
+        {"seq": seq, "fx": fx, "fy": fy, "fz": fz, "spare": 0}, scaling=False)
+    torque = db.get_message_by_frame_id(FT_TORQUE_ID).encode(
+        {"seq": seq, "tx": tx, "ty": ty, "tz": tz, "spare": 0}, scaling=False)
+    return [(ACT_ID, bytes(act)), (FT_FORCE_ID, bytes(force)), (FT_TORQUE_ID, bytes(torque))]
+
+
+class CanAssembler:
+    """Frames in, samples out: ``feed(arbitration_id, data)`` returns the completed
+    :class:`Sample` or ``None``.
+
+    Counters: a frame of our identifiers with a DLC other than 8, or an error frame, is a
+    ``crc_errors``; a frame whose (identifier, ``seq``) was already received for a pending
+    sample, or whose ``seq`` is that of the last completed sample, is a ``duplicates`` and
+    dropped; ``lost`` grows by the ``seq`` gap − 1 each time a sample completes. Frames of
+    other identifiers (other nodes on the bus), remote and extended frames are ignored.
+    """
+
+    def __init__(self, db: Database | None = None, clock: Callable[[], float] | None = None) -> None:
+        db = db or load_dbc()
+        self.counters = Counters()
+        self._act = db.get_message_by_frame_id(ACT_ID)
+        self._force = db.get_message_by_frame_id(FT_FORCE_ID)
+        self._torque = db.get_message_by_frame_id(FT_TORQUE_ID)
+        self._clock = clock or time.perf_counter
+        self._pending: dict[int, list] = {}
+        self.last_seq: int | None = None
+
+    def feed_message(self, msg: object) -> Sample | None:
+        """Feed one ``can.Message`` (error frames counted; remote and extended ignored)."""
+        if msg.is_error_frame:
+            self.counters.crc_errors += 1
+            return None
+        if msg.is_remote_frame or msg.is_extended_id:
+            return None
+        return self.feed(msg.arbitration_id, msg.data)
+
+    def feed(self, arbitration_id: int, data: bytes | bytearray) -> Sample | None:
+        """Feed one standard data frame."""
+        if arbitration_id == ACT_ID:
+            slot = 0
+        elif arbitration_id == FT_FORCE_ID:
+            slot = 1
+        elif arbitration_id == FT_TORQUE_ID:
+            slot = 2
+        else:
+            return None
+        c = self.counters
+        if len(data) != DLC:
+            c.crc_errors += 1
+            return None
+        seq = data[0]
+        last = self.last_seq
+        if seq == last:
+            c.duplicates += 1
+            return None
+        parts = self._pending.get(seq)
+        if parts is None:
+            parts = self._pending[seq] = [None, None, None]
+        elif parts[slot] is not None:
+            c.duplicates += 1
+            return None
+        if slot == 0:
+            parts[0] = self._act.decode(data, decode_choices=False, scaling=False)
+        elif slot == 1:
+            parts[1] = self._force.decode(data, decode_choices=False)
+        else:
+            parts[2] = self._torque.decode(data, decode_choices=False)
+        if parts[0] is None or parts[1] is None or parts[2] is None:
+            return None
+        del self._pending[seq]
+        if last is not None:
+            c.lost += ((seq - last) & 0xFF) - 1
+        self.last_seq = seq
+        if self._pending:
+            for p in [p for p in self._pending if ((p - seq) & 0xFF) > PENDING_WINDOW]:
+                del self._pending[p]
+        c.received += 1
+        act, force, torque = parts
+        return Sample(seq, act["t_10us"] * 10, act["volt_cv"], act["envelope_cv"],
+                      (force["fx"], force["fy"], force["fz"], torque["tx"], torque["ty"], torque["tz"]),
+                      act["status"], self._clock())

@@ -1,0 +1,259 @@
+"""Logs for replay, and their reader.
+
+- raw serial capture (``.bin``/``.raw``): the exact bytes read from the port, written as
+  they are read and flushed at least every :data:`FLUSH_S` seconds;
+- CAN logs (``.asc``, ``.blf``, ``.log``, ``.trc``): python-can's ``can.Logger`` chosen by
+  extension, every frame as received;
+- record CSV (INTERFACES.md): :class:`RecordWriter`, one row per converted sample.
+
+:func:`read_log` yields the samples of a raw capture or a CAN log through the very same
+decoders and counters as a live link, so the same frames in give the same samples out.
+:func:`graceful_exit` turns SIGTERM/SIGHUP into ``SystemExit`` so that ``with`` blocks
+(links, logs) flush and close on every exit path; Ctrl-C already raises
+``KeyboardInterrupt``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import can
+
+from firmware_io.calibration import Calibration
+from firmware_io.can_codec import SEQ_MODULUS as CAN_SEQ_MODULUS
+from firmware_io.can_codec import CanAssembler
+from firmware_io.errors import LogError
+from firmware_io.samples import Counters, Sample
+from firmware_io.serial_codec import SEQ_MODULUS as SERIAL_SEQ_MODULUS
+from firmware_io.serial_codec import SerialDecoder
+
+RAW_SUFFIXES = (".bin", ".raw")
+CAN_SUFFIXES = (".asc", ".blf", ".log", ".trc")
+FLUSH_S = 0.05
+READ_CHUNK = 1 << 16
+
+
+def log_kind(path: str | os.PathLike) -> str:
+    """``"serial"`` for a raw capture, ``"can"`` for a python-can log; else :class:`LogError`."""
+    suffix = Path(path).suffix.lower()
+    if suffix in RAW_SUFFIXES:
+        return "serial"
+    if suffix in CAN_SUFFIXES:
+        return "can"
+    raise LogError(f"{path}: unknown log type {suffix or '(no extension)'!r}: use "
+                   f"{'/'.join(RAW_SUFFIXES)} for serial captures, {'/'.join(CAN_SUFFIXES)} for CAN")
+
+
+class RawCapture:
+    """The exact bytes of a serial link, appended as read, flushed every ``flush_s``."""
+
+    def __init__(self, path: str | os.PathLike, flush_s: float = FLUSH_S) -> None:
+        try:
+            self._file = open(path, "wb")  # noqa: SIM115 - closed in close()
+        except OSError as exc:
+            raise LogError(f"{path}: cannot write log ({exc.strerror})") from None
+        self.path = Path(path)
+        self._flush_s = flush_s
+        self._last_flush = time.perf_counter()
+        self.bytes_written = 0
+
+    def write(self, data: bytes) -> None:
+        self._file.write(data)
+        self.bytes_written += len(data)
+        now = time.perf_counter()
+        if now - self._last_flush >= self._flush_s:
+            self._file.flush()
+            self._last_flush = now
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.flush()
+            self._file.close()
+
+    def __enter__(self) -> RawCapture:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class CanLog:
+    """A python-can log (format by extension); call it with each received message."""
+
+    def __init__(self, path: str | os.PathLike, flush_s: float = FLUSH_S) -> None:
+        try:
+            self._logger = can.Logger(str(path))
+        except (OSError, ValueError) as exc:
+            raise LogError(f"{path}: cannot write CAN log ({' '.join(str(exc).split())})") from None
+        self.path = Path(path)
+        self._flush_s = flush_s
+        self._last_flush = time.perf_counter()
+        self._closed = False
+        self.frames_written = 0
+
+    def __call__(self, msg: can.Message) -> None:
+        self._logger.on_message_received(msg)
+        self.frames_written += 1
+        now = time.perf_counter()
+        if now - self._last_flush >= self._flush_s:
+            file = getattr(self._logger, "file", None)
+            if file is not None and not isinstance(self._logger, can.BLFWriter):
+                file.flush()  # BLF writes compressed containers; it is completed on close
+            self._last_flush = now
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._logger.stop()
+
+    def __enter__(self) -> CanLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_link_log(path: str | os.PathLike, link_kind: str) -> RawCapture | CanLog:
+    """The log writer for a link of ``link_kind`` (``"serial"`` or ``"can"``), by extension."""
+    kind = log_kind(path)
+    if kind != link_kind:
+        want = RAW_SUFFIXES if link_kind == "serial" else CAN_SUFFIXES
+        raise LogError(f"{path}: a {link_kind} link logs to {'/'.join(want)} files")
+    return RawCapture(path) if kind == "serial" else CanLog(path)
+
+
+class RecordWriter:
+    """A record CSV (INTERFACES.md) written row by row: ``# key: value`` metadata, the
+    header ``t,cmu,cmu_envelope,dcl,<extra...>``, flushed every ``flush_s`` and on close."""
+
+    def __init__(self, path: str | os.PathLike, meta: dict[str, Any] | None = None,
+                 extra_columns: Iterable[str] = (), flush_s: float = FLUSH_S) -> None:
+        self.extra_columns = tuple(extra_columns)
+        try:
+            self._file = open(path, "w", encoding="utf-8", newline="")  # noqa: SIM115
+        except OSError as exc:
+            raise LogError(f"{path}: cannot write record ({exc.strerror})") from None
+        for key, value in (meta or {}).items():
+            self._file.write(f"# {key}: {value}\n")
+        self._file.write(",".join(("t", "cmu", "cmu_envelope", "dcl", *self.extra_columns)) + "\n")
+        self._file.flush()
+        self.path = Path(path)
+        self._flush_s = flush_s
+        self._last_flush = time.perf_counter()
+        self.rows = 0
+
+    def write(self, t: float, cmu: float, cmu_envelope: float, dcl: float, *extra: float) -> None:
+        """One row; ``t`` must increase strictly and ``dcl`` be finite (skip missing samples)."""
+        if len(extra) != len(self.extra_columns):
+            raise ValueError(f"{len(extra)} extra values for {len(self.extra_columns)} extra columns")
+        self._file.write(",".join(repr(float(v)) for v in (t, cmu, cmu_envelope, dcl, *extra)) + "\n")
+        self.rows += 1
+        now = time.perf_counter()
+        if now - self._last_flush >= self._flush_s:
+            self._file.flush()
+            self._last_flush = now
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.flush()
+            self._file.close()
+
+    def __enter__(self) -> RecordWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@contextlib.contextmanager
+def graceful_exit(signals: Iterable[int] = (signal.SIGTERM, signal.SIGHUP)) -> Iterator[None]:
+    """Inside this block, SIGTERM (and SIGHUP) raise ``SystemExit(128 + signum)`` in the main
+    thread, so every enclosing ``with`` flushes and closes its files; the previous handlers
+    are restored on exit. Outside the main thread it does nothing (signals go there)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _raise(signum: int, frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    previous = {}
+    for sig in signals:
+        previous[sig] = signal.signal(sig, _raise)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+class LogSamples:
+    """The samples of a recorded log, decoded as a live link would decode them.
+
+    Iterate once; ``counters``, ``events``, ``kind`` and ``seq_modulus`` as on a link.
+    ``host_time`` of each sample is ``time.perf_counter()`` at decoding (a raw capture
+    holds no receive times); the device's ``seq`` and ``t_us`` are the clock for replay.
+    """
+
+    def __init__(self, path: str | os.PathLike, calibration: Calibration | None = None) -> None:
+        self.path = Path(path)
+        self.kind = log_kind(path)
+        if not self.path.is_file():
+            raise LogError(f"{path}: no such log file")
+        self.seq_modulus = SERIAL_SEQ_MODULUS if self.kind == "serial" else CAN_SEQ_MODULUS
+        self._calibration = calibration or Calibration()
+        self._queue: deque[Sample] = deque()
+        if self.kind == "serial":
+            self._decoder = SerialDecoder(self._queue.append, self._calibration.counts_per_n,
+                                          self._calibration.counts_per_nm)
+            self.counters: Counters = self._decoder.counters
+        else:
+            self._assembler = CanAssembler()
+            self.counters = self._assembler.counters
+
+    @property
+    def events(self) -> list[str]:
+        return list(self._decoder.events) if self.kind == "serial" else []
+
+    def __iter__(self) -> Iterator[Sample]:
+        return self._serial() if self.kind == "serial" else self._can()
+
+    def _serial(self) -> Iterator[Sample]:
+        queue = self._queue
+        try:
+            with open(self.path, "rb") as f:
+                while chunk := f.read(READ_CHUNK):
+                    self._decoder.feed(chunk)
+                    while queue:
+                        yield queue.popleft()
+        except OSError as exc:
+            raise LogError(f"{self.path}: cannot read log ({exc.strerror})") from None
+
+    def _can(self) -> Iterator[Sample]:
+        feed = self._assembler.feed_message
+        try:
+            reader = can.LogReader(str(self.path))
+        except (OSError, ValueError) as exc:
+            raise LogError(f"{self.path}: cannot read CAN log ({' '.join(str(exc).split())})") from None
+        try:
+            for msg in reader:
+                sample = feed(msg)
+                if sample is not None:
+                    yield sample
+        except (can.CanError, ValueError, IndexError, OSError, EOFError) as exc:
+            raise LogError(f"{self.path}: unreadable CAN log ({' '.join(str(exc).split())})") from None
+        finally:
+            reader.stop()
+
+
+def read_log(path: str | os.PathLike, calibration: Calibration | None = None) -> LogSamples:
+    """The samples of a raw serial capture or a CAN log (by extension); see :class:`LogSamples`."""
+    return LogSamples(path, calibration)
