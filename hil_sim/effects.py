@@ -1,0 +1,257 @@
+"""Effects the model is not told about: composable, seeded, parsed from ``NAME[:k=v,...]``.
+
+Each effect acts at one stage of the bench (docs/BENCH.md, "Effects"):
+
+========================  =========  =====================================================
+name                      stage      what it does (SI units; ΔCL-valued amplitudes)
+========================  =========  =====================================================
+``actuator_fade``         actuator   Cμ delivered = Cμ · (f + (1 − f) exp(−E/τ)), E the
+                                     accumulated burst on-time (s) (actuators heat up)
+``hysteresis``            plant      static gain on falling Cμ is (1 + m) × that on rising
+``delay``                 force      measured forces lag by round(seconds · fs) samples
+``sensor_resonance``      force      ω²/(s² + 2ζωs + ω²) on the measured forces (balance /
+                                     wing mode), bilinear with pre-warping at ω
+``zero_drift``            offset     lift zero drifts: rate · t, or A (1 − exp(−t/τ))
+``periodic_disturbance``  offset     A sin(2π f t + φ₀), φ₀ drawn from the seed (pickup as
+                                     sampled, e.g. 420 Hz mains aliased to 20 Hz)
+========================  =========  =====================================================
+
+``EFFECTS[name]`` holds defaults, documented ranges ``ranges[param] = (lo, hi)`` and
+``draw(rng)``; ``parse_effect(spec)`` raises :class:`~rtlift.errors.UserError` on a bad spec.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+from scipy import signal
+
+from rtlift.errors import UserError
+
+
+@dataclass(frozen=True)
+class EffectInfo:
+    """One effect kind: its stage, default parameters and documented ranges."""
+
+    name: str
+    stage: str
+    defaults: Mapping[str, float]
+    ranges: Mapping[str, tuple[float, float]]
+    meaning: str
+    alternatives: tuple[tuple[str, ...], ...] = ()
+    """Parameter sets that may be given instead of the defaults' set (zero_drift)."""
+
+    def draw(self, rng: np.random.Generator) -> Effect:
+        """Parameters drawn uniformly from ``ranges`` (one parameter set for zero_drift)."""
+        sets = (tuple(self.defaults), *self.alternatives)
+        chosen = sets[int(rng.integers(len(sets)))]
+        params = {k: float(rng.uniform(*self.ranges[k])) for k in chosen}
+        return Effect(self.name, params)
+
+
+def _info(name: str, stage: str, defaults: dict[str, float],
+          ranges: dict[str, tuple[float, float]], meaning: str,
+          alternatives: tuple[tuple[str, ...], ...] = ()) -> EffectInfo:
+    return EffectInfo(name, stage, MappingProxyType(defaults), MappingProxyType(ranges),
+                      meaning, alternatives)
+
+
+EFFECTS: Mapping[str, EffectInfo] = MappingProxyType({
+    "delay": _info(
+        "delay", "force", {"seconds": 0.025}, {"seconds": (0.005, 0.1)},
+        "measured lift lags the actuation record (DAQ or convective latency)"),
+    "sensor_resonance": _info(
+        "sensor_resonance", "force", {"frequency_hz": 30.0, "damping_ratio": 0.05},
+        {"frequency_hz": (12.0, 80.0), "damping_ratio": (0.02, 0.3)},
+        "force balance / wing structural mode filtering the measured lift"),
+    "actuator_fade": _info(
+        "actuator_fade", "actuator", {"final_fraction": 0.6, "time_constant_s": 3.0},
+        {"final_fraction": (0.4, 0.9), "time_constant_s": (1.0, 10.0)},
+        "actuators deliver less Cμ as they heat up over accumulated burst on-time"),
+    "zero_drift": _info(
+        "zero_drift", "offset", {"rate_per_s": 4.0e-4},
+        {"rate_per_s": (2.0e-4, 1.5e-3), "amplitude": (0.01, 0.05),
+         "time_constant_s": (5.0, 60.0)},
+        "thermal drift of the sensor zero (ΔCL units)",
+        alternatives=(("amplitude", "time_constant_s"),)),
+    "periodic_disturbance": _info(
+        "periodic_disturbance", "offset", {"frequency_hz": 20.0, "amplitude": 0.006},
+        {"frequency_hz": (1.0, 190.0), "amplitude": (0.002, 0.02)},
+        "narrow-band pickup (mains, fan blade passing) as sampled (ΔCL units)"),
+    "hysteresis": _info(
+        "hysteresis", "plant", {"magnitude": 0.15}, {"magnitude": (0.05, 0.3)},
+        "static gain differs between rising and falling Cμ"),
+})
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One effect with its parameters (SI units, names of INTERFACES.md)."""
+
+    name: str
+    params: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def info(self) -> EffectInfo:
+        return EFFECTS[self.name]
+
+    @property
+    def stage(self) -> str:
+        return self.info.stage
+
+    def spec(self) -> str:
+        """The canonical ``NAME:k=v,...`` (round-trips through :func:`parse_effect`)."""
+        return self.name + ":" + ",".join(f"{k}={v:g}" for k, v in self.params.items())
+
+
+def _check(name: str, params: dict[str, float], spec: str) -> None:
+    info = EFFECTS[name]
+    if name == "zero_drift":
+        sets = [set(info.defaults), *map(set, info.alternatives)]
+        if set(params) not in sets:
+            raise UserError(f"effect {spec!r}: zero_drift takes rate_per_s, or amplitude and "
+                            "time_constant_s")
+    for key, value in params.items():
+        if not math.isfinite(value):
+            raise UserError(f"effect {spec!r}: {key} must be a finite number")
+    positive = {"seconds", "frequency_hz", "damping_ratio", "time_constant_s"}
+    for key in positive & set(params):
+        if params[key] <= 0:
+            raise UserError(f"effect {spec!r}: {key} must be positive, got {params[key]:g}")
+    if name == "actuator_fade" and not 0.0 <= params["final_fraction"] <= 1.0:
+        raise UserError(f"effect {spec!r}: final_fraction must be in [0, 1]")
+    if name == "hysteresis" and not -0.9 < params["magnitude"] < 5.0:
+        raise UserError(f"effect {spec!r}: magnitude must be in (-0.9, 5)")
+    if name == "sensor_resonance" and params["frequency_hz"] >= 190.0:
+        raise UserError(f"effect {spec!r}: frequency_hz must be below 190 Hz (fs = 400 Hz)")
+    if name == "delay" and params["seconds"] > 10.0:
+        raise UserError(f"effect {spec!r}: seconds must be at most 10")
+
+
+def parse_effect(spec: str) -> Effect:
+    """``NAME[:k=v,...]`` → :class:`Effect`; missing parameters take the defaults."""
+    text = spec.strip()
+    name, _, rest = text.partition(":")
+    name = name.strip()
+    if name not in EFFECTS:
+        raise UserError(f"unknown effect {name!r} in {spec!r} (known: {', '.join(EFFECTS)})")
+    info = EFFECTS[name]
+    known = set(info.ranges)
+    given: dict[str, float] = {}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq:
+            raise UserError(f"effect {spec!r}: expected key=value, got {item!r}")
+        if key not in known:
+            raise UserError(f"effect {spec!r}: unknown parameter {key!r} "
+                            f"(known: {', '.join(sorted(known))})")
+        if key in given:
+            raise UserError(f"effect {spec!r}: parameter {key!r} given twice")
+        try:
+            given[key] = float(value)
+        except ValueError:
+            raise UserError(f"effect {spec!r}: {key} is not a number: {value.strip()!r}") from None
+    params = dict(info.defaults)
+    if name == "zero_drift" and given and "rate_per_s" not in given:
+        params = {"amplitude": 0.02, "time_constant_s": 20.0}
+    params.update(given)
+    _check(name, params, spec)
+    return Effect(name, params)
+
+
+def as_effect(effect: Effect | str) -> Effect:
+    return effect if isinstance(effect, Effect) else parse_effect(effect)
+
+
+# -- streaming processors (one per effect per bench run, state carried between chunks) ----
+
+class ActuatorFade:
+    """``actuator_fade``: Cμ · (f + (1 − f) exp(−E/τ)), E = burst on-time so far (s)."""
+
+    def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
+        self.f = params["final_fraction"]
+        self.tau = params["time_constant_s"]
+        self.dt = 1.0 / fs_hz
+        self.on_time = 0.0
+
+    def process(self, cmu: np.ndarray) -> np.ndarray:
+        on = np.asarray(cmu) > 0
+        elapsed = self.on_time + self.dt * np.cumsum(on)
+        self.on_time = float(elapsed[-1]) if len(elapsed) else self.on_time
+        before = elapsed - self.dt * on  # on-time accumulated before this sample
+        return cmu * (self.f + (1.0 - self.f) * np.exp(-before / self.tau))
+
+
+class Delay:
+    """``delay``: rows lag by round(seconds · fs) samples (the first rows repeat the start)."""
+
+    def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
+        self.n = int(round(params["seconds"] * fs_hz))
+        self.buffer: np.ndarray | None = None
+
+    def process(self, x: np.ndarray) -> np.ndarray:
+        if self.n == 0:
+            return x
+        if self.buffer is None:
+            self.buffer = np.repeat(x[:1], self.n, axis=0)
+        joined = np.concatenate([self.buffer, x])
+        self.buffer = joined[len(joined) - self.n:]
+        return joined[:len(x)]
+
+
+class SensorResonance:
+    """``sensor_resonance``: unit-DC-gain second-order mode on every column."""
+
+    def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
+        f = params["frequency_hz"]
+        zeta = params["damping_ratio"]
+        w = 2.0 * fs_hz * math.tan(math.pi * f / fs_hz)  # pre-warped
+        b, a = signal.bilinear([w * w], [1.0, 2.0 * zeta * w, w * w], fs=fs_hz)
+        self.b, self.a = b, a
+        self.zi: np.ndarray | None = None
+
+    def process(self, x: np.ndarray) -> np.ndarray:
+        if self.zi is None:
+            self.zi = signal.lfilter_zi(self.b, self.a)[:, None] * x[:1]
+        y, self.zi = signal.lfilter(self.b, self.a, x, axis=0, zi=self.zi)
+        return y
+
+
+class ZeroDrift:
+    """``zero_drift``: additive lift zero, rate · t or A (1 − exp(−t/τ)), t from power-up."""
+
+    def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
+        self.params = params
+
+    def process(self, t: np.ndarray) -> np.ndarray:
+        p = self.params
+        if "rate_per_s" in p:
+            return p["rate_per_s"] * t
+        return p["amplitude"] * (1.0 - np.exp(-t / p["time_constant_s"]))
+
+
+class PeriodicDisturbance:
+    """``periodic_disturbance``: A sin(2π f t + φ₀) as sampled, φ₀ from the seed."""
+
+    def __init__(self, params: Mapping[str, float], fs_hz: float,
+                 rng: np.random.Generator) -> None:
+        self.f = params["frequency_hz"]
+        self.amplitude = params["amplitude"]
+        self.phase = float(rng.uniform(0.0, 2.0 * math.pi))
+
+    def process(self, t: np.ndarray) -> np.ndarray:
+        return self.amplitude * np.sin(2.0 * math.pi * self.f * t + self.phase)
+
+
+def processor(effect: Effect, fs_hz: float, rng: np.random.Generator):
+    """A fresh streaming processor for an actuator, force or offset effect."""
+    kinds = {"actuator_fade": ActuatorFade, "delay": Delay, "sensor_resonance": SensorResonance,
+             "zero_drift": ZeroDrift}
+    if effect.name == "periodic_disturbance":
+        return PeriodicDisturbance(effect.params, fs_hz, rng)
+    return kinds[effect.name](effect.params, fs_hz)

@@ -1,0 +1,270 @@
+"""The standard campaign at 400 Hz, and the bench that runs it (docs/BENCH.md).
+
+Every experiment starts with ``TARE_S`` = 2 s actuator-off for the tare. Programs (envelope
+as Cμ, burst gate):
+
+- ``static``: bursts at 8 Hz, envelope ramped 0 → 0.022 in 25 s, held 2 s, back to 0 in 25 s
+  (slow against the ≈ 1 s reattachment, so the branches coincide);
+- ``single_burst``: 12 isolated bursts at Cμ 0.0022 (60 V), 12 t⁺ apart (phase averaging);
+- ``train_T1p75`` / ``train_T3p5`` / ``train_T7``: 10 bursts at 60 V every T, three times,
+  with 15 t⁺ rests;
+- ``sine_k0125`` / ``sine_k025``: envelope ``0.011 − 0.010 cos(2π f t)``, k = π f c / U∞,
+  20 / 40 periods, bursts at the lift-optimal 8 Hz;
+- ``random``: band-limited random envelope (Gaussian noise through a 2nd-order 1 Hz
+  Butterworth low-pass, mean 0.011, σ 0.0055, clipped to [0.0005, 0.0215]), 58 s, 8 Hz.
+
+The whole campaign is ≈ 263 s of data.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+from scipy import signal
+
+from firmware_io.calibration import Calibration
+from hil_sim import FS_HZ, T_CONV_S, U_INF_M_S
+from hil_sim.actuation import (
+    BURST_SAMPLES,
+    CMU_MAX,
+    OPTIMAL_PERIOD_SAMPLES,
+    SINGLE_BURST_CMU,
+    actuate,
+    burst_gate,
+    period_samples,
+)
+from hil_sim.effects import Effect, as_effect, processor
+from hil_sim.plant import PlantParams, TruthPlant
+from hil_sim.sensors import (
+    STATUS_ACTUATOR_ENABLED,
+    STATUS_ADC_SATURATED,
+    STATUS_BURST_ON,
+    AeroNoise,
+    SensorParams,
+    coefficients,
+    transducer,
+)
+from rtlift.errors import UserError
+from rtlift.records import Record
+
+TARE_S = 2.0
+TARE_SAMPLES = int(TARE_S * FS_HZ)
+SINE_CMU_MEAN = 0.011
+SINE_CMU_AMPLITUDE = 0.010
+TRAIN_BURSTS = 10
+TRAIN_REPEATS = 3
+TRAIN_REST_TPLUS = 15.0
+SINGLE_BURSTS = 12
+SINGLE_SPACING_TPLUS = 12.0
+
+Program = tuple[np.ndarray, np.ndarray]
+"""(envelope as Cμ, burst gate) at 400 Hz."""
+
+
+def reduced_frequency_hz(k: float, chord_m: float = 0.245, u_inf: float = U_INF_M_S) -> float:
+    """f = k U∞ / (π c) (paper: k = π f c / U∞)."""
+    return k * u_inf / (math.pi * chord_m)
+
+
+def _static(rng: np.random.Generator) -> Program:
+    up = int(25.0 * FS_HZ)
+    hold = int(2.0 * FS_HZ)
+    ramp = np.linspace(0.0, CMU_MAX, up + 1)
+    env = np.concatenate([np.zeros(TARE_SAMPLES), ramp, np.full(hold, CMU_MAX), ramp[::-1],
+                          np.zeros(TARE_SAMPLES)])
+    return env, burst_gate(len(env), OPTIMAL_PERIOD_SAMPLES, TARE_SAMPLES)
+
+
+def _single_burst(rng: np.random.Generator) -> Program:
+    spacing = period_samples(SINGLE_SPACING_TPLUS)
+    n = TARE_SAMPLES + SINGLE_BURSTS * spacing
+    env = np.where(np.arange(n) >= TARE_SAMPLES, SINGLE_BURST_CMU, 0.0)
+    return env, burst_gate(n, spacing, TARE_SAMPLES, SINGLE_BURSTS)
+
+
+def _train(t_plus: float) -> Callable[[np.random.Generator], Program]:
+    def program(rng: np.random.Generator) -> Program:
+        period = period_samples(t_plus)
+        on = TRAIN_BURSTS * period
+        rest = period_samples(TRAIN_REST_TPLUS)
+        env_parts = [np.zeros(TARE_SAMPLES)]
+        gate_parts = [np.zeros(TARE_SAMPLES, bool)]
+        for _ in range(TRAIN_REPEATS):
+            env_parts += [np.full(on, SINGLE_BURST_CMU), np.zeros(rest)]
+            gate_parts += [burst_gate(on, period), np.zeros(rest, bool)]
+        return np.concatenate(env_parts), np.concatenate(gate_parts)
+    return program
+
+
+def _sine(k: float, periods: int) -> Callable[[np.random.Generator], Program]:
+    def program(rng: np.random.Generator) -> Program:
+        f = reduced_frequency_hz(k)
+        n_on = int(round(periods / f * FS_HZ))
+        t = np.arange(n_on) / FS_HZ
+        env = np.concatenate([np.zeros(TARE_SAMPLES),
+                              SINE_CMU_MEAN - SINE_CMU_AMPLITUDE * np.cos(2.0 * math.pi * f * t)])
+        return env, burst_gate(len(env), OPTIMAL_PERIOD_SAMPLES, TARE_SAMPLES)
+    return program
+
+
+def _random(rng: np.random.Generator) -> Program:
+    n_on = int(58.0 * FS_HZ)
+    settle = int(4.0 * FS_HZ)
+    b, a = signal.butter(2, 1.0, fs=FS_HZ)
+    x = signal.lfilter(b, a, rng.standard_normal(n_on + settle))[settle:]
+    x = (x - x.mean()) / x.std()
+    env = np.concatenate([np.zeros(TARE_SAMPLES), np.clip(0.011 + 0.0055 * x, 0.0005, 0.0215)])
+    return env, burst_gate(len(env), OPTIMAL_PERIOD_SAMPLES, TARE_SAMPLES)
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    description: str
+    program: Callable[[np.random.Generator], Program]
+
+
+EXPERIMENTS: Mapping[str, Experiment] = MappingProxyType({
+    e.name: e for e in (
+        Experiment("static", "slow sweep of the 8 Hz burst amplitude up and down", _static),
+        Experiment("single_burst", "isolated bursts at Cμ 0.0022, 12 t⁺ apart", _single_burst),
+        Experiment("train_T1p75", "10 bursts at 60 V every 1.75 t⁺, three times",
+                   _train(1.75)),
+        Experiment("train_T3p5", "10 bursts at 60 V every 3.5 t⁺, three times", _train(3.5)),
+        Experiment("train_T7", "10 bursts at 60 V every 7 t⁺, three times", _train(7.0)),
+        Experiment("sine_k0125", "sinusoidal envelope, k = 0.125", _sine(0.125, 20)),
+        Experiment("sine_k025", "sinusoidal envelope, k = 0.25", _sine(0.25, 40)),
+        Experiment("random", "band-limited random envelope", _random),
+    )
+})
+
+
+@dataclass
+class BenchRun:
+    """What the bench produced, sample by sample at ``fs_hz`` (DESIGN.md "Simulated bench")."""
+
+    t: np.ndarray
+    volts: np.ndarray
+    envelope_volts: np.ndarray
+    cmu: np.ndarray
+    cmu_envelope: np.ndarray
+    dcl_true: np.ndarray
+    counts: np.ndarray
+    status: np.ndarray
+    meta: dict[str, str] = field(default_factory=dict)
+    calibration: Calibration = field(default_factory=Calibration)
+    fs_hz: float = FS_HZ
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def to_record(self, name: str | None = None) -> Record:
+        """The record the host would write: ΔCL from the counts with the calibration, tared."""
+        cal = self.calibration
+        cl = np.asarray(cal.cl_from_ft(cal.ft_from_counts(self.counts)))
+        tare = cal.tare_cl if cal.tare_cl is not None else cal.tare_from(cl, self.volts, self.fs_hz)
+        cmu = np.asarray(cal.cmu_from_volts(self.volts), dtype=float)
+        env = np.asarray(cal.cmu_from_volts(self.envelope_volts), dtype=float)
+        extra = {"volts": self.volts.copy(), "envelope_volts": self.envelope_volts.copy(),
+                 "dcl_true": self.dcl_true.copy()}
+        return Record(self.t.copy(), cmu, env, cl - tare, dict(self.meta), extra,
+                      name or self.meta.get("experiment", "bench"))
+
+
+class Bench:
+    """Actuator chain → truth plant → sensor chain, streaming over chunks with its state."""
+
+    def __init__(self, seed: int, effects: Sequence[Effect], calibration: Calibration,
+                 plant: PlantParams | None = None, sensor: SensorParams | None = None) -> None:
+        self.calibration = calibration
+        self.fs_hz = FS_HZ
+        streams = np.random.SeedSequence(seed).spawn(2 + len(effects))
+        self.sensor_rng = np.random.Generator(np.random.PCG64(streams[0]))
+        aero_rng = np.random.Generator(np.random.PCG64(streams[1]))
+        params = plant or PlantParams()
+        for e in effects:
+            if e.name == "hysteresis":
+                params = params.with_hysteresis(params.hysteresis + e.params["magnitude"])
+        self.plant = TruthPlant(params, self.fs_hz)
+        self.sensor = sensor or SensorParams()
+        self.aero_noise = AeroNoise(self.sensor, aero_rng, self.fs_hz)
+        self.stages: dict[str, list] = {"actuator": [], "force": [], "offset": []}
+        for e, s in zip(effects, streams[2:], strict=True):
+            if e.stage in self.stages:
+                self.stages[e.stage].append(
+                    processor(e, self.fs_hz, np.random.Generator(np.random.PCG64(s))))
+
+    def process(self, t: np.ndarray, env_cmu: np.ndarray, gate: np.ndarray,
+                meta: dict[str, str]) -> BenchRun:
+        act = actuate(env_cmu, gate, self.calibration)
+        delivered = act.cmu
+        for stage in self.stages["actuator"]:
+            delivered = stage.process(delivered)
+        out = self.plant.process(delivered, act.cmu_envelope)
+        dcl_true = out["dcl"]
+        coeffs = coefficients(dcl_true, self.aero_noise.process(out["attached"]), self.sensor)
+        for stage in self.stages["force"]:
+            coeffs = stage.process(coeffs)
+        for stage in self.stages["offset"]:
+            coeffs[:, 0] += stage.process(t)
+        counts, saturated = transducer(coeffs, self.calibration, self.sensor, self.sensor_rng)
+        status = (np.where(act.envelope_volts > 0, STATUS_ACTUATOR_ENABLED, 0)
+                  | np.where(saturated, STATUS_ADC_SATURATED, 0)
+                  | np.where(act.burst, STATUS_BURST_ON, 0)).astype(np.uint8)
+        return BenchRun(t, act.volts, act.envelope_volts, act.cmu, act.cmu_envelope, dcl_true,
+                        counts, status, dict(meta), self.calibration, self.fs_hz)
+
+
+def _setup(name: str, seed: int, effects: Iterable[Effect | str],
+           calibration: Calibration | None) -> tuple[Program, Bench, dict[str, str]]:
+    if name not in EXPERIMENTS:
+        raise UserError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise UserError(f"seed must be a non-negative integer, got {seed!r}")
+    effs = [as_effect(e) for e in effects]
+    cal = calibration or Calibration()
+    program_rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), 1])))
+    program = EXPERIMENTS[name].program(program_rng)
+    meta = {"experiment": name, "fs_hz": f"{FS_HZ:g}", "seed": str(int(seed)),
+            "effects": "; ".join(e.spec() for e in effs) or "none",
+            "source": "hil_sim truth plant (docs/BENCH.md)",
+            "t_conv_s": f"{T_CONV_S:.6f}", "burst_samples": str(BURST_SAMPLES)}
+    return program, Bench(int(seed), effs, cal), meta
+
+
+def run_experiment(name: str, seed: int = 0, effects: Iterable[Effect | str] = (),
+                   calibration: Calibration | None = None) -> BenchRun:
+    """One experiment of the standard campaign on the simulated bench."""
+    (env, gate), bench, meta = _setup(name, seed, effects, calibration)
+    t = np.arange(len(env)) / FS_HZ
+    return bench.process(t, env, gate, meta)
+
+
+def daq_stream(name: str, seed: int = 0, effects: Iterable[Effect | str] = (),
+               calibration: Calibration | None = None,
+               chunk_s: float = 1.0) -> Iterator[BenchRun]:
+    """One-second chunks forever: the experiment's program repeated, plant state continuing."""
+    (env, gate), bench, meta = _setup(name, seed, effects, calibration)
+    n = len(env)
+    chunk = max(1, int(round(chunk_s * FS_HZ)))
+    start = 0
+    while True:
+        k = np.arange(start, start + chunk)
+        idx = k % n
+        yield bench.process(k / FS_HZ, env[idx], gate[idx], meta)
+        start += chunk
+
+
+def write_bench_record(run: BenchRun, path: str | os.PathLike) -> None:
+    """Write ``run.to_record()`` as a record CSV; :class:`UserError` if the path is unwritable."""
+    from rtlift.records import write_record
+
+    try:
+        write_record(path, run.to_record())
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write record ({exc.strerror or exc})") from None
