@@ -1,0 +1,118 @@
+"""Link faults the device emulators inject, seeded and counted exactly.
+
+One decision per wire frame (a serial packet, or one CAN frame): with probabilities
+``corrupt``, ``drop`` and ``duplicate`` (exclusive), the frame is corrupted, not sent, or sent
+twice; independently, with probability ``garbage``, a burst of junk precedes it.
+``disconnect_after_s`` closes the device (the pseudo-terminal) after that much streaming.
+Only samples with index in ``[start, stop)`` are eligible, so a test can keep a clean tail.
+
+Spec strings (``--fault``): ``corrupt:rate=1e-3``, ``drop:rate=0.01``, ``duplicate:rate=0.01``,
+``garbage:rate=0.01``, ``disconnect:after_s=5``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, fields, replace
+
+from rtlift.errors import UserError
+
+RATE_FAULTS = ("corrupt", "drop", "duplicate", "garbage")
+
+
+class FaultSpecError(UserError):
+    """A ``--fault`` spec that cannot be parsed."""
+
+
+@dataclass(frozen=True)
+class FaultPlan:
+    """Per-frame fault probabilities and an optional disconnect time (s of streaming)."""
+
+    corrupt: float = 0.0
+    drop: float = 0.0
+    duplicate: float = 0.0
+    garbage: float = 0.0
+    disconnect_after_s: float | None = None
+    start: int = 0
+    stop: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in RATE_FAULTS:
+            rate = getattr(self, name)
+            if not 0.0 <= rate <= 1.0:
+                raise FaultSpecError(f"fault {name}: rate must be in [0, 1], got {rate}")
+        if self.corrupt + self.drop + self.duplicate > 1.0:
+            raise FaultSpecError("faults: corrupt + drop + duplicate rates exceed 1")
+        if self.disconnect_after_s is not None and self.disconnect_after_s < 0:
+            raise FaultSpecError(f"fault disconnect: after_s must be >= 0, got {self.disconnect_after_s}")
+
+    @property
+    def any(self) -> bool:
+        return any(getattr(self, name) > 0 for name in RATE_FAULTS) or self.disconnect_after_s is not None
+
+    def eligible(self, index: int) -> bool:
+        return index >= self.start and (self.stop is None or index < self.stop)
+
+
+def parse_fault(spec: str, plan: FaultPlan | None = None) -> FaultPlan:
+    """Add one ``NAME:k=v`` spec to ``plan`` (default: no faults)."""
+    plan = plan or FaultPlan()
+    name, _, rest = spec.strip().partition(":")
+    params: dict[str, float] = {}
+    for item in filter(None, (p.strip() for p in rest.split(","))):
+        key, eq, value = item.partition("=")
+        try:
+            if not eq:
+                raise ValueError
+            params[key.strip()] = float(value)
+        except ValueError:
+            raise FaultSpecError(f"fault {spec!r}: expected NAME:k=v[,k=v...]") from None
+    if name in RATE_FAULTS:
+        wanted = "rate"
+        field_name = name
+    elif name == "disconnect":
+        wanted = "after_s"
+        field_name = "disconnect_after_s"
+    else:
+        known = ", ".join((*RATE_FAULTS, "disconnect"))
+        raise FaultSpecError(f"unknown fault {name!r} (known: {known})")
+    if set(params) != {wanted}:
+        raise FaultSpecError(f"fault {name}: give exactly {wanted}=VALUE, got {spec!r}")
+    return replace(plan, **{field_name: params[wanted]})
+
+
+def parse_faults(specs: Iterable[str]) -> FaultPlan:
+    """A plan from several ``--fault`` specs (later ones override earlier ones of a kind)."""
+    plan = FaultPlan()
+    for spec in specs:
+        plan = parse_fault(spec, plan)
+    return plan
+
+
+@dataclass
+class DeviceStats:
+    """What an emulator did, exactly (the oracle of the link counters in tests).
+
+    ``frames_*`` count wire frames: serial packets, or single CAN frames.
+    ``samples_lost`` are samples with a frame dropped or corrupted; ``samples_delivered``
+    those whose frames all went out intact. ``garbage_chunks`` (serial) is the number of
+    invalid packets the garbage bursts make; ``invalid_runs`` (serial) the runs of
+    consecutive invalid packets on the wire (each is one resync for the host).
+    """
+
+    samples: int = 0
+    samples_delivered: int = 0
+    samples_lost: int = 0
+    frames_sent: int = 0
+    frames_dropped: int = 0
+    frames_corrupted: int = 0
+    frames_duplicated: int = 0
+    garbage_bursts: int = 0
+    garbage_chunks: int = 0
+    invalid_runs: int = 0
+    events_sent: int = 0
+    bytes_sent: int = 0
+    disconnected: bool = False
+
+    def as_dict(self) -> dict[str, int | bool]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -1,0 +1,109 @@
+"""The DAQ firmware's serial side (PROTOCOL.md, "Serial link") on a pseudo-terminal.
+
+Every period it sends one COBS sample packet (seq u16 from ``first_seq``, t_us = 2500 µs
+per sample). Streaming begins with one 0x00, as firmware does after reset, so the first
+packet is delimited on both sides. Faults per packet (see :mod:`.faults`): a corrupted
+packet has one COBS data byte replaced by another non-zero value (the decoded body differs
+in exactly one byte, which the CRC-16 always detects); garbage is 1–32 random bytes
+followed by 0x00, inserted before a packet.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from firmware_io.serial_codec import encode_event, encode_sample
+from hil_sim.devices.faults import FaultPlan
+from hil_sim.devices.pty_device import FS_HZ, PtyDevice
+from hil_sim.devices.source import serial_wire, wire_samples
+
+
+def cobs_data_positions(frame: bytes) -> list[int]:
+    """Indices of the data bytes (not COBS code bytes, not the final 0x00) of a frame."""
+    end = len(frame) - 1 if frame.endswith(b"\x00") else len(frame)
+    codes = set()
+    pos = 0
+    while pos < end:
+        codes.add(pos)
+        pos += frame[pos]
+    return [i for i in range(end) if i not in codes]
+
+
+def invalid_chunks(data: bytes) -> int:
+    """Non-empty runs between 0x00 bytes in ``data`` (which ends with 0x00)."""
+    return sum(1 for part in data.split(b"\x00")[:-1] if part)
+
+
+class SerialDaq(PtyDevice):
+    """Emulated serial DAQ: ``SerialDaq(chunks).start()``, then open ``.path`` with pyserial."""
+
+    def __init__(self, chunks: Iterable[object], *, fs_hz: float = FS_HZ, faults: FaultPlan | None = None,
+                 seed: int = 0, max_samples: int | None = None, keep_sent: bool = False,
+                 first_seq: int = 0, period_us: int | None = None) -> None:
+        super().__init__(wire_samples(chunks, serial_wire), fs_hz=fs_hz, faults=faults, seed=seed,
+                         max_samples=max_samples, keep_sent=keep_sent)
+        self.first_seq = first_seq
+        self.period_us = period_us if period_us is not None else int(round(1e6 / fs_hz))
+        self._started = False
+        self._in_error = False
+        self._events: list[str] = []
+
+    def send_event(self, text: str) -> None:
+        """Queue a firmware event packet (kind 2); it goes out before the next sample."""
+        self._events.append(text)
+
+    def _packet(self, data: bytes, valid: bool) -> None:
+        self.write(data)
+        if valid:
+            self._in_error = False
+        elif not self._in_error:
+            self._in_error = True
+            self.stats.invalid_runs += 1
+
+    def _emit(self, index: int, sample: tuple[int, int, int, tuple[int, ...]]) -> None:
+        st = self.stats
+        if not self._started:
+            self._started = True
+            self.write(b"\x00")
+        while self._events:
+            self._packet(encode_event(self._events.pop(0)), True)
+            st.events_sent += 1
+        volt_cv, envelope_cv, status, counts = sample
+        seq = (self.first_seq + index) & 0xFFFF
+        t_us = (index * self.period_us) & 0xFFFFFFFF
+        frame = encode_sample(seq, t_us, volt_cv, counts, status, envelope_cv)
+        fault, garbage = self._fault(index)
+        if garbage:
+            n = int(self.rng.integers(1, 33))
+            junk = bytes(self.rng.integers(0, 256, n, dtype=int).tolist()) + b"\x00"
+            chunks = invalid_chunks(junk)
+            st.garbage_bursts += 1
+            st.garbage_chunks += chunks
+            if chunks:
+                self._packet(junk, False)
+            else:
+                self.write(junk)
+        if fault == "drop":
+            st.frames_dropped += 1
+            st.samples_lost += 1
+            return
+        if fault == "corrupt":
+            positions = cobs_data_positions(frame)
+            pos = positions[int(self.rng.integers(len(positions)))]
+            old = frame[pos]
+            new = int(self.rng.integers(1, 255))
+            new = new if new < old else new + 1  # uniform over the 254 non-zero values != old
+            frame = frame[:pos] + bytes((new,)) + frame[pos + 1:]
+            self._packet(frame, False)
+            st.frames_corrupted += 1
+            st.samples_lost += 1
+            return
+        self._packet(frame, True)
+        st.frames_sent += 1
+        st.samples_delivered += 1
+        if self.sent is not None:
+            self.sent.append((seq, t_us, volt_cv, envelope_cv, counts, status))
+        if fault == "duplicate":
+            self._packet(frame, True)
+            st.frames_sent += 1
+            st.frames_duplicated += 1
