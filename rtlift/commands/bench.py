@@ -1,0 +1,55 @@
+"""``rtlift bench``: the simulated bench — record one experiment, or serve the DAQ device."""
+
+from __future__ import annotations
+
+import argparse
+
+from rtlift.errors import UserError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    bench = subparsers.add_parser("bench", help="the simulated wind-tunnel bench (hil_sim)")
+    sub = bench.add_subparsers(dest="bench_command", metavar="ACTION")
+    sub.required = True
+
+    rec = sub.add_parser("record", help="write one experiment of the standard campaign as a record CSV")
+    rec.add_argument("experiment", metavar="EXPERIMENT",
+                     help="static, single_burst, train_T1p75, train_T3p5, train_T7, "
+                          "sine_k0125, sine_k025 or random")
+    rec.add_argument("--out", required=True, metavar="FILE.csv", help="record file to write")
+    _common(rec)
+    rec.set_defaults(func=_record)
+
+    serve = sub.add_parser("serve", help="run the simulated DAQ device on a new pseudo-terminal")
+    link = serve.add_mutually_exclusive_group(required=True)
+    link.add_argument("--serial", action="store_true", help="serial DAQ (COBS packets)")
+    link.add_argument("--slcan", action="store_true", help="SLCAN CAN adapter")
+    _common(serve)
+    serve.set_defaults(func=_serve)
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--effect", action="append", default=[], metavar="NAME[:k=v,...]",
+                        help="inject an effect the model is not told about (repeatable)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+
+
+def _record(args: argparse.Namespace) -> int:
+    from hil_sim.effects import parse_effect
+    from hil_sim.experiments import EXPERIMENTS, run_experiment, write_bench_record
+
+    if args.experiment not in EXPERIMENTS:
+        raise UserError(f"unknown experiment {args.experiment!r} (known: {', '.join(EXPERIMENTS)})")
+    effects = [parse_effect(spec) for spec in args.effect]
+    run = run_experiment(args.experiment, seed=args.seed, effects=effects)
+    write_bench_record(run, args.out)
+    names = ", ".join(e.spec() for e in effects) or "none"
+    print(f"{args.experiment}: {len(run)} samples ({len(run) / run.fs_hz:.1f} s at "
+          f"{run.fs_hz:g} Hz), seed {args.seed}, effects {names} -> {args.out}")
+    return 0
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from hil_sim.serve import serve_main
+
+    return serve_main(args)
