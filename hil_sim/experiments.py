@@ -3,7 +3,7 @@
 Every experiment starts with ``TARE_S`` = 2 s actuator-off for the tare. Programs (envelope
 as Cμ, burst gate):
 
-- ``static``: bursts at 8 Hz, envelope ramped 0 → 0.022 in 25 s, held 2 s, back to 0 in 25 s
+- ``static``: bursts at 8 Hz, envelope ramped 0 → 0.022 in 40 s, held 2 s, back to 0 in 40 s
   (slow against the ≈ 1 s reattachment, so the branches coincide);
 - ``single_burst``: 12 isolated bursts at Cμ 0.0022 (60 V), 12 t⁺ apart (phase averaging);
 - ``train_T1p75`` / ``train_T3p5`` / ``train_T7``: 10 bursts at 60 V every T, three times,
@@ -13,7 +13,7 @@ as Cμ, burst gate):
 - ``random``: band-limited random envelope (Gaussian noise through a 2nd-order 1 Hz
   Butterworth low-pass, mean 0.011, σ 0.0055, clipped to [0.0005, 0.0215]), 58 s, 8 Hz.
 
-The whole campaign is ≈ 263 s of data.
+The whole campaign is ≈ 293 s of data.
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ from rtlift.records import Record
 
 TARE_S = 2.0
 TARE_SAMPLES = int(TARE_S * FS_HZ)
+STATIC_RAMP_S = 40.0
 SINE_CMU_MEAN = 0.011
 SINE_CMU_AMPLITUDE = 0.010
 TRAIN_BURSTS = 10
@@ -72,7 +73,7 @@ def reduced_frequency_hz(k: float, chord_m: float = 0.245, u_inf: float = U_INF_
 
 
 def _static(rng: np.random.Generator) -> Program:
-    up = int(25.0 * FS_HZ)
+    up = int(STATIC_RAMP_S * FS_HZ)
     hold = int(2.0 * FS_HZ)
     ramp = np.linspace(0.0, CMU_MAX, up + 1)
     env = np.concatenate([np.zeros(TARE_SAMPLES), ramp, np.full(hold, CMU_MAX), ramp[::-1],
