@@ -1,0 +1,104 @@
+"""Recursive high-pass filter HF of the hybrid model (eq. 11's first term).
+
+A cascade of second-order sections, each in transposed direct form II with the exact
+recurrences of ``scipy.signal.sosfilt`` (section s, a₀ = 1):
+
+    y(k)  = b₀ x(k) + z₀(k−1)
+    z₀(k) = b₁ x(k) − a₁ y(k) + z₁(k−1)
+    z₁(k) = b₂ x(k) − a₂ y(k)
+
+so the state ``z`` (n_sections × 2) is sosfilt's ``zi`` and chunks can be handed to sosfilt
+and back. Sections rather than one transfer function: a single (b, a) polynomial of
+order ≥ 3 at a cutoff near 1 Hz at 400 Hz has poles within 1e-2 of z = 1 and amplifies its
+own rounding by ~1e5 at DC; the cascade does not. Designed once as a Butterworth high-pass
+(``scipy.signal.butter(..., output="sos")``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+
+class HighPassFilter:
+    """Streaming SOS filter with sosfilt-compatible state; :meth:`design` makes a Butterworth HPF."""
+
+    def __init__(self, sos: np.ndarray, *, order: int | None = None, cutoff_hz: float | None = None) -> None:
+        sos = np.atleast_2d(np.asarray(sos, dtype=float))
+        if sos.ndim != 2 or sos.shape[1] != 6 or sos.shape[0] == 0:
+            raise ValueError(f"filter sections must have shape (n, 6), got {sos.shape}")
+        if not np.all(np.isfinite(sos)):
+            raise ValueError("filter coefficients must be finite")
+        if np.any(sos[:, 3] == 0):
+            raise ValueError("every filter section needs a non-zero a0")
+        sos = sos / sos[:, 3:4]
+        for sec in sos:
+            if np.any(sec[4:]) and np.max(np.abs(np.roots(sec[3:]))) >= 1.0:
+                raise ValueError("high-pass filter is unstable (a pole on or outside the unit circle)")
+        self.sos = sos
+        poles = sum(2 if sec[5] != 0 else 1 if sec[4] != 0 else 0 for sec in sos)
+        self.order = order if order is not None else int(poles)
+        self.cutoff_hz = cutoff_hz
+        self._sec = [tuple(float(v) for v in (s[0], s[1], s[2], s[4], s[5])) for s in sos]
+        self._z = [[0.0, 0.0] for _ in sos]
+
+    @classmethod
+    def design(cls, order: int, cutoff_hz: float, fs_hz: float) -> HighPassFilter:
+        """Butterworth high-pass of ``order`` with −3 dB at ``cutoff_hz``."""
+        if order < 1:
+            raise ValueError("high-pass order must be at least 1")
+        if not 0 < cutoff_hz < fs_hz / 2:
+            raise ValueError(f"cutoff {cutoff_hz} Hz must lie between 0 and fs/2 = {fs_hz / 2} Hz")
+        sos = signal.butter(order, cutoff_hz, btype="highpass", fs=fs_hz, output="sos")
+        return cls(sos, order=order, cutoff_hz=cutoff_hz)
+
+    @classmethod
+    def from_ba(cls, b: np.ndarray, a: np.ndarray, **kw) -> HighPassFilter:
+        """From a transfer function (converted to sections once)."""
+        return cls(signal.tf2sos(b, a), **kw)
+
+    @property
+    def ba(self) -> tuple[np.ndarray, np.ndarray]:
+        """The equivalent single transfer function (for reports; not used to filter)."""
+        return signal.sos2tf(self.sos)
+
+    @property
+    def state_size(self) -> int:
+        return 2 * len(self._sec)
+
+    def step(self, x: float) -> float:
+        for (b0, b1, b2, a1, a2), z in zip(self._sec, self._z):  # noqa: B905 - equal by construction
+            y = b0 * x + z[0]
+            z[0] = b1 * x - a1 * y + z[1]
+            z[1] = b2 * x - a2 * y
+            x = y
+        return x
+
+    def simulate(self, x: np.ndarray) -> np.ndarray:
+        """Batch twin: ``sosfilt(sos, x, zi=state)``; advances the state."""
+        x = np.asarray(x, dtype=float)
+        if x.size == 0:
+            return x.copy()
+        y, zf = signal.sosfilt(self.sos, x, zi=np.asarray(self._z))
+        for z, v in zip(self._z, zf):  # noqa: B905
+            z[0], z[1] = float(v[0]), float(v[1])
+        return y
+
+    def reset(self) -> None:
+        for z in self._z:
+            z[0] = z[1] = 0.0
+
+    def get_state(self) -> np.ndarray:
+        return np.array(self._z, dtype=float).ravel()
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (self.state_size,):
+            raise ValueError(f"filter state must have shape ({self.state_size},), got {s.shape}")
+        for i, z in enumerate(self._z):
+            z[0], z[1] = float(s[2 * i]), float(s[2 * i + 1])
+
+    def frequency_response(self, freqs_hz: np.ndarray, fs_hz: float) -> np.ndarray:
+        """Complex gain at ``freqs_hz`` (for reports)."""
+        _, h = signal.sosfreqz(self.sos, worN=np.asarray(freqs_hz, dtype=float), fs=fs_hz)
+        return h

@@ -1,0 +1,150 @@
+"""Discrete LTI state update in the paper's timing (eqs. 4–5 as printed in eq. SS):
+
+    x(k) = A x(k−1) + B u(k),    y(k) = C x(k)
+
+The input enters at time k, so y(k) has a direct path C B u(k). In the standard
+``x⁺ = A x + B u, y = C x + D u`` form used by python-control this is the realisation
+(A, B, C A, C B) on the state z(k) = x(k−1); :func:`to_statespace` returns it.
+
+The batch twin is vectorised and carries exactly the state of the per-sample recursion. In
+the paper's controllable canonical form (A's first row −a₁ … −aₙ, ones on the subdiagonal,
+B = b₀e₁) the first state is an all-pole filter of the input,
+``x₁(k) = b₀ u(k) − Σ aᵢ x₁(k−i)``, and ``xᵢ(k) = x₁(k−i+1)``: one ``lfilter`` call. Any
+other (A, B) is processed in blocks of M samples with the block Toeplitz matrix of Markov
+parameters (``X_block = Φ x₀ + G u_block``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+_BLOCK = 128
+
+
+def spectral_radius(A: np.ndarray) -> float:
+    """max |λ(A)|: the LTI is asymptotically stable iff this is < 1."""
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    return float(np.max(np.abs(np.linalg.eigvals(A)))) if A.size else 0.0
+
+
+def to_statespace(A: np.ndarray, B: np.ndarray, C: np.ndarray, dt: float):
+    """python-control ``StateSpace`` equal to x(k) = A x(k−1) + B u(k), y(k) = C x(k)."""
+    import control
+
+    A = np.atleast_2d(A)
+    B = np.asarray(B, dtype=float).reshape(-1, 1)
+    C = np.asarray(C, dtype=float).reshape(1, -1)
+    return control.ss(A, B, C @ A, C @ B, dt)
+
+
+class LTIBlock:
+    """Streaming single-input, single-output state update with an exact batch twin."""
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> None:
+        A = np.atleast_2d(np.asarray(A, dtype=float))
+        n = A.shape[0]
+        B = np.asarray(B, dtype=float).ravel()
+        C = np.asarray(C, dtype=float).ravel()
+        if A.shape != (n, n) or B.shape != (n,) or C.shape != (n,) or n == 0:
+            raise ValueError(f"LTI shapes do not agree: A {A.shape}, B {B.shape}, C {C.shape}")
+        if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B)) and np.all(np.isfinite(C))):
+            raise ValueError("LTI matrices must be finite")
+        self.A, self.B, self.C = A.copy(), B.copy(), C.copy()
+        self.n = n
+        self._A = [[float(v) for v in row] for row in A]
+        self._B = [float(v) for v in B]
+        self._C = [float(v) for v in C]
+        self._x = [0.0] * n
+        self._tmp = [0.0] * n
+        self._blocks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        shift = np.zeros((n, n))
+        shift[1:, :-1] = np.eye(n - 1)
+        self.canonical = bool(np.array_equal(A[1:], shift[1:]) and np.all(B[1:] == 0))
+        self._den = np.concatenate([[1.0], -A[0]])
+
+    @property
+    def state_size(self) -> int:
+        return self.n
+
+    def step(self, u: float) -> float:
+        """x(k) = A x(k−1) + B u(k); returns y(k) = C x(k)."""
+        A, B, x, t, n = self._A, self._B, self._x, self._tmp, self.n
+        for i in range(n):
+            row = A[i]
+            s = B[i] * u
+            for j in range(n):
+                s += row[j] * x[j]
+            t[i] = s
+        y = 0.0
+        C = self._C
+        for i in range(n):
+            x[i] = t[i]
+            y += C[i] * t[i]
+        return y
+
+    def _block_matrices(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Φ (m, n, n) = [A¹ … A^m] and G (m, n, m) with G[i, :, j] = A^{i−j} B (j ≤ i)."""
+        if m not in self._blocks:
+            n = self.n
+            powers = np.empty((m + 1, n, n))
+            powers[0] = np.eye(n)
+            for i in range(1, m + 1):
+                powers[i] = self.A @ powers[i - 1]
+            markov = powers[:m] @ self.B                      # (m, n): A^i B
+            G = np.zeros((m, n, m))
+            for i in range(m):
+                G[i, :, : i + 1] = markov[i::-1].T
+            self._blocks[m] = (powers[1:], G)
+        return self._blocks[m]
+
+    def simulate_states(self, u: np.ndarray) -> np.ndarray:
+        """States x(k) for every sample of ``u`` (N, n); advances the current state."""
+        u = np.asarray(u, dtype=float)
+        N = u.size
+        if self.canonical and N:
+            return self._simulate_canonical(u)
+        X = np.empty((N, self.n))
+        x0 = np.array(self._x)
+        for start in range(0, N, _BLOCK):
+            ub = u[start:start + _BLOCK]
+            m = ub.size
+            Phi, G = self._block_matrices(_BLOCK)
+            X[start:start + m] = Phi[:m] @ x0 + G[:m, :, :m] @ ub
+            x0 = X[start + m - 1]
+        if N:
+            self._x[:] = [float(v) for v in X[-1]]
+        return X
+
+    def _simulate_canonical(self, u: np.ndarray) -> np.ndarray:
+        n = self.n
+        past = np.array(self._x)                              # x₁(k−1), x₁(k−2), … x₁(k−n)
+        zi = signal.lfiltic([self._B[0]], self._den, past)
+        x1, _ = signal.lfilter([self._B[0]], self._den, u, zi=zi)
+        ext = np.concatenate([past[::-1][1:], x1])            # x₁(k−n+1) … x₁(k+N−1)
+        X = np.lib.stride_tricks.sliding_window_view(ext, n)[:, ::-1]
+        self._x[:] = [float(v) for v in X[-1]]
+        return X
+
+    def simulate(self, u: np.ndarray) -> np.ndarray:
+        """Batch twin of :meth:`step`: y(k) for every sample of ``u``."""
+        return self.simulate_states(u) @ self.C
+
+    def reset(self) -> None:
+        self._x[:] = [0.0] * self.n
+
+    def get_state(self) -> np.ndarray:
+        return np.array(self._x, dtype=float)
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (self.n,):
+            raise ValueError(f"LTI state must have shape ({self.n},), got {s.shape}")
+        self._x[:] = [float(v) for v in s]
+
+    def dc_gain(self) -> float:
+        """y/u in steady state: C (I − A)⁻¹ B (inf for an integrator)."""
+        try:
+            return float(self.C @ np.linalg.solve(np.eye(self.n) - self.A, self.B))
+        except np.linalg.LinAlgError:
+            return float("inf")

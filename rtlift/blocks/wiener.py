@@ -1,0 +1,203 @@
+"""Wiener block: LTI dynamics followed by a static nonlinearity (paper eqs. 4–6).
+
+    x(k) = A x(k−1) + B Cμ(k),   y(k) = C x(k),   ΔCL_L(k) = N(Cμ(k)) · y(k)
+
+``N(Cμ) = ΔCL/Cμ`` from the static map is a lookup table (:class:`InputGain`, the paper's
+form: a gain scheduled on the *input*). The textbook Wiener form ``ΔCL_L = f(y)`` is
+:class:`OutputNonlinearity`. Both are linear interpolants with the same formula in the
+streaming and batch paths (that of ``numpy.interp``), so the two agree to rounding.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from typing import Any
+
+import numpy as np
+
+from rtlift.blocks.lti import LTIBlock
+
+
+def _check_table(x: np.ndarray, f: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+    x = np.asarray(x, dtype=float).ravel()
+    f = np.asarray(f, dtype=float).ravel()
+    if x.size < 2 or x.size != f.size:
+        raise ValueError(f"{what} table needs two or more points and equal lengths")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(f))):
+        raise ValueError(f"{what} table must be finite")
+    if np.any(np.diff(x) <= 0):
+        raise ValueError(f"{what} table grid must be strictly increasing")
+    return x, f
+
+
+class _Table:
+    """Piecewise-linear ``f(x)`` on a grid; ``extrapolate`` continues the end segments,
+    otherwise the end values are held (numpy.interp's behaviour)."""
+
+    def __init__(self, x: np.ndarray, f: np.ndarray, extrapolate: bool) -> None:
+        self.x, self.f = x, f
+        self.extrapolate = extrapolate
+        self._x = [float(v) for v in x]
+        self._f = [float(v) for v in f]
+        self._slope = [float(v) for v in np.diff(f) / np.diff(x)]
+        self._last = len(self._x) - 1
+
+    def __call__(self, v: float) -> float:
+        xs = self._x
+        j = bisect_right(xs, v) - 1
+        if j < 0:
+            return self._slope[0] * (v - xs[0]) + self._f[0] if self.extrapolate else self._f[0]
+        if j >= self._last:
+            if v == xs[-1] or not self.extrapolate:
+                return self._f[-1]
+            return self._slope[-1] * (v - xs[-1]) + self._f[-1]
+        return self._slope[j] * (v - xs[j]) + self._f[j]
+
+    def batch(self, v: np.ndarray) -> np.ndarray:
+        v = np.asarray(v, dtype=float)
+        if not self.extrapolate:
+            return np.interp(v, self.x, self.f)            # the same formula, compiled
+        j = np.clip(np.searchsorted(self.x, v, side="right") - 1, 0, self._last - 1)
+        slope = np.asarray(self._slope)[j]
+        out = slope * (v - self.x[j]) + self.f[j]
+        below, above = v < self.x[0], v >= self.x[-1]
+        if self.extrapolate:
+            out[above] = slope[above] * (v[above] - self.x[-1]) + self.f[-1]
+            out[v == self.x[-1]] = self.f[-1]
+        else:
+            out[below] = self.f[0]
+            out[above] = self.f[-1]
+        return out
+
+
+class InputGain:
+    """N(Cμ)·y — the paper's gain scheduled on the input (eq. 6), N from a (Cμ, N) table.
+
+    Outside the table N is held at its end values: below the first point N is the static
+    map's limit slope, beyond the last the map continues along its last chord.
+    """
+
+    form = "input_gain"
+
+    def __init__(self, cmu: np.ndarray, gain: np.ndarray) -> None:
+        self.cmu, self.gain = _check_table(cmu, gain, "N(Cmu)")
+        self._n = _Table(self.cmu, self.gain, extrapolate=False)
+
+    state_size = 0
+
+    def step(self, cmu: float, y: float) -> float:
+        return self._n(cmu) * y
+
+    def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return self._n.batch(cmu) * np.asarray(y, dtype=float)
+
+    def gain_at(self, cmu: float) -> float:
+        """N(Cμ) (the observer's time-varying measurement gain)."""
+        return self._n(cmu)
+
+    def reset(self) -> None:
+        pass
+
+    def get_state(self) -> np.ndarray:
+        return np.empty(0)
+
+    def set_state(self, state: np.ndarray) -> None:
+        if np.asarray(state).size:
+            raise ValueError("InputGain has no state")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"form": self.form, "cmu": self.cmu.tolist(), "gain": self.gain.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> InputGain:
+        return cls(d["cmu"], d["gain"])
+
+
+class OutputNonlinearity:
+    """f(y) — the textbook Wiener output nonlinearity, a (y, f) table, linear beyond its ends."""
+
+    form = "output"
+
+    def __init__(self, y: np.ndarray, f: np.ndarray) -> None:
+        self.y, self.f = _check_table(y, f, "f(y)")
+        self._f = _Table(self.y, self.f, extrapolate=True)
+
+    state_size = 0
+
+    def step(self, cmu: float, y: float) -> float:
+        return self._f(y)
+
+    def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return self._f.batch(y)
+
+    def slope_at(self, y: float) -> float:
+        """df/dy at y (for an extended Kalman observer)."""
+        j = min(max(bisect_right(self._f._x, y) - 1, 0), self._f._last - 1)
+        return self._f._slope[j]
+
+    def reset(self) -> None:
+        pass
+
+    def get_state(self) -> np.ndarray:
+        return np.empty(0)
+
+    def set_state(self, state: np.ndarray) -> None:
+        if np.asarray(state).size:
+            raise ValueError("OutputNonlinearity has no state")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"form": self.form, "y": self.y.tolist(), "f": self.f.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> OutputNonlinearity:
+        return cls(d["y"], d["f"])
+
+
+NONLINEARITIES: dict[str, Any] = {InputGain.form: InputGain, OutputNonlinearity.form: OutputNonlinearity}
+
+
+class WienerBlock:
+    """x(k) = A x(k−1) + B Cμ(k), y(k) = C x(k), ΔCL_L(k) = nl(Cμ(k), y(k))."""
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, nonlinearity: Any) -> None:
+        self.lti = LTIBlock(A, B, C)
+        self.nonlinearity = nonlinearity
+        self.y = 0.0
+
+    A = property(lambda self: self.lti.A)
+    B = property(lambda self: self.lti.B)
+    C = property(lambda self: self.lti.C)
+
+    @property
+    def state_size(self) -> int:
+        return self.lti.state_size + self.nonlinearity.state_size
+
+    def step(self, cmu: float) -> float:
+        y = self.lti.step(cmu)
+        self.y = y
+        return self.nonlinearity.step(cmu, y)
+
+    def simulate(self, cmu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Batch twin: (ΔCL_L, y) over ``cmu``; advances the state."""
+        cmu = np.asarray(cmu, dtype=float)
+        y = self.lti.simulate(cmu)
+        if y.size:
+            self.y = float(y[-1])
+        return self.nonlinearity.simulate(cmu, y), y
+
+    def reset(self) -> None:
+        self.lti.reset()
+        self.nonlinearity.reset()
+        self.y = 0.0
+
+    def get_state(self) -> np.ndarray:
+        return np.concatenate([self.lti.get_state(), self.nonlinearity.get_state()])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        n = self.lti.state_size
+        if s.shape != (self.state_size,):
+            raise ValueError(f"Wiener state must have shape ({self.state_size},), got {s.shape}")
+        self.lti.set_state(s[:n])
+        self.nonlinearity.set_state(s[n:])
+        self.y = float(self.lti.C @ s[:n])
