@@ -24,6 +24,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     link = serve.add_mutually_exclusive_group(required=True)
     link.add_argument("--serial", action="store_true", help="serial DAQ (COBS packets)")
     link.add_argument("--slcan", action="store_true", help="SLCAN CAN adapter")
+    serve.add_argument("--experiment", default="random", metavar="NAME",
+                       help="experiment program the DAQ streams, repeated (default random)")
+    serve.add_argument("--fault", action="append", default=[], metavar="NAME:k=v",
+                       help="link fault: corrupt|drop|duplicate|garbage:rate=R or disconnect:after_s=S")
     _common(serve)
     serve.set_defaults(func=_serve)
 

@@ -1,0 +1,66 @@
+"""``rtlift bench serve --serial | --slcan [--experiment NAME] [--effect SPEC]... [--fault SPEC]...
+[--seed N]``: run the simulated DAQ on a new pseudo-terminal, print its path (one line,
+flushed), stream at 400 Hz until SIGINT or SIGTERM.
+
+``--serial`` emulates the DAQ's serial link (open the path with ``--serial PATH``);
+``--slcan`` emulates a USB–CAN adapter with the DAQ behind it (``--can slcan:PATH``).
+Effects are plant effects (``hil_sim.effects.parse_effect``); faults are link faults
+(:mod:`hil_sim.devices.faults`, e.g. ``corrupt:rate=1e-3``, ``disconnect:after_s=30``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from hil_sim.devices import SerialDaq, SlcanAdapter, parse_faults
+from rtlift.errors import UserError
+
+DEFAULT_EXPERIMENT = "random"
+
+
+def serve_main(args: argparse.Namespace) -> int:
+    """Run the emulator until SIGINT/SIGTERM; 0 on a clean stop, 1 if the device failed."""
+    from hil_sim.effects import parse_effect
+    from hil_sim.experiments import EXPERIMENTS, daq_stream
+
+    experiment = getattr(args, "experiment", None) or DEFAULT_EXPERIMENT
+    if experiment not in EXPERIMENTS:
+        raise UserError(f"unknown experiment {experiment!r} (known: {', '.join(EXPERIMENTS)})")
+    effects = [parse_effect(spec) for spec in (getattr(args, "effect", None) or [])]
+    faults = parse_faults(getattr(args, "fault", None) or [])
+    seed = int(getattr(args, "seed", 0) or 0)
+    chunks = daq_stream(experiment, seed=seed, effects=effects)
+    if getattr(args, "slcan", False):
+        device = SlcanAdapter(chunks, faults=faults, seed=seed)
+        how = "slcan"
+    elif getattr(args, "serial", False):
+        device = SerialDaq(chunks, faults=faults, seed=seed)
+        how = "serial"
+    else:
+        raise UserError("bench serve: give --serial or --slcan")
+
+    stop = threading.Event()
+
+    def _stop(signum: int, frame: object) -> None:
+        stop.set()
+
+    previous = {sig: signal.signal(sig, _stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with device:
+            print(device.path, flush=True)
+            print(f"rtlift bench serve: {how} DAQ on {device.path}, experiment {experiment}, "
+                  "400 Hz; Ctrl-C stops", file=sys.stderr, flush=True)
+            while not stop.is_set() and not device.finished.is_set():
+                stop.wait(0.2)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    stats = " ".join(f"{k}={v}" for k, v in device.stats.as_dict().items())
+    print(f"rtlift bench serve: stopped: {stats}", file=sys.stderr, flush=True)
+    if device.error is not None:
+        print(f"rtlift bench serve: device failed: {device.error}", file=sys.stderr)
+        return 1
+    return 0
