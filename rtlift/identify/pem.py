@@ -189,6 +189,7 @@ class PEMResult:
     n_params: int
     aic: float                         # N ln σ̂² + 2 d
     uncertainty: dict = field(default_factory=dict)
+    extra_coef: np.ndarray | None = None   # β of the extra linear regressors
     nfev: int = 0
     message: str = ""
 
@@ -226,8 +227,9 @@ class _Problem:
     gain: np.ndarray | None
     table: tuple[np.ndarray, np.ndarray] | None
     degree: int
-    mask: np.ndarray                  # samples in the cost
+    mask: slice                       # samples in the cost (skip:)
     r_max: float
+    extra: np.ndarray | None = None   # (N, m) regressors entering linearly: ẑ += extra β
 
     @property
     def n_theta(self) -> int:
@@ -245,31 +247,91 @@ class _Problem:
             ct = np.concatenate([[1.0 - np.sum(ct)], ct])
         return a, a1 * ct
 
-    def solve(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-        """(residual on mask, a, c, p) with the linear parameters eliminated."""
+    def solve(self, theta: np.ndarray):
+        """(residual on mask, a, c, p, β) with the linear parameters eliminated.
+
+        For ``input_gain`` the regressors are N(u)·Δⁱx₁ (i-th backward differences of
+        x₁ = u / A(q), a well-conditioned basis of the same span as x₁(k−i)); c follows by
+        the binomial transform."""
         a, c = self.unpack(theta)
         den = np.concatenate([[1.0], a])
         n = self.order
+        z = self.z[self.mask]
         if self.form == "input_gain":
-            x1 = signal.lfilter([1.0], den, self.u)
-            X = np.empty((self.u.size, n))
+            d = signal.lfilter([1.0], den, self.u)
+            Phi = self._buffer()
+            g = self.gain[self.mask]
             for i in range(n):
-                X[i:, i] = x1[: x1.size - i]
-                X[:i, i] = 0.0
-            Phi = (self.gain[:, None] * X)[self.mask]
-            c, *_ = np.linalg.lstsq(Phi, self.z[self.mask], rcond=None)
-            return self.z[self.mask] - Phi @ c, a, c, None
-        y = signal.lfilter(c, den, self.u)
-        if self.form == "output_map":
-            return self.z[self.mask] - _interp_extrap(y[self.mask], *self.table), a, c, None
-        ym = y[self.mask]
-        Phi = np.vander(ym, self.degree + 1, increasing=True)
-        p, *_ = np.linalg.lstsq(Phi, self.z[self.mask], rcond=None)
-        return self.z[self.mask] - Phi @ p, a, c, p
+                if i:                                   # Δ with x₁ = 0 before the record
+                    d = np.concatenate(([d[0]], np.diff(d)))
+                np.multiply(g, d[self.mask], out=Phi[:, i])
+            k = n
+            coef = _linear_ls(Phi, z)
+            r = z - Phi @ coef
+            beta = coef[k:] if self.extra is not None else None
+            return r, a, _binomial(n) @ coef[:k], None, beta
+        else:
+            y = signal.lfilter(c, den, self.u)
+            if self.form == "output_map":
+                z = z - _interp_extrap(y[self.mask], *self.table)
+                Phi = np.empty((z.size, 0))
+            else:
+                Phi = np.vander(y[self.mask], self.degree + 1, increasing=True)
+        k = Phi.shape[1]
+        if self.extra is not None:
+            Phi = np.hstack([Phi, self.extra[self.mask]])
+        if Phi.shape[1] == 0:
+            return z, a, c, None, None
+        coef = _linear_ls(Phi, z)
+        r = z - Phi @ coef
+        beta = coef[k:] if self.extra is not None else None
+        if self.form == "input_gain":
+            return r, a, _binomial(n) @ coef[:k], None, beta
+        return r, a, c, (coef[:k] if self.form == "output_poly" else None), beta
 
-    def full_residual(self, a: np.ndarray, c: np.ndarray, p: np.ndarray | None) -> np.ndarray:
+    def _buffer(self) -> np.ndarray:
+        """Preallocated regressor matrix [N(u)Δⁱx₁ … | extra] (Fortran order, reused)."""
+        if getattr(self, "_phi", None) is None:
+            m = 0 if self.extra is None else self.extra.shape[1]
+            buf = np.empty((self.z[self.mask].size, self.order + m), order="F")
+            if m:
+                buf[:, self.order:] = self.extra[self.mask]
+            self._phi = buf
+        return self._phi
+
+    def full_residual(self, a, c, p, beta) -> np.ndarray:
         y = signal.lfilter(c, np.concatenate([[1.0], a]), self.u)
-        return self.z[self.mask] - _static(self.form, self.u, y, self.gain, self.table, p)[self.mask]
+        zhat = _static(self.form, self.u, y, self.gain, self.table, p)[self.mask]
+        if beta is not None:
+            zhat = zhat + self.extra[self.mask] @ beta
+        return self.z[self.mask] - zhat
+
+
+def _binomial(n: int) -> np.ndarray:
+    """M with c = M·γ when Σ γᵢ Δⁱx(k) = Σ c_j x(k−j): M[j, i] = (−1)ʲ C(i, j)."""
+    M = np.zeros((n, n))
+    for i in range(n):
+        row = np.array([1.0])
+        for _ in range(i):
+            row = np.convolve(row, [1.0, -1.0])
+        M[: i + 1, i] = row
+    return M
+
+
+def _linear_ls(Phi: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """argmin ‖z − Φγ‖ by column-scaled normal equations (Φ tall and thin), with an SVD
+    fallback when they are ill-conditioned."""
+    G = Phi.T @ Phi
+    s = np.sqrt(np.diag(G))
+    s[s == 0] = 1.0
+    Gs = G / np.outer(s, s)
+    try:
+        coef = np.linalg.solve(Gs, (Phi.T @ z) / s) / s
+        if np.all(np.isfinite(coef)) and np.min(np.linalg.eigvalsh(Gs)) > 1e-10:
+            return coef
+    except np.linalg.LinAlgError:
+        pass
+    return np.linalg.lstsq(Phi, z, rcond=None)[0]
 
 
 def _arx_poles(u: np.ndarray, y: np.ndarray, order: int) -> np.ndarray:
@@ -332,13 +394,16 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
                fs_hz: float = 1.0, gain: np.ndarray | None = None,
                table: tuple[np.ndarray, np.ndarray] | None = None, degree: int = 3,
                skip: int = 0, theta0: np.ndarray | None = None, n_starts: int = 2,
-               max_nfev: int = 400, r_max: float = R_MAX) -> PEMResult:
+               max_nfev: int = 400, r_max: float = R_MAX,
+               extra: np.ndarray | None = None) -> PEMResult:
     """Identify the Wiener model ẑ = static(u, y), y = G(q) u by output-error PEM.
 
     ``u``: the Wiener input (the envelope Cμ); ``z``: its target output (for the hybrid,
     ΔCL − HF(convolution)); ``gain`` = N(u(k)) for ``input_gain``; ``table`` = (y grid, f)
     for ``output_map``; ``degree`` of the polynomial for ``output_poly``; ``skip`` leading
-    samples are simulated but left out of the cost (unknown initial state). ``theta0`` warm
+    samples are simulated but left out of the cost (unknown initial state). ``extra`` (N×m)
+    are further regressors entering linearly, ẑ += extra·β (for the hybrid: the high-passed
+    convolution, whose scale β refines φ). ``theta0`` warm
     starts (e.g. from a neighbouring candidate); otherwise the best ``n_starts`` of the ARX
     and bandwidth-grid starts are refined and the best result is kept.
     """
@@ -352,10 +417,11 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
         raise ValueError("input_gain needs gain = N(u) with the length of u")
     if form == "output_map" and table is None:
         raise ValueError("output_map needs table = (y grid, f)")
-    mask = np.zeros(u.size, dtype=bool)
-    mask[skip:] = True
+    mask = slice(skip, None)
+    if extra is not None:
+        extra = np.asarray(extra, dtype=float).reshape(u.size, -1)
     prob = _Problem(u, z, order, form, None if gain is None else np.asarray(gain, float),
-                    table, degree, mask, r_max)
+                    table, degree, mask, r_max, extra)
     if theta0 is not None:
         starts = [np.asarray(theta0, dtype=float)]
     else:
@@ -379,15 +445,16 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
                                      xtol=1e-10, ftol=1e-10)
         if best is None or sol.cost < best.cost:
             best = sol
-    r, a, c, p = prob.solve(best.x)
-    N = int(mask.sum())
-    d = order + order + (0 if p is None else p.size) - (form == "output_poly")
+    r, a, c, p, beta = prob.solve(best.x)
+    N = u.size - skip
+    d = (order + order + (0 if p is None else p.size) - (form == "output_poly")
+         + (0 if beta is None else beta.size))
     rss = float(np.sum(r**2))
     sigma2 = rss / max(N - d, 1)
-    unc = _uncertainty(prob, a, c, p, sigma2, fs_hz)
+    unc = _uncertainty(prob, a, c, p, beta, sigma2, fs_hz)
     return PEMResult(CanonicalLTI(a, c), form, p, best.x, float(np.sqrt(rss / N)),
                      float(np.std(r)), N, d, float(N * np.log(max(rss / N, 1e-300)) + 2 * d),
-                     unc, int(best.nfev), str(best.message))
+                     unc, extra_coef=beta, nfev=int(best.nfev), message=str(best.message))
 
 
 def _jacobian(f: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarray:
@@ -403,19 +470,18 @@ def _jacobian(f: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarra
     return J
 
 
-def _uncertainty(prob: _Problem, a, c, p, sigma2: float, fs_hz: float) -> dict:
-    """Standard deviations from P = σ̂² (JᵀJ)⁻¹ over the physical parameters (a, c[, p])
+def _uncertainty(prob: _Problem, a, c, p, beta, sigma2: float, fs_hz: float) -> dict:
+    """Standard deviations from P = σ̂² (JᵀJ)⁻¹ over the physical parameters (a, c[, p, β])
     and by the delta method for the poles and the DC gain (Ljung eq. 9.17, 9.51)."""
     n = a.size
-    parts = [a, c] + ([p] if p is not None else [])
+    npoly = 0 if p is None else p.size
+    parts = [a, c] + ([p] if p is not None else []) + ([beta] if beta is not None else [])
     x = np.concatenate(parts)
 
-    def split(v):
-        return v[:n], v[n:2 * n], (v[2 * n:] if p is not None else None)
-
     def res(v):
-        aa, cc, pp = split(v)
-        return prob.full_residual(aa, cc, pp)
+        pp = v[2 * n:2 * n + npoly] if p is not None else None
+        bb = v[2 * n + npoly:] if beta is not None else None
+        return prob.full_residual(v[:n], v[n:2 * n], pp, bb)
 
     J = _jacobian(res, x)
     JtJ = J.T @ J
@@ -459,7 +525,9 @@ def _uncertainty(prob: _Problem, a, c, p, sigma2: float, fs_hz: float) -> dict:
         "note": "asymptotic (white-residual) covariance; coloured residuals make it optimistic",
     }
     if p is not None:
-        out["poly_std"] = std[2 * n:].tolist()
+        out["poly_std"] = std[2 * n:2 * n + npoly].tolist()
+    if beta is not None:
+        out["extra_coef_std"] = std[2 * n + npoly:].tolist()
     return out
 
 
