@@ -3,7 +3,12 @@
 Eq. 11:  ΔCL = HF(φ Σ h(j) Cμ(k−j)) + W(Cμ_env(k)).  For each Butterworth candidate
 (order, cutoff between the control and the burst frequency) the Wiener part is fitted by
 output-error PEM to z = ΔCL − HF(conv) on the estimation part of the training record, and the
-candidate is scored by the RMSE of the whole hybrid on the held-out part. The filter is
+candidate is scored by the RMSE of the whole hybrid on the held-out part. Only candidates
+that actually remove the control signal from the convolution are admitted — the paper's
+reason for HF — i.e. |HF(f_c)| ≤ ``stop_gain`` (−20 dB) at the control frequency f_c of the
+training envelope (the frequency below which 95 % of its variance lies): a filter that lets
+the slow part of the over-predicting convolution through fits the training frequency well
+and transfers badly to other control frequencies. The filter is
 causal (``sosfilt``: what runs in real time). The zero-phase twin (``sosfiltfilt``) of the
 chosen filter is scored the same way as an offline reference only.
 """
@@ -29,11 +34,35 @@ class HighPassChoice:
     table: list[dict]
     pem: PEMResult                 # the Wiener fit of the chosen candidate (estimation part)
 
+    control_hz: float = 0.0
+
     def to_dict(self) -> dict:
         return {"order": self.order, "cutoff_hz": self.cutoff_hz,
+                "control_frequency_hz": self.control_hz,
                 "holdout_rmse": self.holdout_rmse,
                 "zero_phase_holdout_rmse_offline_reference": self.zero_phase_holdout_rmse,
-                "candidates": self.table, "criterion": "held-out RMSE of the hybrid, causal HPF"}
+                "candidates": self.table,
+                "criterion": "held-out RMSE of the hybrid, causal HPF, among the filters with "
+                             "|HF| <= -20 dB at the control frequency"}
+
+
+def control_frequency(env: np.ndarray, fs_hz: float, fraction: float = 0.95) -> float:
+    """f_c: the frequency below which ``fraction`` of the (mean-removed) envelope's
+    variance lies (periodogram)."""
+    x = np.asarray(env, dtype=float) - np.mean(env)
+    p = np.abs(np.fft.rfft(x)) ** 2
+    p[0] = 0.0
+    c = np.cumsum(p)
+    if c[-1] <= 0:
+        return 0.0
+    f = np.fft.rfftfreq(x.size, 1.0 / fs_hz)
+    return float(f[np.searchsorted(c, fraction * c[-1])])
+
+
+def highpass_gain(order: int, cutoff_hz: float, f_hz: float, fs_hz: float) -> float:
+    """|HF(e^{jωT})| at ``f_hz``."""
+    _, h = signal.sosfreqz(butter_highpass(order, cutoff_hz, fs_hz), worN=[f_hz], fs=fs_hz)
+    return float(np.abs(h[0]))
 
 
 def butter_highpass(order: int, cutoff_hz: float, fs_hz: float) -> np.ndarray:
@@ -65,26 +94,29 @@ def choose_highpass(conv: np.ndarray, dcl: np.ndarray, env: np.ndarray, fs_hz: f
                     table=None, form: str = "input_gain", skip: int = 0,
                     orders: tuple[int, ...] = (1, 2, 3, 4),
                     cutoffs_hz: tuple[float, ...] = (0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 5.5),
-                    refine_phi: bool = False) -> HighPassChoice:
-    """Grid search over (order, cutoff): min over candidates of RMSE(ΔCL − ĤΔCL) on
-    samples ``n_est:`` (see module docstring). ``conv`` = φ Σ h(j) Cμ(k−j) over the record."""
+                    refine_phi: bool = False, stop_gain: float = 0.1) -> HighPassChoice:
+    """Grid search over (order, cutoff): min over the admitted candidates of
+    RMSE(ΔCL − ĤΔCL) on samples ``n_est:`` (see module docstring).
+    ``conv`` = φ Σ h(j) Cμ(k−j) over the record."""
     val = slice(n_est, dcl.size)
     table_rows = []
     best = None
     theta = None
-    for fc in cutoffs_hz:
-        for order in orders:
-            high = signal.sosfilt(butter_highpass(order, fc, fs_hz), conv)
-            res, dhat = wiener_fit_for_highpass(high, dcl, env, n_est, wiener_order, fs_hz, gain,
-                                                table, form, skip, theta, refine_phi)
-            theta = res.theta
-            err = float(np.sqrt(np.mean((dcl[val] - dhat[val]) ** 2)))
-            table_rows.append({"order": order, "cutoff_hz": fc, "holdout_rmse": err})
-            if best is None or err < best[0]:
-                best = (err, order, fc, res)
+    f_c = control_frequency(env[:n_est], fs_hz)
+    grid = [(fc, order) for fc in cutoffs_hz for order in orders]
+    admitted = [g for g in grid if highpass_gain(g[1], g[0], f_c, fs_hz) <= stop_gain]
+    for fc, order in admitted or grid:
+        high = signal.sosfilt(butter_highpass(order, fc, fs_hz), conv)
+        res, dhat = wiener_fit_for_highpass(high, dcl, env, n_est, wiener_order, fs_hz, gain,
+                                            table, form, skip, theta, refine_phi)
+        theta = res.theta
+        err = float(np.sqrt(np.mean((dcl[val] - dhat[val]) ** 2)))
+        table_rows.append({"order": order, "cutoff_hz": fc, "holdout_rmse": err})
+        if best is None or err < best[0]:
+            best = (err, order, fc, res)
     err, order, fc, res = best
     high_zp = signal.sosfiltfilt(butter_highpass(order, fc, fs_hz), conv)
     _, dhat_zp = wiener_fit_for_highpass(high_zp, dcl, env, n_est, wiener_order, fs_hz, gain,
                                          table, form, skip, res.theta, refine_phi)
     err_zp = float(np.sqrt(np.mean((dcl[val] - dhat_zp[val]) ** 2)))
-    return HighPassChoice(order, fc, err, err_zp, table_rows, res)
+    return HighPassChoice(order, fc, err, err_zp, table_rows, res, f_c)

@@ -1,0 +1,60 @@
+"""``rtlift validate``: a model against records — ρ, NRMSE, RMSE per record (INTERFACES.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+from rtlift.errors import UserError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "validate", help="score a model file on records (corr, NRMSE, RMSE)",
+        description="Run the model open loop over each record and compare with the measured "
+                    "dCL: the paper's correlation coefficient, NRMSE and RMSE.")
+    p.add_argument("--model", required=True, metavar="MODEL.json", help="model file")
+    p.add_argument("records", nargs="+", metavar="RECORD.csv", help="record files")
+    p.add_argument("--json", metavar="OUT.json", help="write the scores as JSON")
+    p.add_argument("--figures", metavar="DIR", help="write one figure per record into DIR")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from rtlift.modelfile import load_model
+    from rtlift.records import read_record
+    from rtlift.validation import plot_validation, validate_record, validation_json
+
+    model = load_model(args.model)
+    records = [read_record(path) for path in args.records]
+    stems = [r.name for r in records]
+    dup = {s for s in stems if stems.count(s) > 1}
+    if dup:
+        raise UserError(f"two records share the stem {sorted(dup)[0]!r}; the JSON is keyed by stem")
+    for r in records:
+        if abs(r.fs_hz - model.fs_hz) > 1e-6 * model.fs_hz:
+            raise UserError(f"{r.name}: sampled at {r.fs_hz:g} Hz, the model at {model.fs_hz:g} Hz")
+    results = [validate_record(model, r) for r in records]
+    if args.figures:
+        try:
+            os.makedirs(args.figures, exist_ok=True)
+        except OSError as exc:
+            raise UserError(f"{args.figures}: cannot create figure directory ({exc.strerror})") from None
+        for rec, res in zip(records, results, strict=True):
+            plot_validation(rec, res, os.path.join(args.figures, f"{rec.name}.png"))
+    doc = validation_json(args.model, results)
+    if args.json:
+        try:
+            with open(args.json, "w", encoding="utf-8") as f:
+                json.dump(doc, f, indent=1, allow_nan=True)
+                f.write("\n")
+        except OSError as exc:
+            raise UserError(f"{args.json}: cannot write ({exc.strerror})") from None
+    width = max(len(s) for s in stems)
+    print(f"model {args.model}: {len(results)} record(s)")
+    print(f"  {'record':<{width}}  {'corr':>7}  {'NRMSE':>7}  {'RMSE':>9}")
+    for res in results:
+        s = res.scores
+        print(f"  {res.name:<{width}}  {s['corr']:7.4f}  {s['nrmse']:7.4f}  {s['rmse']:9.5f}")
+    return 0

@@ -1,0 +1,85 @@
+"""Validation of a model on records: the paper's protocol and metrics, and figures.
+
+Per record the model is run open loop from rest over the whole record (the same
+``HybridModel.simulate`` a controller's prediction uses) and scored against the measured
+ΔCL with ρ (the paper's correlation coefficient), NRMSE = RMSE/σ(ΔCL) and RMSE
+(:func:`rtlift.metrics.scores`). The JSON layout is INTERFACES.md's:
+``{"version": 1, "model": path, "records": {stem: {"corr", "nrmse", "rmse"}}}``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from rtlift.hybrid import HybridModel, HybridOutput
+from rtlift.metrics import scores
+from rtlift.records import Record
+
+VALIDATE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class RecordValidation:
+    """One record's scores and the model's output (total, high, low)."""
+
+    name: str
+    scores: dict[str, float]
+    output: HybridOutput
+
+
+def simulate_record(model: HybridModel, record: Record) -> HybridOutput:
+    """Open-loop model output over ``record`` from rest; the model is left reset."""
+    model.reset()
+    out = model.simulate(record.cmu, record.cmu_envelope)
+    model.reset()
+    return out
+
+
+def validate_record(model: HybridModel, record: Record) -> RecordValidation:
+    """ρ, NRMSE and RMSE of the model's ΔCL against the record's measured ΔCL."""
+    out = simulate_record(model, record)
+    return RecordValidation(record.name, scores(record.dcl, out.total), out)
+
+
+def validation_json(model_path: str, results: list[RecordValidation]) -> dict:
+    """The validate JSON of INTERFACES.md."""
+    return {"version": VALIDATE_VERSION, "model": str(model_path),
+            "records": {r.name: {k: float(r.scores[k]) for k in ("corr", "nrmse", "rmse")}
+                        for r in results}}
+
+
+def plot_validation(record: Record, result: RecordValidation, path: str | os.PathLike,
+                    title: str | None = None) -> None:
+    """Figure: measured vs model ΔCL (top), the two parts of the hybrid (middle: ΔCL_H the
+    high-passed convolution, ΔCL_L the Wiener part) and the envelope Cμ (bottom)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = record.t - record.t[0]
+    out = result.output
+    s = result.scores
+    fig, ax = plt.subplots(3, 1, figsize=(10, 7), sharex=True,
+                           gridspec_kw={"height_ratios": [3, 2, 1]})
+    ax[0].plot(t, record.dcl, color="tab:blue", lw=0.6, label="measured ΔCL")
+    ax[0].plot(t, out.total, color="tab:red", lw=0.9, label="hybrid model")
+    ax[0].set_ylabel("ΔCL")
+    ax[0].legend(loc="upper right", fontsize=8)
+    ax[0].set_title(title or f"{record.name}: ρ = {s['corr']:.4f}, NRMSE = {s['nrmse']:.3f}, "
+                             f"RMSE = {s['rmse']:.4f}", fontsize=10)
+    ax[1].plot(t, out.low, color="tab:green", lw=0.9, label="Wiener part ΔCL_L")
+    ax[1].plot(t, out.high, color="tab:purple", lw=0.6, label="high-passed convolution ΔCL_H")
+    ax[1].axhline(0.0, color="0.6", lw=0.5)
+    ax[1].set_ylabel("parts")
+    ax[1].legend(loc="upper right", fontsize=8)
+    ax[2].plot(t, record.cmu_envelope, color="0.3", lw=0.8)
+    ax[2].set_ylabel("Cμ envelope")
+    ax[2].set_xlabel("t (s)")
+    for a in ax:
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
