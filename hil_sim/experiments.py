@@ -75,7 +75,7 @@ def reduced_frequency_hz(k: float, chord_m: float = 0.245, u_inf: float = U_INF_
 def _static(rng: np.random.Generator) -> Program:
     up = int(STATIC_RAMP_S * FS_HZ)
     hold = int(2.0 * FS_HZ)
-    ramp = np.linspace(0.0, CMU_MAX, up + 1)
+    ramp = np.linspace(0.0, CMU_MAX, up + 1)[1:]  # no zero-amplitude burst at the ends
     env = np.concatenate([np.zeros(TARE_SAMPLES), ramp, np.full(hold, CMU_MAX), ramp[::-1],
                           np.zeros(TARE_SAMPLES)])
     return env, burst_gate(len(env), OPTIMAL_PERIOD_SAMPLES, TARE_SAMPLES)

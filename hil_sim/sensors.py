@@ -82,10 +82,10 @@ class AeroNoise:
     def process(self, attached: np.ndarray) -> np.ndarray:
         p = self.params
         n = len(attached)
-        w = self.rng.standard_normal((2, n))
-        buffet, self._zi = signal.lfilter(self._b, self._a, w[0], zi=self._zi)
+        w = self.rng.standard_normal((n, 2))  # sample-major: chunking does not change the draws
+        buffet, self._zi = signal.lfilter(self._b, self._a, w[:, 0], zi=self._zi)
         level = p.buffet_sigma * (1.0 - p.buffet_attached_reduction * np.asarray(attached))
-        return level * buffet + p.turbulence_sigma * w[1]
+        return level * buffet + p.turbulence_sigma * w[:, 1]
 
 
 def coefficients(dcl: np.ndarray, aero_noise: np.ndarray, params: SensorParams) -> np.ndarray:
@@ -108,8 +108,9 @@ def transducer(coeffs: np.ndarray, calibration: Calibration, params: SensorParam
     ft[:, 0] = cal.sign_fx * qa * (-cl * math.sin(alpha) + cd * math.cos(alpha))
     ft[:, 2] = cal.sign_fz * qa * (cl * math.cos(alpha) + cd * math.sin(alpha))
     ft[:, 4] = qa * cal.chord_m * cm
-    ft[:, :3] += params.electrical_sigma * qa * rng.standard_normal((n, 3))
-    ft[:, 3:] += params.electrical_sigma * qa * cal.chord_m * 0.1 * rng.standard_normal((n, 3))
+    w = rng.standard_normal((n, 6))  # sample-major: chunking does not change the draws
+    ft[:, :3] += params.electrical_sigma * qa * w[:, :3]
+    ft[:, 3:] += params.electrical_sigma * qa * cal.chord_m * 0.1 * w[:, 3:]
     ft[:, :3] = np.round(ft[:, :3] / params.resolution_n) * params.resolution_n
     ft[:, 3:] = np.round(ft[:, 3:] / params.resolution_nm) * params.resolution_nm
     limits = np.array([*params.range_n, params.range_nm, params.range_nm, params.range_nm])
