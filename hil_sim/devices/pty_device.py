@@ -49,7 +49,8 @@ class PtyDevice(ABC):
         self.path = os.ttyname(self._slave)
         self._stop = threading.Event()
         self.finished = threading.Event()
-        """Set when the device stops streaming (source exhausted, max_samples, disconnect, stop)."""
+        """Set when the device stops streaming (source exhausted, max_samples, disconnect, stop);
+        until ``stop()`` it still answers what the host writes."""
         self._thread: threading.Thread | None = None
         self._fd_lock = threading.Lock()
         self.error: BaseException | None = None
@@ -105,11 +106,14 @@ class PtyDevice(ABC):
         try:
             while not self._stop.is_set():
                 now = time.perf_counter()
-                wait = max(0.0, deadline - now)
                 master = self._master
                 if master is None:
                     break
-                readable, _, _ = select.select([master], [], [], wait)
+                if self.finished.is_set():  # done streaming: still answer the host until stop()
+                    if select.select([master], [], [], 0.05)[0]:
+                        self._serve_input()
+                    continue
+                readable, _, _ = select.select([master], [], [], max(0.0, deadline - now))
                 if readable:
                     self._serve_input()
                     continue
@@ -123,11 +127,13 @@ class PtyDevice(ABC):
                     self.disconnect()
                     break
                 if self.max_samples is not None and index >= self.max_samples:
-                    break
+                    self.finished.set()
+                    continue
                 try:
                     sample = next(self._samples)
                 except StopIteration:
-                    break
+                    self.finished.set()
+                    continue
                 self.stats.samples += 1
                 self._emit(index, sample)
                 deadline += period
