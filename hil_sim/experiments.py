@@ -5,7 +5,7 @@ as Cμ, burst gate):
 
 - ``static``: bursts at 8 Hz, envelope ramped 0 → 0.022 in 40 s, held 2 s, back to 0 in 40 s
   (slow against the ≈ 1 s reattachment, so the branches coincide);
-- ``single_burst``: 12 isolated bursts at Cμ 0.0022 (60 V), 12 t⁺ apart (phase averaging);
+- ``single_burst``: 20 isolated bursts at Cμ 0.0022 (60 V), 12 t⁺ apart (phase averaging);
 - ``train_T1p75`` / ``train_T3p5`` / ``train_T7``: 10 bursts at 60 V every T, three times,
   with 15 t⁺ rests;
 - ``sine_k0125`` / ``sine_k025``: envelope ``0.011 − 0.010 cos(2π f t)``, k = π f c / U∞,
@@ -13,7 +13,7 @@ as Cμ, burst gate):
 - ``random``: band-limited random envelope (Gaussian noise through a 2nd-order 1 Hz
   Butterworth low-pass, mean 0.011, σ 0.0055, clipped to [0.0005, 0.0215]), 58 s, 8 Hz.
 
-The whole campaign is ≈ 293 s of data.
+The whole campaign is ≈ 301 s of data.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ SINE_CMU_AMPLITUDE = 0.010
 TRAIN_BURSTS = 10
 TRAIN_REPEATS = 3
 TRAIN_REST_TPLUS = 15.0
-SINGLE_BURSTS = 12
+SINGLE_BURSTS = 20
 SINGLE_SPACING_TPLUS = 12.0
 
 Program = tuple[np.ndarray, np.ndarray]
