@@ -4,7 +4,12 @@ real ``slcan`` driver. The emulators' exact statistics are the oracle of the lin
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -15,6 +20,7 @@ from hil_sim.experiments import daq_stream
 pytestmark = pytest.mark.pty
 
 FS = 400
+REPO = Path(__file__).resolve().parents[1]
 
 
 def serial_config(dev):
@@ -156,3 +162,34 @@ def test_a_silent_device_is_noticed_by_the_timed_iteration():
             if s is None:
                 break
         assert len(seen) == 41 and seen[-1] is None and not link.disconnected
+
+
+def serve(*args):
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.Popen([sys.executable, "-m", "rtlift", "bench", "serve", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+
+
+@pytest.mark.parametrize("how,config", [("--serial", lambda p: {"kind": "serial", "port": p}),
+                                        ("--slcan", lambda p: {"kind": "can", "interface": "slcan", "channel": p})],
+                         ids=["serial", "slcan"])
+def test_bench_serve_prints_the_pty_path_streams_and_stops_on_sigterm(how, config):
+    proc = serve(how, "--experiment", "static", "--fault", "drop:rate=0.05", "--seed", "7")
+    try:
+        path = proc.stdout.readline().strip()
+        with open_link(config(path)) as link:
+            got = read_all(link, 200)
+            counters = link.counters.as_dict()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=10)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert len(got) == 200 and counters["lost"] > 0 and counters["crc_errors"] == 0
+    assert "stopped: samples=" in err and "Traceback" not in err
+
+
+def test_bench_serve_rejects_a_bad_fault_spec_in_one_line():
+    proc = serve("--serial", "--fault", "meteor:rate=1")
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 2 and err.count("\n") == 1 and "unknown fault 'meteor'" in err
