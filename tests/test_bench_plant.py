@@ -95,9 +95,9 @@ def test_static_map_is_concave_and_saturating(records):
     up, _ = static_branches(records["static"], grid)
     slopes = np.diff(up) / np.diff(grid)
     assert np.all(slopes > 0)
-    assert slopes[0] > 1.8 * slopes[-1]  # measured ≈ 2.3
+    assert slopes[:2].mean() > 1.5 * slopes[-2:].mean()  # measured ≈ 1.8
     half = np.interp(0.011, grid, up)
-    assert 0.57 < half / up[-1] < 0.72  # a straight line would give 0.52
+    assert 0.57 < half / up[-1] < 0.70  # measured ≈ 0.62; a straight line through 0 gives 0.52
 
 
 def test_static_sweep_has_no_hysteresis(records):
