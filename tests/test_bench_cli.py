@@ -55,6 +55,7 @@ def test_serve_needs_exactly_one_of_serial_or_slcan():
     parser = build_parser()
     args = parser.parse_args(["bench", "serve", "--slcan", "--effect", "delay", "--seed", "3"])
     assert args.slcan and not args.serial and args.effect == ["delay"] and args.seed == 3
+    assert args.experiment == "random" and args.fault == []
     for argv in (["bench", "serve"], ["bench", "serve", "--serial", "--slcan"]):
         with pytest.raises(SystemExit) as info:
             parser.parse_args(argv)

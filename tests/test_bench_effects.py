@@ -190,3 +190,10 @@ def test_effects_compose(baseline):
     lags = np.arange(0, 41)
     xc = [np.dot(a[:len(a) - 40] - a.mean(), b[k:len(b) - 40 + k] - b.mean()) for k in lags]
     assert lags[int(np.argmax(xc))] == 20
+
+
+@pytest.mark.parametrize("name", sorted(EFFECTS))
+def test_every_effect_at_its_default_changes_the_record_beyond_the_noise(baseline, name):
+    base = baseline["random"]
+    rec = with_effect("random", name)
+    assert np.std(rec.dcl - base.dcl) > 0.004  # the bench noise σ is ≈ 0.004
