@@ -6,13 +6,43 @@ model's ΔCL to what the balance reports, ``ΔCL → ΔCL′`` (a sensor mode, a
 Every stage is a streaming block (``step``, batch twin ``simulate``, explicit state) and is
 named and parametrised as in INTERFACES.md, so a model file can list it and
 :data:`STAGES` can rebuild it with ``from_params(params, fs_hz)``.
+
+Catalog (``name``: equation; k = 0 is the first sample after ``reset()``, t_k = k / fs):
+
+- ``delay`` (input): Cμ′(k) = Cμ(k − D), D = round(seconds · fs).
+- ``actuator_fade`` (input): g(k) = f + (1 − f) exp(−E(k)/τ), Cμ′ = g Cμ, Cμ_env′ = g Cμ_env,
+  E(k) the burst on-time (s) accumulated *before* sample k (E += 1/fs while Cμ(k) > 0).
+- ``sensor_resonance`` (output, kind "filter"): the unity-DC-gain mode
+  ω²/(s² + 2ζωs + ω²), bilinear with pre-warping at ω (as on the bench).
+- ``zero_drift`` (output, kind "additive"): d(k) = offset + rate · t_k, or
+  d(k) = offset + amplitude (1 − exp(−t_k/τ)); ``offset`` is the tare's share of the drift.
+- ``periodic_disturbance`` (output, kind "additive"): d(k) = A sin(2π f t_k + φ).
+
+The static-gain effects live in the Wiener nonlinearity instead (they need Cμ(k) and y(k)
+together): ``hysteresis`` is :class:`rtlift.blocks.wiener.HysteresisGain`,
+``output_nonlinearity`` is :class:`rtlift.blocks.wiener.OutputNonlinearity`.
+
+**For a Kalman observer** every output stage has a ``kind`` and ``statespace()`` returning
+``(A, B, C, D)`` in the paper's timing, on the very state that ``get_state()`` returns::
+
+    x(k) = A x(k−1) + B u(k),    out(k) = C x(k) + D u(k),    u = the stage's input ΔCL
+
+- ``kind == "filter"``: the stage filters ΔCL (B, C, D as above); stack its state after the
+  hybrid model's and measure ``out``.
+- ``kind == "additive"``: ``out(k) = ΔCL(k) + d(k)`` with an autonomous disturbance state,
+  ``B = 0``, ``D = 1``, ``d(k) = C x(k)``: d is known given its state (a drift or a pickup
+  whose phase the observer tracks by adding process noise to x).
+
+Input stages are deterministic maps of the known input and need no observer state.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import numpy as np
+from scipy import signal
 
 
 class InputStage:
@@ -45,8 +75,14 @@ class OutputStage(InputStage):
     """Base of stages acting on the model's ΔCL."""
 
     where: ClassVar[str] = "output"
+    kind: ClassVar[str] = ""
+    """"filter" or "additive" (module docstring, "For a Kalman observer")."""
 
     def step(self, dcl: float) -> float:  # type: ignore[override]
+        raise NotImplementedError
+
+    def statespace(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, C, D): x(k) = A x(k−1) + B u(k), out(k) = C x(k) + D u(k), x = get_state()."""
         raise NotImplementedError
 
     def simulate(self, dcl: np.ndarray) -> np.ndarray:  # type: ignore[override]
@@ -113,7 +149,321 @@ class Delay(InputStage):
         self._i = 0
 
 
-STAGES: dict[str, Any] = {Delay.name: Delay}
+def _positive(value: float, what: str) -> float:
+    v = float(value)
+    if not math.isfinite(v) or v <= 0:
+        raise ValueError(f"{what} must be a positive number, got {value}")
+    return v
+
+
+def _finite(value: float, what: str) -> float:
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{what} must be a finite number, got {value}")
+    return v
+
+
+class ActuatorFade(InputStage):
+    """Actuators deliver less Cμ as they heat up over accumulated burst on-time:
+
+        g(k) = f + (1 − f) exp(−E(k)/τ),   Cμ′(k) = g(k) Cμ(k),   Cμ_env′(k) = g(k) Cμ_env(k),
+        E(k + 1) = E(k) + 1/fs if Cμ(k) > 0 else E(k)          (E in s, E(0) = 0)
+
+    ``final_fraction`` = f ∈ [0, 1], ``time_constant_s`` = τ > 0 (seconds of on-time).
+    State: [E], the on-time accumulated before the next sample.
+    """
+
+    name = "actuator_fade"
+    state_size = 1
+
+    def __init__(self, final_fraction: float, time_constant_s: float, fs_hz: float) -> None:
+        f = _finite(final_fraction, "actuator_fade final_fraction")
+        if not 0.0 <= f <= 1.0:
+            raise ValueError(f"actuator_fade final_fraction must be in [0, 1], got {f}")
+        self.final_fraction = f
+        self.time_constant_s = _positive(time_constant_s, "actuator_fade time_constant_s")
+        self.fs_hz = _positive(fs_hz, "fs_hz")
+        self.dt = 1.0 / self.fs_hz
+        self.on_time = 0.0
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> ActuatorFade:
+        return cls(float(params["final_fraction"]), float(params["time_constant_s"]), fs_hz)
+
+    def params(self) -> dict[str, float]:
+        return {"final_fraction": self.final_fraction, "time_constant_s": self.time_constant_s}
+
+    def step(self, cmu: float, env: float) -> tuple[float, float]:
+        f = self.final_fraction
+        g = f + (1.0 - f) * math.exp(-self.on_time / self.time_constant_s)
+        if cmu > 0.0:
+            self.on_time += self.dt
+        return cmu * g, env * g
+
+    def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cmu = np.asarray(cmu, dtype=float)
+        env = np.asarray(env, dtype=float)
+        inc = np.where(cmu > 0.0, self.dt, 0.0)
+        elapsed = np.cumsum(np.concatenate([[self.on_time], inc]))   # sequential sums, as step
+        before = elapsed[:-1]
+        self.on_time = float(elapsed[-1])
+        f = self.final_fraction
+        g = f + (1.0 - f) * np.exp(-before / self.time_constant_s)
+        return cmu * g, env * g
+
+    def get_state(self) -> np.ndarray:
+        return np.array([self.on_time])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (1,):
+            raise ValueError(f"actuator_fade state must have shape (1,), got {s.shape}")
+        self.on_time = float(s[0])
+
+
+class SensorResonance(OutputStage):
+    """Force-balance / wing mode filtering the measured lift, unity DC gain:
+
+        H(s) = ω² / (s² + 2ζωs + ω²),  ω = 2π f, discretised by the bilinear transform with
+        pre-warping at ω:  H(z) = (b₀ + b₁z⁻¹ + b₂z⁻²) / (1 + a₁z⁻¹ + a₂z⁻²).
+
+    State x(k) = [w(k), w(k−1)] of the all-pole part w(k) = u(k) − a₁ w(k−1) − a₂ w(k−2);
+    the output eliminates w(k−2) with the recursion:
+    out(k) = (b₀ − b₂/a₂) w(k) + (b₁ − a₁b₂/a₂) w(k−1) + (b₂/a₂) u(k).
+    """
+
+    name = "sensor_resonance"
+    kind = "filter"
+    state_size = 2
+
+    def __init__(self, frequency_hz: float, damping_ratio: float, fs_hz: float) -> None:
+        self.fs_hz = _positive(fs_hz, "fs_hz")
+        self.frequency_hz = _positive(frequency_hz, "sensor_resonance frequency_hz")
+        self.damping_ratio = _positive(damping_ratio, "sensor_resonance damping_ratio")
+        if self.frequency_hz >= 0.5 * self.fs_hz:
+            raise ValueError(f"sensor_resonance frequency_hz {self.frequency_hz:g} is not below "
+                             f"Nyquist ({0.5 * self.fs_hz:g} Hz)")
+        self.b, self.a = resonance_ba(self.frequency_hz, self.damping_ratio, self.fs_hz)
+        b0, b1, b2 = (float(v) for v in self.b)
+        _, a1, a2 = (float(v) for v in self.a)
+        self._a1, self._a2 = a1, a2
+        self._c0, self._c1, self._d = b0 - b2 / a2, b1 - a1 * b2 / a2, b2 / a2
+        self._w0 = 0.0
+        self._w1 = 0.0
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> SensorResonance:
+        return cls(float(params["frequency_hz"]), float(params["damping_ratio"]), fs_hz)
+
+    def params(self) -> dict[str, float]:
+        return {"frequency_hz": self.frequency_hz, "damping_ratio": self.damping_ratio}
+
+    def statespace(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        A = np.array([[-self._a1, -self._a2], [1.0, 0.0]])
+        return A, np.array([1.0, 0.0]), np.array([self._c0, self._c1]), np.array(self._d)
+
+    def step(self, dcl: float) -> float:
+        w = dcl - self._a1 * self._w0 - self._a2 * self._w1
+        self._w1 = self._w0
+        self._w0 = w
+        return self._c0 * w + self._c1 * self._w1 + self._d * dcl
+
+    def simulate(self, dcl: np.ndarray) -> np.ndarray:
+        u = np.asarray(dcl, dtype=float)
+        if u.size == 0:
+            return u.copy()
+        a1, a2 = self._a1, self._a2
+        zi = np.array([-a1 * self._w0 - a2 * self._w1, -a2 * self._w0])
+        w, _ = signal.lfilter([1.0], self.a, u, zi=zi)
+        w_prev = np.concatenate([[self._w0], w[:-1]])
+        self._w1 = float(w_prev[-1])
+        self._w0 = float(w[-1])
+        return self._c0 * w + self._c1 * w_prev + self._d * u
+
+    def get_state(self) -> np.ndarray:
+        return np.array([self._w0, self._w1])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (2,):
+            raise ValueError(f"sensor_resonance state must have shape (2,), got {s.shape}")
+        self._w0, self._w1 = float(s[0]), float(s[1])
+
+
+def resonance_ba(frequency_hz: float, damping_ratio: float, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """(b, a) of ω²/(s² + 2ζωs + ω²), bilinear with pre-warping at ω = 2π f."""
+    w = 2.0 * fs_hz * math.tan(math.pi * frequency_hz / fs_hz)
+    b, a = signal.bilinear([w * w], [1.0, 2.0 * damping_ratio * w, w * w], fs=fs_hz)
+    return np.asarray(b, dtype=float), np.asarray(a, dtype=float)
+
+
+class _Additive(OutputStage):
+    """out(k) = ΔCL(k) + d(k), d(k) = C x(k), x(k) = A x(k−1) (2 states, see subclasses)."""
+
+    kind = "additive"
+    state_size = 2
+
+    def _initial(self) -> tuple[float, float]:
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        self._x0, self._x1 = self._initial()
+
+    def get_state(self) -> np.ndarray:
+        return np.array([self._x0, self._x1])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (2,):
+            raise ValueError(f"{self.name} state must have shape (2,), got {s.shape}")
+        self._x0, self._x1 = float(s[0]), float(s[1])
+
+    def disturbance(self, n: int) -> np.ndarray:
+        """d(k) for the next n samples (advances the state)."""
+        return self.simulate(np.zeros(n))
+
+
+class ZeroDrift(_Additive):
+    """Thermal drift of the sensor zero, added to ΔCL (t_k = k/fs, k = 0 after reset):
+
+        linear:       d(k) = offset + rate · t_k
+                      x = [d(k), rate/fs], A = [[1, 1], [0, 1]], C = [1, 0]
+        exponential:  d(k) = offset + amplitude (1 − exp(−t_k/τ))
+                      x = [−amplitude λᵏ, offset + amplitude], λ = exp(−1/(τ fs)),
+                      A = diag(λ, 1), C = [1, 1]
+
+    ``offset`` (ΔCL) is the drift's value at the record's first sample relative to the tare
+    (the tare is taken while the zero is already drifting); it is fitted with the rest.
+    """
+
+    name = "zero_drift"
+
+    def __init__(self, fs_hz: float, *, rate_per_s: float | None = None,
+                 amplitude: float | None = None, time_constant_s: float | None = None,
+                 offset: float = 0.0) -> None:
+        self.fs_hz = _positive(fs_hz, "fs_hz")
+        self.offset = _finite(offset, "zero_drift offset")
+        if rate_per_s is not None and amplitude is None and time_constant_s is None:
+            self.linear = True
+            self.rate_per_s = _finite(rate_per_s, "zero_drift rate_per_s")
+            self._lam = 1.0
+        elif rate_per_s is None and amplitude is not None and time_constant_s is not None:
+            self.linear = False
+            self.amplitude = _finite(amplitude, "zero_drift amplitude")
+            self.time_constant_s = _positive(time_constant_s, "zero_drift time_constant_s")
+            self._lam = math.exp(-1.0 / (self.time_constant_s * self.fs_hz))
+        else:
+            raise ValueError("zero_drift takes rate_per_s, or amplitude and time_constant_s")
+        self.reset()
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> ZeroDrift:
+        p = {k: float(v) for k, v in params.items()}
+        return cls(fs_hz, rate_per_s=p.get("rate_per_s"), amplitude=p.get("amplitude"),
+                   time_constant_s=p.get("time_constant_s"), offset=p.get("offset", 0.0))
+
+    def params(self) -> dict[str, float]:
+        if self.linear:
+            return {"rate_per_s": self.rate_per_s, "offset": self.offset}
+        return {"amplitude": self.amplitude, "time_constant_s": self.time_constant_s,
+                "offset": self.offset}
+
+    def _initial(self) -> tuple[float, float]:
+        if self.linear:
+            s = self.rate_per_s / self.fs_hz
+            return self.offset - s, s
+        return -self.amplitude / self._lam, self.offset + self.amplitude
+
+    def statespace(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        if self.linear:
+            return (np.array([[1.0, 1.0], [0.0, 1.0]]), np.zeros(2), np.array([1.0, 0.0]),
+                    np.array(1.0))
+        return (np.diag([self._lam, 1.0]), np.zeros(2), np.array([1.0, 1.0]), np.array(1.0))
+
+    def step(self, dcl: float) -> float:
+        if self.linear:
+            self._x0 = self._x0 + self._x1
+            return dcl + self._x0
+        self._x0 = self._lam * self._x0
+        return dcl + (self._x0 + self._x1)
+
+    def simulate(self, dcl: np.ndarray) -> np.ndarray:
+        u = np.asarray(dcl, dtype=float)
+        n = u.size
+        if n == 0:
+            return u.copy()
+        if self.linear:
+            x0 = np.cumsum(np.concatenate([[self._x0], np.full(n, self._x1)]))[1:]
+            self._x0 = float(x0[-1])
+            return u + x0
+        x0 = np.cumprod(np.concatenate([[self._x0], np.full(n, self._lam)]))[1:]
+        self._x0 = float(x0[-1])
+        return u + (x0 + self._x1)
+
+
+class PeriodicDisturbance(_Additive):
+    """Narrow-band pickup as sampled, added to ΔCL (t_k = k/fs, k = 0 after reset):
+
+        d(k) = A sin(2π f t_k + φ);   x(k) = [d(k), A cos(2π f t_k + φ)],
+        x(k) = R(ω) x(k−1), R = [[cos ω, sin ω], [−sin ω, cos ω]], ω = 2π f/fs, C = [1, 0].
+
+    ``phase_rad`` = φ is the phase at the first sample after reset; it is a property of a
+    record, not of the pickup: an observer tracks it in x, the diagnosis re-estimates it per
+    record. The batch twin evaluates the rotation in closed form from the current state;
+    the recursion and the closed form differ by rounding only (≈ k·1e-16·A).
+    """
+
+    name = "periodic_disturbance"
+
+    def __init__(self, frequency_hz: float, amplitude: float, phase_rad: float, fs_hz: float) -> None:
+        self.fs_hz = _positive(fs_hz, "fs_hz")
+        self.frequency_hz = _positive(frequency_hz, "periodic_disturbance frequency_hz")
+        if self.frequency_hz > 0.5 * self.fs_hz:
+            raise ValueError(f"periodic_disturbance frequency_hz {self.frequency_hz:g} is above "
+                             f"Nyquist ({0.5 * self.fs_hz:g} Hz): give the aliased frequency")
+        self.amplitude = _finite(amplitude, "periodic_disturbance amplitude")
+        self.phase_rad = _finite(phase_rad, "periodic_disturbance phase_rad")
+        self.omega = 2.0 * math.pi * self.frequency_hz / self.fs_hz
+        self._cos, self._sin = math.cos(self.omega), math.sin(self.omega)
+        self.reset()
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> PeriodicDisturbance:
+        return cls(float(params["frequency_hz"]), float(params["amplitude"]),
+                   float(params.get("phase_rad", 0.0)), fs_hz)
+
+    def params(self) -> dict[str, float]:
+        return {"frequency_hz": self.frequency_hz, "amplitude": self.amplitude,
+                "phase_rad": self.phase_rad}
+
+    def _initial(self) -> tuple[float, float]:
+        p = self.phase_rad - self.omega
+        return self.amplitude * math.sin(p), self.amplitude * math.cos(p)
+
+    def statespace(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        c, s = self._cos, self._sin
+        return np.array([[c, s], [-s, c]]), np.zeros(2), np.array([1.0, 0.0]), np.array(1.0)
+
+    def step(self, dcl: float) -> float:
+        x0, x1 = self._x0, self._x1
+        self._x0 = self._cos * x0 + self._sin * x1
+        self._x1 = self._cos * x1 - self._sin * x0
+        return dcl + self._x0
+
+    def simulate(self, dcl: np.ndarray) -> np.ndarray:
+        u = np.asarray(dcl, dtype=float)
+        n = u.size
+        if n == 0:
+            return u.copy()
+        amp = math.hypot(self._x0, self._x1)
+        theta = math.atan2(self._x0, self._x1) + self.omega * np.arange(1, n + 1)
+        self._x0 = float(amp * math.sin(theta[-1]))
+        self._x1 = float(amp * math.cos(theta[-1]))
+        return u + amp * np.sin(theta)
+
+
+STAGES: dict[str, Any] = {c.name: c for c in (Delay, ActuatorFade, SensorResonance, ZeroDrift,
+                                               PeriodicDisturbance)}
 
 
 def stage_from_spec(name: str, params: dict[str, Any], fs_hz: float) -> InputStage:

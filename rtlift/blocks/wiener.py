@@ -14,6 +14,7 @@ from bisect import bisect_right
 from typing import Any
 
 import numpy as np
+from scipy import signal
 
 from rtlift.blocks.lti import LTIBlock
 
@@ -113,6 +114,73 @@ class InputGain:
         return cls(d["cmu"], d["gain"])
 
 
+class HysteresisGain(InputGain):
+    """N(Cμ)·y·(1 + m h) — the paper's gain with a direction-dependent factor (``hysteresis``):
+
+        s(k) = 1 if Cμ(k) < Cμ(k−1),  0 if Cμ(k) > Cμ(k−1),  s(k−1) otherwise (held)
+        h(k) = λ h(k−1) + (1 − λ) s(k),   λ = exp(−1/(τ fs))  (λ = 0 for τ = 0)
+        ΔCL_L(k) = N(Cμ(k)) · y(k) · (1 + m h(k))
+
+    so the static gain on falling Cμ is (1 + m) times that on rising Cμ, the switch relaxing in
+    τ. ``magnitude`` = m, ``time_constant_s`` = τ. State: [h, s, Cμ(k−1)].
+    """
+
+    form = "input_gain_hysteresis"
+
+    def __init__(self, cmu: np.ndarray, gain: np.ndarray, magnitude: float,
+                 time_constant_s: float, fs_hz: float) -> None:
+        super().__init__(cmu, gain)
+        m, tau, fs = float(magnitude), float(time_constant_s), float(fs_hz)
+        if not (np.isfinite(m) and np.isfinite(tau) and np.isfinite(fs)) or tau < 0 or fs <= 0:
+            raise ValueError("hysteresis needs a finite magnitude, time_constant_s >= 0, fs_hz > 0")
+        self.magnitude, self.time_constant_s, self.fs_hz = m, tau, fs
+        self._lam = float(np.exp(-1.0 / (tau * fs))) if tau > 0 else 0.0
+        self.h = self.s = self.last = 0.0
+
+    state_size = 3
+
+    def step(self, cmu: float, y: float) -> float:
+        if cmu < self.last:
+            self.s = 1.0
+        elif cmu > self.last:
+            self.s = 0.0
+        self.last = cmu
+        self.h = (1.0 - self._lam) * self.s + self._lam * self.h
+        return self._n(cmu) * y * (1.0 + self.magnitude * self.h)
+
+    def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
+        cmu = np.asarray(cmu, dtype=float)
+        if cmu.size == 0:
+            return cmu.copy()
+        step = np.diff(cmu, prepend=self.last)
+        idx = np.where(step != 0.0, np.arange(cmu.size), -1)
+        last_change = np.maximum.accumulate(idx)
+        s = np.where(last_change >= 0, (step[np.maximum(last_change, 0)] < 0.0).astype(float), self.s)
+        h, _ = signal.lfilter([1.0 - self._lam], [1.0, -self._lam], s, zi=[self._lam * self.h])
+        self.h, self.s, self.last = float(h[-1]), float(s[-1]), float(cmu[-1])
+        return self._n.batch(cmu) * np.asarray(y, dtype=float) * (1.0 + self.magnitude * h)
+
+    def reset(self) -> None:
+        self.h = self.s = self.last = 0.0
+
+    def get_state(self) -> np.ndarray:
+        return np.array([self.h, self.s, self.last])
+
+    def set_state(self, state: np.ndarray) -> None:
+        st = np.asarray(state, dtype=float)
+        if st.shape != (3,):
+            raise ValueError(f"hysteresis state must have shape (3,), got {st.shape}")
+        self.h, self.s, self.last = (float(v) for v in st)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**super().to_dict(), "magnitude": self.magnitude,
+                "time_constant_s": self.time_constant_s, "fs_hz": self.fs_hz}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> HysteresisGain:
+        return cls(d["cmu"], d["gain"], d["magnitude"], d["time_constant_s"], d["fs_hz"])
+
+
 class OutputNonlinearity:
     """f(y) — the textbook Wiener output nonlinearity, a (y, f) table, linear beyond its ends."""
 
@@ -153,7 +221,8 @@ class OutputNonlinearity:
         return cls(d["y"], d["f"])
 
 
-NONLINEARITIES: dict[str, Any] = {InputGain.form: InputGain, OutputNonlinearity.form: OutputNonlinearity}
+NONLINEARITIES: dict[str, Any] = {InputGain.form: InputGain, OutputNonlinearity.form: OutputNonlinearity,
+                                  HysteresisGain.form: HysteresisGain}
 
 
 class WienerBlock:
