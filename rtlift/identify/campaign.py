@@ -52,6 +52,7 @@ class IdentifyOptions:
     hpf_cutoffs_hz: tuple[float, ...] = (0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 5.5)
     hpf_search_order: int = 2                 # Wiener order used while choosing the HPF
     phi: str = "auto"                         # "single_burst" (paper), "train" or "auto"
+    control_band_hz: float = 1.0              # HF must reject ≥ 20 dB up to here (k = 0.25)
 
 
 @dataclass
@@ -116,7 +117,8 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
                                         wiener_order=opt.order or opt.hpf_search_order,
                                         gain=gain, table=table, form=opt.form, skip=skip,
                                         orders=opt.hpf_orders, cutoffs_hz=opt.hpf_cutoffs_hz,
-                                        refine_phi=refine)
+                                        refine_phi=refine,
+                                        control_band_hz=opt.control_band_hz)
                 for refine in modes}
     refine = min(searches, key=lambda r: searches[r].holdout_rmse)
     hp = searches[refine]
