@@ -50,6 +50,7 @@ def serve_main(args: argparse.Namespace) -> int:
     previous = {sig: signal.signal(sig, _stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         with device:
+            device.start()
             print(device.path, flush=True)
             print(f"rtlift bench serve: {how} DAQ on {device.path}, experiment {experiment}, "
                   "400 Hz; Ctrl-C stops", file=sys.stderr, flush=True)

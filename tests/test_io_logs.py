@@ -28,8 +28,7 @@ def fields(s):
 
 def live_then_replay(dev, config, log):
     with dev, open_link({**config, "log": str(log)}) as link:
-        if isinstance(dev, SerialDaq):
-            dev.start()
+        dev.start()
         live = []
         while True:
             s = link.recv(0.5)
@@ -58,7 +57,6 @@ def test_a_raw_serial_capture_replays_to_the_same_samples_and_counters(tmp_path)
 def test_a_can_log_replays_to_the_same_samples_and_counters(tmp_path, suffix):
     plan = FaultPlan(corrupt=0.01, drop=0.01, duplicate=0.01)
     dev = SlcanAdapter(synthetic_stream(2), faults=plan, seed=4, max_samples=600)
-    dev.start()
     config = {"kind": "can", "interface": "slcan", "channel": dev.path}
     live, live_c, replay, replay_c = live_then_replay(dev, config, tmp_path / f"run{suffix}")
     assert live_c["crc_errors"] > 0 and live_c["received"] > 500

@@ -94,6 +94,7 @@ def test_slcan_ten_seconds_at_400_hz_arrive_complete_through_python_can_slcan():
     with dev:
         with open_link(can_config(dev)) as link:
             t0 = time.perf_counter()
+            dev.start()
             got = read_all(link, n)
             elapsed = time.perf_counter() - t0
             assert link.counters.as_dict() == {"received": n, "crc_errors": 0, "lost": 0, "duplicates": 0,
@@ -130,6 +131,7 @@ def test_slcan_counters_equal_the_faults_injected():
     plan = FaultPlan(corrupt=0.01, drop=0.01, duplicate=0.01, garbage=0.01, stop=n - 5)
     dev = SlcanAdapter(daq_stream("random", seed=6), faults=plan, seed=12, max_samples=n, keep_sent=True)
     with dev, open_link(can_config(dev)) as link:
+        dev.start()
         got = read_until_done(link, dev)
         st = dev.stats
         assert min(st.frames_corrupted, st.frames_dropped, st.frames_duplicated, st.garbage_bursts) > 0

@@ -81,7 +81,8 @@ class PtyDevice(ABC):
         return self.finished.wait(timeout)
 
     def __enter__(self) -> PtyDevice:
-        return self.start()
+        """``with device:`` guarantees ``stop()``; streaming begins at ``start()``."""
+        return self
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
