@@ -8,7 +8,8 @@ mean over the ``pre_s`` before the onset, which also removes a slow zero drift).
 floor of the average is the standard error across bursts, pooled over the pre-burst part.
 The kernel is smoothed with a Savitzky–Golay filter whose window grows with lag (sharp
 features come first, the tail is slow), cut where its smoothed magnitude last exceeds
-``floor_sigmas`` times the noise floor, and tapered to zero with a half cosine over
+``floor_sigmas`` (1) times the noise floor — a tap whose signal is below the noise adds more
+error than the bias of dropping it — and tapered to zero with a half cosine over
 ``taper_fraction`` of its length — the convolution replays the kernel's noise scaled by Cμ,
 so noise after the response has died out only adds error.
 
@@ -102,7 +103,7 @@ def fit_phi(kernel: np.ndarray, burst: np.ndarray, target: np.ndarray) -> tuple[
 
 
 def fit_kernel(cmu: np.ndarray, dcl: np.ndarray, fs_hz: float, *, pre_s: float = 0.1,
-               max_length_s: float = 1.5, floor_sigmas: float = 3.0,
+               max_length_s: float = 1.5, floor_sigmas: float = 1.0,
                taper_fraction: float = 0.2, smooth: bool = True) -> SingleBurstKernel:
     """Kernel and φ from a record of repeated isolated bursts (module docstring).
 

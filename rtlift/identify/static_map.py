@@ -9,7 +9,7 @@ and anchored at the origin (ΔCL is the increment over the non-actuated baseline
 
 N(Cμ) is tabulated on the bin centres. At Cμ → 0 the ratio ΔCL/Cμ is 0/0; its limit is the
 slope of the map at the origin, estimated by a least-squares fit ΔCL = s₀ Cμ + s₁ Cμ² on the
-lowest quarter of the range, and stored as the table's first point N(0) = s₀. Beyond the
+lowest quarter of the range (plus a cubic term when six or more bins lie there), and stored as the table's first point N(0) = s₀. Beyond the
 measured range :class:`rtlift.blocks.wiener.InputGain` holds N at its last value, so ΔCL
 continues along the last chord through the origin (linear, not saturating) — the map is not
 extrapolated by the identification.
@@ -192,15 +192,17 @@ def hysteresis_report(env: np.ndarray, dcl: np.ndarray, fs_hz: float, edges: np.
 
 def limit_slope(cmu: np.ndarray, dcl: np.ndarray, weights: np.ndarray,
                 fraction: float = 0.25) -> float:
-    """s₀ = lim_{Cμ→0} ΔCL/Cμ from a weighted fit ΔCL = s₀ Cμ + s₁ Cμ² (through the origin)
-    over Cμ ≤ ``fraction`` · max Cμ (at least three points)."""
+    """s₀ = lim_{Cμ→0} ΔCL/Cμ from a weighted fit ΔCL = s₀ Cμ + s₁ Cμ² + s₂ Cμ³ (through the
+    origin; the cubic term only with six or more points) over Cμ ≤ ``fraction`` · max Cμ
+    (at least three points)."""
     cmu = np.asarray(cmu, dtype=float)
     order = np.argsort(cmu)
     pos = order[cmu[order] > 0]
     k = max(3, int(np.sum(cmu[pos] <= fraction * cmu.max())))
     sel = pos[:k]
     sw = np.sqrt(weights[sel])
-    X = np.column_stack([cmu[sel], cmu[sel] ** 2]) * sw[:, None]
+    powers = (1, 2, 3) if sel.size >= 6 else (1, 2)
+    X = np.column_stack([cmu[sel] ** q for q in powers]) * sw[:, None]
     coef, *_ = np.linalg.lstsq(X, dcl[sel] * sw, rcond=None)
     return float(coef[0])
 
