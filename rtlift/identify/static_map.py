@@ -9,7 +9,8 @@ and anchored at the origin (ΔCL is the increment over the non-actuated baseline
 
 N(Cμ) is tabulated on the bin centres. At Cμ → 0 the ratio ΔCL/Cμ is 0/0; its limit is the
 slope of the map at the origin, estimated by a least-squares fit ΔCL = s₀ Cμ + s₁ Cμ² on the
-lowest quarter of the range (plus a cubic term when six or more bins lie there), and stored as the table's first point N(0) = s₀. Beyond the
+lowest quarter of the range (plus a cubic term when six or more bins lie there), and stored
+as the table's first point N(0) = s₀. Beyond the
 measured range :class:`rtlift.blocks.wiener.InputGain` holds N at its last value, so ΔCL
 continues along the last chord through the origin (linear, not saturating) — the map is not
 extrapolated by the identification.
