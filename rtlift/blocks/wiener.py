@@ -71,7 +71,23 @@ class _Table:
         return out
 
 
-class InputGain:
+class _Stateless:
+    """A static nonlinearity: no state to reset, get or set."""
+
+    state_size = 0
+
+    def reset(self) -> None:
+        pass
+
+    def get_state(self) -> np.ndarray:
+        return np.empty(0)
+
+    def set_state(self, state: np.ndarray) -> None:
+        if np.asarray(state).size:
+            raise ValueError(f"{type(self).__name__} has no state")
+
+
+class InputGain(_Stateless):
     """N(Cμ)·y — the paper's gain scheduled on the input (eq. 6), N from a (Cμ, N) table.
 
     Outside the table N is held at its end values: below the first point N is the static
@@ -84,8 +100,6 @@ class InputGain:
         self.cmu, self.gain = _check_table(cmu, gain, "N(Cmu)")
         self._n = _Table(self.cmu, self.gain, extrapolate=False)
 
-    state_size = 0
-
     def step(self, cmu: float, y: float) -> float:
         return self._n(cmu) * y
 
@@ -95,16 +109,6 @@ class InputGain:
     def gain_at(self, cmu: float) -> float:
         """N(Cμ) (the observer's time-varying measurement gain)."""
         return self._n(cmu)
-
-    def reset(self) -> None:
-        pass
-
-    def get_state(self) -> np.ndarray:
-        return np.empty(0)
-
-    def set_state(self, state: np.ndarray) -> None:
-        if np.asarray(state).size:
-            raise ValueError("InputGain has no state")
 
     def to_dict(self) -> dict[str, Any]:
         return {"form": self.form, "cmu": self.cmu.tolist(), "gain": self.gain.tolist()}
@@ -181,7 +185,7 @@ class HysteresisGain(InputGain):
         return cls(d["cmu"], d["gain"], d["magnitude"], d["time_constant_s"], d["fs_hz"])
 
 
-class OutputNonlinearity:
+class OutputNonlinearity(_Stateless):
     """f(y) — the textbook Wiener output nonlinearity, a (y, f) table, linear beyond its ends."""
 
     form = "output"
@@ -189,8 +193,6 @@ class OutputNonlinearity:
     def __init__(self, y: np.ndarray, f: np.ndarray) -> None:
         self.y, self.f = _check_table(y, f, "f(y)")
         self._f = _Table(self.y, self.f, extrapolate=True)
-
-    state_size = 0
 
     def step(self, cmu: float, y: float) -> float:
         return self._f(y)
@@ -202,16 +204,6 @@ class OutputNonlinearity:
         """df/dy at y (for an extended Kalman observer)."""
         j = min(max(bisect_right(self._f._x, y) - 1, 0), self._f._last - 1)
         return self._f._slope[j]
-
-    def reset(self) -> None:
-        pass
-
-    def get_state(self) -> np.ndarray:
-        return np.empty(0)
-
-    def set_state(self, state: np.ndarray) -> None:
-        if np.asarray(state).size:
-            raise ValueError("OutputNonlinearity has no state")
 
     def to_dict(self) -> dict[str, Any]:
         return {"form": self.form, "y": self.y.tolist(), "f": self.f.tolist()}
