@@ -104,11 +104,13 @@ def fit_phi(kernel: np.ndarray, burst: np.ndarray, target: np.ndarray) -> tuple[
 
 def fit_kernel(cmu: np.ndarray, dcl: np.ndarray, fs_hz: float, *, pre_s: float = 0.1,
                max_length_s: float = 1.5, floor_sigmas: float = 1.0,
-               taper_fraction: float = 0.2, smooth: bool = True) -> SingleBurstKernel:
+               taper_fraction: float = 0.2, smooth: bool = True,
+               min_window_s: float = 0.25) -> SingleBurstKernel:
     """Kernel and φ from a record of repeated isolated bursts (module docstring).
 
     Windows reach ``max_length_s`` after each onset (or up to the next onset, whichever is
-    shorter); bursts closer to the record ends than that are skipped.
+    shorter); bursts closer to the record ends than that are skipped. Bursts closer together
+    than ``min_window_s`` (≈ 3 t⁺, the response's duration) are not isolated: ValueError.
     """
     cmu = np.asarray(cmu, dtype=float)
     dcl = np.asarray(dcl, dtype=float)
@@ -121,7 +123,10 @@ def fit_kernel(cmu: np.ndarray, dcl: np.ndarray, fs_hz: float, *, pre_s: float =
     if spacing.size:
         post = min(post, int(np.min(spacing)) - pre)
     valid = onsets[(onsets >= pre) & (onsets + post <= cmu.size)]
-    if valid.size == 0 or post < 8:
+    if post < min_window_s * fs_hz:
+        raise ValueError(f"bursts only {(post + pre) / fs_hz:.3f} s apart: a single-burst "
+                         f"record needs isolated bursts (>= {min_window_s + pre_s:g} s)")
+    if valid.size == 0:
         raise ValueError("no isolated burst with a full pre-burst baseline and response window")
     on = cmu > 0.5 * float(np.max(cmu))
     lengths = []

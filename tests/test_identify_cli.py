@@ -1,0 +1,97 @@
+"""``rtlift identify``: records in, a loadable model file with provenance and metrics out."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from hil_sim.experiments import run_experiment
+from rtlift.cli import main
+from rtlift.modelfile import load_model
+from rtlift.records import write_record
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("campaign")
+    paths = {}
+    for name in ("static", "single_burst", "sine_k0125"):
+        paths[name] = d / f"{name}.csv"
+        write_record(paths[name], run_experiment(name, seed=1).to_record())
+    return d, paths
+
+
+def identify_args(paths, out, *extra):
+    return ["identify", "--static", str(paths["static"]), "--single-burst",
+            str(paths["single_burst"]), "--train", str(paths["sine_k0125"]), "-o", str(out), *extra]
+
+
+@pytest.fixture(scope="module")
+def model_file(campaign):
+    d, paths = campaign
+    out = d / "model.json"
+    assert main(identify_args(paths, out)) == 0
+    return out
+
+
+def test_identify_writes_a_model_that_loads_and_is_stable(model_file):
+    m = load_model(model_file)
+    assert m.fs_hz == 400.0
+    assert m.stable
+    assert m.wiener.nonlinearity.form == "input_gain"
+
+
+def test_model_file_records_hpf_phi_orders_uncertainty_and_observer_hints(model_file):
+    d = json.loads(model_file.read_text())
+    p, met = d["provenance"], d["metrics"]
+    assert p["fs_hz"] == 400.0
+    assert p["highpass"]["order"] == d["highpass"]["order"]
+    assert p["highpass"]["cutoff_hz"] == d["highpass"]["cutoff_hz"]
+    assert p["phi"] == pytest.approx(d["convolution"]["phi"])
+    assert p["wiener"]["order"] == len(d["wiener"]["C"])
+    assert len(p["wiener"]["order_selection"]["candidates"]) == 4
+    unc = p["wiener"]["uncertainty"]
+    assert len(unc["a_std"]) == p["wiener"]["order"] and unc["dc_gain_std"] > 0
+    assert p["static_map"]["hysteresis"]["verdict"]
+    assert 0 < met["residual_std_train"] < 0.02
+    assert 0 < met["measurement_noise_std"] < met["residual_std_train"] * 2
+    assert met["train"]["corr"] > 0.97
+    assert d["observer"]["model_residual_std"] == met["residual_std_train"]
+
+
+def test_order_option_fixes_the_wiener_order(campaign, tmp_path, capsys):
+    _, paths = campaign
+    out = tmp_path / "m3.json"
+    assert main(identify_args(paths, out, "--order", "3", "--phi", "single_burst")) == 0
+    d = json.loads(out.read_text())
+    assert len(d["wiener"]["A"]) == 3
+    assert d["provenance"]["phi_choice"]["used"] == "single_burst"
+    assert "order 3" in capsys.readouterr().out
+
+
+def test_textbook_wiener_form_stores_the_static_map_as_f_of_y(campaign, tmp_path):
+    _, paths = campaign
+    out = tmp_path / "tb.json"
+    assert main(identify_args(paths, out, "--form", "output_map", "--order", "1")) == 0
+    assert load_model(out).wiener.nonlinearity.form == "output"
+
+
+def test_bad_record_is_a_one_line_error_with_exit_2(campaign, tmp_path, capsys):
+    _, paths = campaign
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,cmu,dcl\n0,0,0\n")
+    args = identify_args(paths, tmp_path / "x.json")
+    args[args.index("--train") + 1] = str(bad)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cmu_envelope" in err
+
+
+def test_record_without_bursts_is_a_one_line_error_with_exit_2(campaign, tmp_path, capsys):
+    _, paths = campaign
+    args = identify_args(paths, tmp_path / "x.json")
+    args[args.index("--single-burst") + 1] = str(paths["static"]).replace("static", "sine_k0125")
+    rc = main(args)
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and err.startswith("rtlift: error:")
