@@ -1,0 +1,107 @@
+"""``rtlift observe``: the Kalman observer live at 400 Hz on a serial or CAN link.
+
+Driven by frame arrival (the device's ``seq`` is the clock; the host clock only measures the
+receive → estimate latency). ``--log`` keeps the raw frames (``.bin``/``.raw`` serial
+capture, ``.asc``/``.blf`` CAN log) for ``rtlift replay``; ``--out`` the estimates (CSV).
+Ctrl-C, SIGTERM and a vanished device end the loop with every file flushed, and
+``--json`` is written on every exit path.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from rtlift.errors import UserError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from firmware_io.links import add_link_arguments
+
+    p = subparsers.add_parser("observe", help="run the Kalman observer live on a serial or CAN link",
+                              description=__doc__.splitlines()[0])
+    add_link_arguments(p)
+    p.add_argument("--model", required=True, metavar="MODEL.json", help="model file with observer settings")
+    p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
+    p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
+    p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
+    p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of device time")
+    p.add_argument("--json", metavar="SUMMARY.json", help="counters and latency percentiles")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from firmware_io.calibration import Calibration
+    from firmware_io.convert import Converter
+    from firmware_io.links import link_config_from_args, open_link
+    from firmware_io.logs import graceful_exit
+    from rtlift.live import EstimateWriter, ObserverLoop, summary, write_summary
+    from rtlift.modelfile import load_model
+    from rtlift.observer import Observer
+
+    if args.seconds is not None and not args.seconds > 0:
+        raise UserError(f"--seconds must be positive, got {args.seconds}")
+    model = load_model(args.model)
+    observer = Observer.from_model(model)
+    calibration = Calibration.load(args.calibration)
+    link = open_link(link_config_from_args(args, log=args.log, calibration=calibration))
+    where = args.serial or args.can
+    print(f"rtlift observe: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
+    writer = None
+    loop = None
+    code = 0
+    message = None
+    t0 = time.perf_counter()
+    try:
+        writer = EstimateWriter(args.out, {"model": args.model, "fs_hz": "400"}) if args.out else None
+        loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), link.seq_modulus, writer=writer,
+                            fs_hz=model.fs_hz,
+                            max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))
+        with graceful_exit():
+            try:
+                end = loop.run(link.samples(0.25),
+                               host_timeout_s=None if args.seconds is None else args.seconds + 5.0)
+            except KeyboardInterrupt:
+                loop.stats.end = "interrupted"
+                code = 130
+            except SystemExit as exc:
+                loop.stats.end = "terminated"
+                code = exc.code if isinstance(exc.code, int) else 143
+            except Exception:
+                loop.stats.end = "error"
+                raise
+            else:
+                if end == "ended" and link.disconnected:
+                    loop.stats.end = "disconnected"
+                    code = 1
+                    message = (f"rtlift observe: the device disappeared after {loop.stats.samples} "
+                               "samples; summary written")
+                elif end == "timeout":
+                    code = 1
+                    message = "rtlift observe: the device fell silent before --seconds were done"
+    finally:
+        link.close()
+        if writer is not None:
+            writer.close()
+        if loop is not None:
+            data = summary(link.counters.as_dict(), loop.stats, observer, model=str(args.model),
+                           link=link.kind, host_seconds=time.perf_counter() - t0,
+                           device_seconds=(loop.stats.samples + loop.stats.filled) / model.fs_hz,
+                           tare_cl=loop.converter.tare_cl)
+            if args.json:
+                write_summary(args.json, data)
+            _print(data)
+    if message:
+        print(message, file=sys.stderr)
+    return code
+
+
+def _print(d: dict) -> None:
+    p50, p99 = d["latency_p50_ms"], d["latency_p99_ms"]
+    lat = f"latency p50 {p50:.3f} ms p99 {p99:.3f} ms" if p50 is not None else "no samples"
+    o = d["observer"]
+    nis = f"NIS mean {o['nis_mean']:.3g}, {o['nis_band_fraction']:.1%} in band" if o["nis_mean"] is not None else ""
+    print(f"rtlift observe: {d['end']}: received {d['received']} lost {d['lost']} crc_errors {d['crc_errors']} "
+          f"resyncs {d['resyncs']} duplicates {d['duplicates']} events {d['events']}; "
+          f"{d['estimates']} estimates; {lat}; {nis}", flush=True)

@@ -1,0 +1,197 @@
+"""The 400 Hz observer loop over a stream of firmware samples, live or replayed.
+
+The loop is driven by the arrival of samples; the device's ``seq`` is the clock. Per sample::
+
+    gap = (seq − seq_prev) mod seq_modulus
+    gap − 1 predict-only steps (missing samples; inputs held at the last sample's)
+    (Cμ, Cμ_env, ΔCL | None) = converter(sample)          # tare as firmware_io.Converter
+    est = observer.step(Cμ, Cμ_env, ΔCL)
+    latency = perf_counter() − sample.host_time            # receive → estimate
+
+then the estimate row is written. The same samples in give the same rows out, bit for bit,
+whatever the pacing (live link, log replayed as fast as possible or in real time): nothing
+here depends on the host clock except the latency figures.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from array import array
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from firmware_io.samples import Sample
+from rtlift.observer import Observer
+
+FS_HZ = 400.0
+MAX_FILL = 400
+"""At most this many predict-only steps for one gap in ``seq`` (1 s); a longer gap is a
+device restart or an ambiguity of the wrapping counter, not something to extrapolate over."""
+FLUSH_S = 0.05
+COLUMNS = ("index", "t", "seq", "t_us", "cmu", "cmu_envelope", "dcl_meas", "dcl_hat", "model_dcl",
+           "innovation", "nis", "flags")
+
+
+class EstimateWriter:
+    """Estimates as CSV (:data:`COLUMNS`; floats as ``repr`` so they read back exactly; empty
+    cells for what a filled-in sample does not have), flushed every ``flush_s`` and on close."""
+
+    def __init__(self, path: str | os.PathLike, meta: dict[str, Any] | None = None,
+                 flush_s: float = FLUSH_S) -> None:
+        from rtlift.errors import UserError
+
+        try:
+            self._file = open(path, "w", encoding="utf-8", newline="")  # noqa: SIM115 - closed in close()
+        except OSError as exc:
+            raise UserError(f"{path}: cannot write estimates ({exc.strerror})") from None
+        for key, value in (meta or {}).items():
+            self._file.write(f"# {key}: {value}\n")
+        self._file.write(",".join(COLUMNS) + "\n")
+        self._flush_s = flush_s
+        self._last = time.perf_counter()
+        self.rows = 0
+
+    def write(self, index: int, t: float, seq: int, t_us: int | None, cmu: float, env: float,
+              dcl: float | None, est: Any) -> None:
+        self._file.write(
+            f"{index},{t!r},{seq},{'' if t_us is None else t_us},{cmu!r},{env!r},"
+            f"{'' if dcl is None else repr(dcl)},{est.dcl!r},{est.model_dcl!r},"
+            f"{est.innovation!r},{est.nis!r},{est.flags}\n")
+        self.rows += 1
+        now = time.perf_counter()
+        if now - self._last >= self._flush_s:
+            self._file.flush()
+            self._last = now
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.flush()
+            self._file.close()
+
+
+@dataclass
+class LoopStats:
+    """What the loop did: samples received and stepped, gaps filled, estimates, latencies (s)."""
+
+    samples: int = 0
+    filled: int = 0
+    estimates: int = 0
+    end: str = "running"
+    latencies: array = field(default_factory=lambda: array("d"))
+    step_times: array = field(default_factory=lambda: array("d"))
+
+    def latency_ms(self) -> tuple[float | None, float | None]:
+        if not self.latencies:
+            return None, None
+        lat = np.frombuffer(self.latencies, dtype=float) * 1e3
+        return float(np.percentile(lat, 50)), float(np.percentile(lat, 99))
+
+
+class ObserverLoop:
+    """Feeds samples to an :class:`~rtlift.observer.Observer` (module docstring)."""
+
+    def __init__(self, observer: Observer, converter: Any, seq_modulus: int, *,
+                 writer: EstimateWriter | None = None, fs_hz: float = FS_HZ,
+                 max_samples: int | None = None, time_steps: bool = False) -> None:
+        self.observer = observer
+        self.converter = converter
+        self.seq_modulus = seq_modulus
+        self.writer = writer
+        self.fs_hz = fs_hz
+        self.max_samples = max_samples
+        self.time_steps = time_steps
+        self.stats = LoopStats()
+        self._last_seq: int | None = None
+        self._index = -1
+        self._last_cmu = 0.0
+        self._last_env = 0.0
+
+    @property
+    def done(self) -> bool:
+        return self.max_samples is not None and self._index + 1 >= self.max_samples
+
+    def feed(self, sample: Sample) -> None:
+        """One received sample (and the predict-only steps of any gap before it)."""
+        obs, writer, stats = self.observer, self.writer, self.stats
+        if self._last_seq is not None:
+            gap = (sample.seq - self._last_seq) % self.seq_modulus
+            if gap == 0:
+                return
+            for i in range(1, min(gap, MAX_FILL)):
+                self._index += 1
+                est = obs.step(self._last_cmu, self._last_env, None)
+                stats.filled += 1
+                if writer is not None:
+                    writer.write(self._index, self._index / self.fs_hz,
+                                 (self._last_seq + i) % self.seq_modulus, None,
+                                 self._last_cmu, self._last_env, None, est)
+                    stats.estimates += 1
+        self._last_seq = sample.seq
+        self._index += 1
+        cmu, env, dcl = self.converter(sample)
+        if self.time_steps:
+            t0 = time.perf_counter()
+            est = obs.step(cmu, env, dcl)
+            t1 = time.perf_counter()
+            stats.step_times.append(t1 - t0)
+        else:
+            est = obs.step(cmu, env, dcl)
+            t1 = time.perf_counter()
+        stats.latencies.append(t1 - sample.host_time)
+        stats.samples += 1
+        self._last_cmu, self._last_env = cmu, env
+        if writer is not None:
+            writer.write(self._index, self._index / self.fs_hz, sample.seq, sample.t_us, cmu, env, dcl, est)
+            stats.estimates += 1
+
+    def run(self, samples: Iterable[Sample | None], *, host_timeout_s: float | None = None) -> str:
+        """Consume samples until the source ends (``"ended"``), ``max_samples`` device samples
+        are done (``"completed"``) or ``host_timeout_s`` of host time passed (``"timeout"``);
+        ``None`` items (silence) only give the loop a chance to check its time limit."""
+        start = time.perf_counter()
+        for sample in samples:
+            if sample is not None:
+                self.feed(sample)
+                if self.done:
+                    self.stats.end = "completed"
+                    return self.stats.end
+            if host_timeout_s is not None and time.perf_counter() - start > host_timeout_s:
+                self.stats.end = "timeout"
+                return self.stats.end
+        self.stats.end = "ended"
+        return self.stats.end
+
+
+def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,
+            **extra: Any) -> dict[str, Any]:
+    """SUMMARY.json: the exact link counters, estimates written, latency percentiles, monitors."""
+    p50, p99 = stats.latency_ms()
+    out: dict[str, Any] = {
+        "version": 1,
+        **{k: int(link_counters[k]) for k in ("received", "crc_errors", "lost", "resyncs", "events",
+                                              "duplicates")},
+        "estimates": stats.estimates,
+        "samples_stepped": stats.samples,
+        "samples_filled": stats.filled,
+        "latency_p50_ms": p50,
+        "latency_p99_ms": p99,
+        "end": stats.end,
+    }
+    mon = observer.monitors()
+    out["observer"] = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in mon.items()}
+    out.update(extra)
+    return out
+
+
+def write_summary(path: str | os.PathLike, data: dict[str, Any]) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(data, f, indent=1, sort_keys=True)
+        f.write("\n")
+    os.replace(tmp, path)
