@@ -27,7 +27,8 @@ FRAME_IDS = (ACT_ID, FT_FORCE_ID, FT_TORQUE_ID)
 SEQ_MODULUS = 256
 DLC = 8
 PENDING_WINDOW = 8
-"""Incomplete samples up to this many ``seq`` ahead of the last complete one are kept."""
+"""Incomplete samples up to this many ``seq`` ahead of the last complete one are kept; frames
+up to this many ``seq`` behind it are late (out of order) and dropped as duplicates."""
 
 
 @cache
@@ -61,9 +62,10 @@ class CanAssembler:
 
     Counters: a frame of our identifiers with a DLC other than 8, or an error frame, is a
     ``crc_errors``; a frame whose (identifier, ``seq``) was already received for a pending
-    sample, or whose ``seq`` is that of the last completed sample, is a ``duplicates`` and
-    dropped; ``lost`` grows by the ``seq`` gap − 1 each time a sample completes. Frames of
-    other identifiers (other nodes on the bus), remote and extended frames are ignored.
+    sample, or whose ``seq`` is that of the last completed sample or up to
+    :data:`PENDING_WINDOW` behind it (late, out of order), is a ``duplicates`` and dropped;
+    ``lost`` grows by the ``seq`` gap − 1 each time a sample completes. Frames of other
+    identifiers (other nodes on the bus), remote and extended frames are ignored.
     """
 
     def __init__(self, db: Database | None = None, clock: Callable[[], float] | None = None) -> None:
@@ -101,7 +103,7 @@ class CanAssembler:
             return None
         seq = data[0]
         last = self.last_seq
-        if seq == last:
+        if last is not None and ((last - seq) & 0xFF) <= PENDING_WINDOW:
             c.duplicates += 1
             return None
         parts = self._pending.get(seq)

@@ -34,6 +34,9 @@ SAMPLE_BODY = struct.Struct("<BBHIh6iBH")
 CRC = struct.Struct("<H")
 SAMPLE_PACKET_LEN = SAMPLE_BODY.size + CRC.size  # 39
 SEQ_MODULUS = 1 << 16
+STALE_WINDOW = 8
+"""A sample up to this many ``seq`` behind the last one is late (out of order): dropped and
+counted in ``duplicates``, since it was already counted lost when the newer one arrived."""
 MAX_PACKET_BYTES = 1024
 """A run of bytes longer than this without a delimiter is dropped as one invalid packet."""
 DELIMITER = b"\x00"
@@ -60,7 +63,8 @@ class SerialDecoder:
     they are dropped and counted as one resync, not as a CRC error. Every non-empty run of
     bytes between two delimiters is one packet: valid, or counted in ``crc_errors``.
     ``lost`` counts the gaps of the u16 ``seq`` between consecutive valid samples (with
-    wrap-around); a repeated ``seq`` is counted in ``duplicates`` and dropped.
+    wrap-around); a repeated ``seq``, or one up to :data:`STALE_WINDOW` behind the last (a
+    late, out-of-order packet), is counted in ``duplicates`` and dropped.
     """
 
     def __init__(self, emit: Callable[[Sample], object], counts_per_n: float = 1.0e6,
@@ -147,7 +151,7 @@ class SerialDecoder:
         last = self.last_seq
         if last is not None:
             gap = (seq - last) & 0xFFFF
-            if gap == 0:
+            if gap == 0 or gap >= SEQ_MODULUS - STALE_WINDOW:
                 c.duplicates += 1
                 return
             c.lost += gap - 1
