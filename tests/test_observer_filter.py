@@ -1,0 +1,249 @@
+"""The Kalman observer's equations on small synthetic models (fast; no bench, no I/O)."""
+
+from __future__ import annotations
+
+import math
+import tracemalloc
+
+import numpy as np
+import pytest
+from filterpy.kalman import KalmanFilter
+
+from rtlift.blocks.stages import STAGES, OutputStage
+from rtlift.observer import (
+    FLAG_GATE_RELEASED,
+    FLAG_MISSING,
+    FLAG_REJECTED,
+    NIS_BAND,
+    Observer,
+    ObserverConfig,
+    ObserverError,
+    batch_nis,
+)
+from rtlift.records import Record
+from tests.conftest import burst_input, make_model
+
+CFG = ObserverConfig(R=1.6e-5, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4)
+
+
+def noisy_measurement(model, cmu, env, sigma, rng, offset=0.0):
+    model.reset()
+    truth = model.simulate(cmu, env).total + offset
+    model.reset()
+    return truth, truth + rng.normal(0.0, sigma, truth.size)
+
+
+@pytest.mark.parametrize("output_form", [False, True], ids=["input_gain", "output_nonlinearity"])
+def test_step_is_filterpy_predict_then_joseph_update_with_the_time_varying_H(rng, output_form):
+    model = make_model(rng, output_form=output_form)
+    cmu, env = burst_input(rng, 400)
+    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    obs = Observer(model, CFG)
+    st = obs.structure
+    ref_model = obs.model.with_stages()                # same parameters, fresh state
+    kf = KalmanFilter(dim_x=st.d, dim_z=1, dim_u=1)
+    kf.F, kf.B, kf.Q, kf.R = st.F, st.G.reshape(-1, 1), st.Q(CFG), np.array([[CFG.R]])
+    kf.x, kf.P = np.zeros(st.d), st.P0(CFG)
+    nl, n = ref_model.wiener.nonlinearity, st.n
+    for k in range(cmu.size):
+        _, high, _ = ref_model.step(cmu[k], env[k])
+        kf.predict(u=np.array([env[k]]))
+        H = st.h.copy()
+        if output_form:
+            y = float(st.C @ kf.x[:n])
+            g = nl.slope_at(y)
+            c = nl.step(env[k], y) - g * y
+        else:
+            g, c = nl.gain_at(env[k]), 0.0
+        H[:n] = g * st.C
+        kf.update(np.array([z[k] - high - c]), H=H.reshape(1, -1))
+        est = obs.step(cmu[k], env[k], z[k])
+        assert est.flags == 0
+        np.testing.assert_allclose(obs.kf.x, kf.x, rtol=1e-9, atol=1e-13)
+        np.testing.assert_allclose(obs.kf.P, kf.P, rtol=1e-9, atol=1e-16)
+    assert est.dcl == pytest.approx(high + nl.step(env[-1], float(st.C @ kf.x[:n])) + kf.x[n], abs=1e-12)
+
+
+def test_a_missing_sample_is_predict_only_and_grows_the_covariance(rng):
+    model = make_model(rng)
+    cmu, env = burst_input(rng, 300)
+    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    obs = Observer(model, CFG)
+    for k in range(299):
+        obs.step(cmu[k], env[k], z[k])
+    x_before, p_before = obs.kf.x.copy(), np.trace(obs.kf.P)
+    est = obs.step(cmu[299], env[299], None)
+    st = obs.structure
+    np.testing.assert_allclose(obs.kf.x, st.F @ x_before + st.G * env[299], rtol=1e-12, atol=1e-15)
+    assert np.trace(obs.kf.P) > p_before
+    assert est.flags == FLAG_MISSING and math.isnan(est.innovation) and math.isnan(est.nis)
+    assert obs.missing == 1 and obs.updates == 299
+
+
+def test_an_outlier_is_gated_out_counted_and_leaves_the_estimate_on_the_prediction(rng):
+    model = make_model(rng)
+    cmu, env = burst_input(rng, 600)
+    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    obs = Observer(model, CFG)
+    twin = Observer(model, CFG)
+    for k in range(599):
+        obs.step(cmu[k], env[k], z[k])
+        twin.step(cmu[k], env[k], z[k])
+    est = obs.step(cmu[599], env[599], z[599] + 0.5)        # a 125 σ spike
+    missing = twin.step(cmu[599], env[599], None)
+    assert est.flags == FLAG_REJECTED and obs.rejected == 1
+    assert est.nis > obs.gate
+    assert est.dcl == missing.dcl                            # exactly the prediction
+    np.testing.assert_array_equal(obs.kf.P, twin.kf.P)
+
+
+def test_a_persistent_step_is_accepted_after_max_rejections(rng):
+    model = make_model(rng)
+    cfg = ObserverConfig(R=1.6e-5, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4, max_rejections=5)
+    obs = Observer(model, cfg)
+    flags = [obs.step(0.0, 0.0, 0.3).flags for _ in range(7)]
+    assert flags[:5] == [FLAG_REJECTED] * 5
+    assert flags[5] == FLAG_GATE_RELEASED
+    assert obs.rejected == 5 and obs.updates == 2
+
+
+def test_get_state_set_state_resumes_bit_for_bit(rng):
+    model = make_model(rng)
+    cmu, env = burst_input(rng, 500)
+    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    obs = Observer(model, CFG)
+    for k in range(250):
+        obs.step(cmu[k], env[k], z[k])
+    saved = obs.get_state()
+    first = [obs.step(cmu[k], env[k], z[k]).as_tuple() for k in range(250, 500)]
+    other = Observer(model, CFG)
+    other.set_state(saved)
+    second = [other.step(cmu[k], env[k], z[k]).as_tuple() for k in range(250, 500)]
+    assert first == second
+
+
+def test_from_model_without_observer_settings_says_what_to_do(rng):
+    with pytest.raises(ObserverError, match="no observer settings.*tune_observer"):
+        Observer.from_model(make_model(rng))
+
+
+def test_from_model_reads_the_stored_settings(rng):
+    model = make_model(rng)
+    model.observer_config = CFG.to_dict()
+    obs = Observer.from_model(model)
+    assert obs.config.R == CFG.R and obs.kf.R[0, 0] == CFG.R
+    np.testing.assert_array_equal(obs.kf.Q, obs.structure.Q(CFG))
+
+
+def test_the_bias_state_tracks_a_sensor_offset_the_model_lacks(rng):
+    model = make_model(rng)
+    cmu, env = burst_input(rng, 4000)
+    truth, z = noisy_measurement(model, cmu, env, 0.004, rng, offset=0.02)
+    obs = Observer(model, ObserverConfig(R=1.6e-5, q_x=0.0, q_bias=1e-8, p0_bias=1e-3))
+    out = obs.run(cmu, env, z)
+    assert np.mean(out["dcl"][-1000:] - truth[-1000:]) == pytest.approx(0.0, abs=0.001)
+    assert np.mean(out["model_dcl"][-1000:] - truth[-1000:]) == pytest.approx(-0.02, abs=1e-9)
+
+
+def test_nis_is_consistent_when_the_model_is_right(rng):
+    """With the true model and the true R, NIS is χ²₁: mean ≈ 1, 95 % inside the band."""
+    model = make_model(rng)
+    cmu, env = burst_input(rng, 8000)
+    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    obs = Observer(model, ObserverConfig(R=0.004**2, q_x=0.0, q_bias=1e-12, p0_bias=1e-8))
+    obs.run(cmu, env, z)
+    assert obs.nis_mean == pytest.approx(1.0, abs=0.06)
+    assert obs.nis_band_fraction == pytest.approx(0.95, abs=0.01)
+    assert NIS_BAND[0] < 0.01 and 5.0 < NIS_BAND[1] < 5.05
+
+
+def test_batch_nis_runs_the_same_filter_as_step(rng):
+    model = make_model(rng)
+    cmu, env = burst_input(rng, 1500)
+    _, z = noisy_measurement(model, cmu, env, 0.004, rng, offset=0.01)
+    z[100] += 1.0                                             # one gated sample
+    rec = Record(np.arange(z.size) / 400.0, cmu, env, z)
+    cfgs = [CFG, ObserverConfig(R=1e-5, q_x=1e-7, q_bias=1e-7, p0_bias=1e-4)]
+    batch = batch_nis(model, rec, cfgs)
+    for i, cfg in enumerate(cfgs):
+        obs = Observer(model, cfg)
+        obs.run(cmu, env, z)
+        assert batch["nis_mean"][i] == pytest.approx(obs.nis_mean, rel=1e-9)
+        assert batch["nis_band_fraction"][i] == pytest.approx(obs.nis_band_fraction, rel=1e-12)
+        assert batch["rejected"][i] == obs.rejected == 1
+
+
+def test_a_step_allocates_nothing_that_stays(rng):
+    """tracemalloc: after warm-up, steps retain only the few floats of the reused Estimate
+    (not growing with the number of steps) and their transient peak is a few hundred bytes."""
+    model = make_model(rng, kernel_len=300)
+    cmu, env = burst_input(rng, 5000)
+    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    cmu, env, z = cmu.tolist(), env.tolist(), z.tolist()
+    obs = Observer(model, CFG)
+    first = obs.step(cmu[0], env[0], z[0])
+    for k in range(1, 1000):
+        obs.step(cmu[k], env[k], z[k])
+    retained = []
+    tracemalloc.start()
+    for stop in (2000, 5000):
+        tracemalloc.reset_peak()
+        start = len(retained) and 2000 or 1000
+        for k in range(start, stop):
+            est = obs.step(cmu[k], env[k], z[k] if k % 7 else None)
+        current, peak = tracemalloc.get_traced_memory()
+        retained.append(current)
+    tracemalloc.stop()
+    assert est is first
+    assert max(retained) <= 512                  # a leak of one object per step would be > 50 kB
+    assert peak - current <= 2048
+
+
+class _Pickup(OutputStage):
+    """A narrow-band pickup added to the measured lift (what an accepted
+    ``periodic_disturbance`` effect puts in the model)."""
+
+    name = "periodic_disturbance"
+    state_size = 1
+
+    def __init__(self, frequency_hz: float, amplitude: float, fs_hz: float) -> None:
+        self.f, self.a, self.fs, self.k = frequency_hz, amplitude, fs_hz, 0
+
+    @classmethod
+    def from_params(cls, params, fs_hz):
+        return cls(params["frequency_hz"], params["amplitude"], fs_hz)
+
+    def params(self):
+        return {"frequency_hz": self.f, "amplitude": self.a}
+
+    def step(self, dcl):
+        self.k += 1
+        return dcl + self.a * math.sin(2 * math.pi * self.f * self.k / self.fs)
+
+    def simulate(self, dcl):
+        return np.array([self.step(v) for v in dcl])
+
+    def get_state(self):
+        return np.array([float(self.k)])
+
+    def set_state(self, state):
+        self.k = int(np.asarray(state)[0])
+
+
+def test_an_accepted_periodic_disturbance_adds_oscillator_states_that_remove_the_pickup(rng, monkeypatch):
+    monkeypatch.setitem(STAGES, "periodic_disturbance", _Pickup)
+    model = make_model(rng)
+    cmu, env = burst_input(rng, 6000)
+    truth, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    t = np.arange(1, z.size + 1) / 400.0
+    z = z + 0.01 * np.sin(2 * np.pi * 20.0 * t + 1.3)         # phase unknown to the model
+    augmented = model.with_stages(output_stages=(_Pickup(20.0, 0.01, 400.0),))
+    cfg = ObserverConfig(R=0.004**2, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4)
+    plain = Observer(model, cfg)
+    with_states = Observer(augmented, cfg)
+    assert with_states.structure.d == plain.structure.d + 2
+    e_plain = plain.run(cmu, env, z)["dcl"][2000:] - truth[2000:]
+    e_aug = with_states.run(cmu, env, z)["dcl"][2000:] - truth[2000:]
+    rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
+    assert rms(e_aug) < 0.5 * rms(e_plain)
+    assert rms(e_aug) < 0.003
