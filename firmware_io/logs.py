@@ -66,17 +66,23 @@ class RawCapture:
         self.bytes_written = 0
 
     def write(self, data: bytes) -> None:
-        self._file.write(data)
+        """Append ``data``; a failing disk (full, gone) closes the log and raises :class:`LogError`."""
+        try:
+            self._file.write(data)
+            now = time.perf_counter()
+            if now - self._last_flush >= self._flush_s:
+                self._file.flush()
+                self._last_flush = now
+        except OSError as exc:
+            raise _failed(self._file, self.path, exc) from None
         self.bytes_written += len(data)
-        now = time.perf_counter()
-        if now - self._last_flush >= self._flush_s:
-            self._file.flush()
-            self._last_flush = now
 
     def close(self) -> None:
         if not self._file.closed:
-            self._file.flush()
-            self._file.close()
+            try:
+                self._file.close()
+            except OSError as exc:
+                raise _failed(self._file, self.path, exc) from None
 
     def __enter__(self) -> RawCapture:
         return self
@@ -100,25 +106,40 @@ class CanLog:
         self.frames_written = 0
 
     def __call__(self, msg: can.Message) -> None:
-        self._logger.on_message_received(msg)
+        """Log one frame; a failing disk (full, gone) closes the log and raises :class:`LogError`."""
+        try:
+            self._logger.on_message_received(msg)
+            now = time.perf_counter()
+            if now - self._last_flush >= self._flush_s:
+                file = getattr(self._logger, "file", None)
+                if file is not None and not isinstance(self._logger, can.BLFWriter):
+                    file.flush()  # BLF writes compressed containers; it is completed on close
+                self._last_flush = now
+        except OSError as exc:
+            self._closed = True
+            raise _failed(self._logger, self.path, exc) from None
         self.frames_written += 1
-        now = time.perf_counter()
-        if now - self._last_flush >= self._flush_s:
-            file = getattr(self._logger, "file", None)
-            if file is not None and not isinstance(self._logger, can.BLFWriter):
-                file.flush()  # BLF writes compressed containers; it is completed on close
-            self._last_flush = now
 
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self._logger.stop()
+            try:
+                self._logger.stop()
+            except OSError as exc:
+                raise _failed(self._logger, self.path, exc) from None
 
     def __enter__(self) -> CanLog:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _failed(file: Any, path: Path, exc: OSError) -> LogError:
+    """Close a log whose disk failed (whatever is left in its buffer is lost) and say so in one line."""
+    with contextlib.suppress(OSError, ValueError):
+        (file.stop if hasattr(file, "stop") else file.close)()
+    return LogError(f"{path}: cannot write log ({exc.strerror or exc}); the run stopped")
 
 
 def open_link_log(path: str | os.PathLike, link_kind: str) -> RawCapture | CanLog:
