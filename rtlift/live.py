@@ -15,6 +15,7 @@ here depends on the host clock except the latency figures.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -59,20 +60,33 @@ class EstimateWriter:
 
     def write(self, index: int, t: float, seq: int, t_us: int | None, cmu: float, env: float,
               dcl: float | None, est: Any) -> None:
-        self._file.write(
-            f"{index},{t!r},{seq},{'' if t_us is None else t_us},{cmu!r},{env!r},"
-            f"{'' if dcl is None else repr(dcl)},{est.dcl!r},{est.model_dcl!r},"
-            f"{est.innovation!r},{est.nis!r},{est.flags}\n")
+        try:
+            self._file.write(
+                f"{index},{t!r},{seq},{'' if t_us is None else t_us},{cmu!r},{env!r},"
+                f"{'' if dcl is None else repr(dcl)},{est.dcl!r},{est.model_dcl!r},"
+                f"{est.innovation!r},{est.nis!r},{est.flags}\n")
+            now = time.perf_counter()
+            if now - self._last >= self._flush_s:
+                self._file.flush()
+                self._last = now
+        except OSError as exc:
+            raise self._failed(exc) from None
         self.rows += 1
-        now = time.perf_counter()
-        if now - self._last >= self._flush_s:
-            self._file.flush()
-            self._last = now
 
     def close(self) -> None:
         if not self._file.closed:
-            self._file.flush()
+            try:
+                self._file.close()
+            except OSError as exc:
+                raise self._failed(exc) from None
+
+    def _failed(self, exc: OSError) -> Exception:
+        """Close the file of a failing disk (full, gone): a one-line error instead of an OSError."""
+        from rtlift.errors import UserError
+
+        with contextlib.suppress(OSError):
             self._file.close()
+        return UserError(f"{self._file.name}: cannot write estimates ({exc.strerror or exc}); the run stopped")
 
 
 @dataclass
@@ -190,8 +204,13 @@ def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,
 
 
 def write_summary(path: str | os.PathLike, data: dict[str, Any]) -> None:
+    from rtlift.errors import UserError
+
     tmp = f"{path}.tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(data, f, indent=1, sort_keys=True)
-        f.write("\n")
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump(data, f, indent=1, sort_keys=True)
+            f.write("\n")
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write summary ({exc.strerror or exc})") from None
