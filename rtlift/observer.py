@@ -34,7 +34,7 @@ known input. For the textbook Wiener form ``f(y)`` the row is linearised at the 
 χ² gating: a sample with NIS above the ``gate_probability`` quantile of χ²₁ is rejected
 (predict only, counted); after ``max_rejections`` consecutive rejections the next one is
 accepted anyway (flag :data:`FLAG_GATE_RELEASED`) so that a real step is not locked out. A
-missing or flagged sample (``dcl is None``) is predict only. NIS of the accepted updates is
+missing or flagged sample (``dcl`` None or not finite) is predict only. NIS of the accepted updates is
 tracked as a consistency monitor: running mean (≈ 1 when Q and R are right) and the
 fraction inside the central 95 % band of χ²₁.
 
@@ -382,7 +382,7 @@ class Observer:
 
     # -- the 400 Hz step --------------------------------------------------------------
     def step(self, cmu: float, env: float, dcl: float | None) -> Estimate:
-        """One sample: Cμ(k), Cμ_env(k) and the measured ΔCL(k) (``None``: predict only).
+        """One sample: Cμ(k), Cμ_env(k) and the measured ΔCL(k) (``None``, NaN or ±inf: predict only).
 
         Returns the observer's preallocated :class:`Estimate`, updated in place.
         """
@@ -422,7 +422,7 @@ class Observer:
         zhat = known + c + float(H.dot(x))
 
         flags = 0
-        if dcl is None:
+        if dcl is None or not -math.inf < dcl < math.inf:  # NaN/inf would poison ξ and P for good
             flags = FLAG_MISSING
             self.missing += 1
             est.innovation = math.nan
