@@ -162,6 +162,35 @@ def _fit_resonance(f: np.ndarray, p: np.ndarray, f0: float, zeta0: float, floor:
         return f0, zeta0
 
 
+def _broad_resonance(f: np.ndarray, bg: np.ndarray, fs: float) -> Peak | None:
+    """A well-damped mode shows as a hump of the line-free background PSD, not as a peak:
+    fit bg ≈ c|H(f; f₀, ζ)|² + b + b₂(10/f)² (relative least squares, all ≥ 0; the last term
+    is the buffeting bump's skirt) over 10 Hz … 0.475 fs on a (f₀, ζ ≤ 0.25) grid; a hump ≥ 3 dB
+    over the floor that halves the misfit of the floor alone counts."""
+    sel = (f >= 10.0) & (f <= 0.475 * fs)
+    ff, pp = f[sel], bg[sel]
+    if ff.size < 20:
+        return None
+    w = 1.0 / pp
+    tail = (10.0 / ff) ** 2                      # the buffeting bump's skirt falls as 1/f²
+    base = np.column_stack([np.ones_like(ff), tail]) * w[:, None]
+    flat = float(optimize.nnls(base, pp * w)[1] ** 2)
+    best = None
+    for f0 in np.geomspace(12.0, 0.46 * fs, 160):
+        for zeta in (0.02, 0.03, 0.05, 0.07, 0.1, 0.13, 0.17, 0.21, 0.25):
+            r = ff / f0
+            h2 = 1.0 / ((1 - r**2) ** 2 + (2 * zeta * r) ** 2)
+            X = np.column_stack([h2, np.ones_like(h2), tail]) * w[:, None]
+            coef, res = optimize.nnls(X, pp * w)
+            if best is None or res**2 < best[0]:
+                best = (res**2, f0, zeta, coef)
+    sse, f0, zeta, (c, b, _) = best
+    excess = c / (4 * zeta**2 * (1 - zeta**2)) / max(b, 1e-300)
+    if b <= 0 or excess < 1.0 or sse > 0.5 * flat:
+        return None
+    return Peak(float(f0), float(10 * np.log10(1 + excess)), float(2 * zeta * f0), "resonance", float(zeta))
+
+
 def spectrum(e: np.ndarray, fs: float, exclude_hz: tuple[float, ...] = (), min_hz: float = 0.8) -> TestResult:
     """Welch PSD (5.12 s Hann segments) and its peaks against a running-median background.
 
@@ -199,6 +228,10 @@ def spectrum(e: np.ndarray, fs: float, exclude_hz: tuple[float, ...] = (), min_h
             peaks.append(Peak(f0, float(prom[k]), float(width), kind, z))
         elif width > 2.5 * df:
             peaks.append(Peak(float(f[k]), float(prom[k]), float(width), "bump"))
+    if not any(q.kind == "resonance" for q in peaks):
+        broad = _broad_resonance(f, bg, fs)
+        if broad is not None:
+            peaks.append(broad)
     peaks.sort(key=lambda q: -q.prominence_db)
     lines = [q for q in peaks if q.kind == "line"]
     res = [q for q in peaks if q.kind == "resonance"]

@@ -208,6 +208,7 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
                 last.pop(t.name, None)
     trials = [*accepted, *[last[n] for n in EFFECT_NAMES if n in last and n not in {t.name for t in accepted}]]
     tests_after = {r.name: _tests(current, r, ctx)[0] for r in records}
+    _name_resonance_by_spectrum(trials, tests_after[train.name])
     resid_after = {r.name: r.dcl - predict(current, r, start).total for r in records}
     report = {
         "version": 1,
@@ -218,6 +219,17 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
     }
     return Diagnosis(report, model, current, trials, tests_before, tests_after, resid_before,
                      resid_after, start, rounds)
+
+
+def _name_resonance_by_spectrum(trials: list[Trial], tests: dict[str, TestResult]) -> None:
+    """A mode the open-loop fit could not use is still named, with the spectrum's estimate."""
+    peaks = [p for p in tests["spectrum"].data["peaks"] if p.kind == "resonance"]
+    for t in trials:
+        if t.name == "sensor_resonance" and not t.accepted and peaks:
+            p = peaks[0]
+            t.params = {"frequency_hz": p.frequency_hz, "damping_ratio": p.damping_ratio}
+            t.evidence = (f"named by the residual spectrum only ({p.describe()}); the open-loop fit "
+                          f"was not accepted: {t.detail}")
 
 
 def _scores(rec: Record, model: HybridModel, start: int) -> dict[str, float]:
