@@ -1,0 +1,277 @@
+"""Soak: an hour of 400 Hz serial frames (1.44 M samples) through the decoder and the
+observer loop as fast as possible, with faults sprinkled in — nothing lost, memory flat.
+
+The frames are the simulated bench's (``hil_sim.experiments.daq_stream``), encoded with
+``firmware_io.serial_codec.encode_sample``; a seeded :class:`FaultInjector` changes the wire
+and records exactly what it injected, hence the counters the decoder must end with. The
+bytes reach the decoder in reads of random size (1–4096 bytes, as ``in_waiting`` gives
+them); every sample goes through ``firmware_io.Converter`` and ``rtlift.live.ObserverLoop``
+(predict-only steps for gaps and flagged samples) exactly as in ``rtlift observe``.
+
+Checks: decoder counters == injected (received, lost, crc_errors, duplicates, resyncs,
+events); loop steps == received, fills == lost; observer updates + rejected + missing ==
+samples sent, missing == flagged + lost. Memory: VmRSS from /proc/self/status after a
+warm-up (the first minute of data) and at the end.
+
+Prints JSON as its last line: ``samples``, ``faults_injected``, ``accounted_exactly``,
+``rss_growth_mb``, ``seconds`` (and the details).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+from benchmarks._common import emit  # noqa: E402
+from firmware_io.calibration import Calibration  # noqa: E402
+from firmware_io.convert import Converter  # noqa: E402
+from firmware_io.serial_codec import SEQ_MODULUS, SerialDecoder, encode_event, encode_sample  # noqa: E402
+from hil_sim.devices.serial_daq import cobs_data_positions, invalid_chunks  # noqa: E402
+from hil_sim.devices.source import serial_wire, wire_samples  # noqa: E402
+from hil_sim.experiments import daq_stream  # noqa: E402
+from rtlift.live import ObserverLoop  # noqa: E402
+from rtlift.observer import Observer, ObserverConfig  # noqa: E402
+from tests.conftest import make_model  # noqa: E402
+
+FS = 400
+PERIOD_US = 2500
+I32 = (-(2**31), 2**31 - 1)
+RATES = {
+    "corrupt": 1e-3,      # one COBS data byte changed (the CRC catches it): 1 invalid packet, 1 lost
+    "zero_byte": 2e-4,    # a byte in the middle becomes 0x00: 2 invalid packets, 1 lost
+    "truncate": 2e-4,     # tail and delimiter cut: stub + next packet = 1 invalid packet, 2 lost
+    "drop": 1e-3,         # never arrives: 1 lost
+    "duplicate": 1e-3,    # sent twice: 1 duplicate
+    "late": 5e-4,         # arrives after the next one: 1 lost + 1 duplicate (stale)
+    "garbage": 1e-3,      # 1–32 random bytes + 0x00 before it: its invalid chunks
+    "event": 1e-4,        # a firmware event packet before it
+    "flag": 1e-3,         # sensor-fault or ADC-saturated status: received, predict-only
+    "absurd": 2e-4,       # counts at the i32 limits: received, gated by the observer
+}
+CLEAN_EDGE = 10
+"""The first and last samples are left intact (the decoder's first sample sets its seq)."""
+
+
+@dataclass
+class Expected:
+    """What the injector did, and the decoder counters that follow from it."""
+
+    injected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(RATES, 0))
+    received: int = 0
+    lost: int = 0
+    crc_errors: int = 0
+    duplicates: int = 0
+    events: int = 0
+    resyncs: int = 0
+    flagged_received: int = 0
+
+    def counters(self) -> dict[str, int]:
+        return {k: getattr(self, k) for k in ("received", "crc_errors", "lost", "duplicates", "events", "resyncs")}
+
+
+class FaultInjector:
+    """Serial wire bytes of a sample stream with seeded faults (:data:`RATES`, at most one
+    per sample), counting in :attr:`expected` exactly what a decoder must report."""
+
+    def __init__(self, n: int, seed: int = 0, rates: dict[str, float] | None = None,
+                 first_seq: int = 0, first_t_us: int = 0) -> None:
+        self.n = n
+        self.rng = np.random.default_rng(seed)
+        rates = dict(RATES if rates is None else rates)
+        self.kinds = list(rates)
+        self.edges = np.cumsum([rates[k] for k in self.kinds])
+        self.first_seq = first_seq
+        self.first_t_us = first_t_us
+        self.expected = Expected()
+        self._in_error = False
+
+    # the decoder's resync rule: one per run of invalid packets
+    def _valid(self, out: list[bytes], data: bytes) -> None:
+        out.append(data)
+        self._in_error = False
+
+    def _invalid(self, out: list[bytes], data: bytes, chunks: int) -> None:
+        out.append(data)
+        if chunks:
+            self.expected.crc_errors += chunks
+            if not self._in_error:
+                self._in_error = True
+                self.expected.resyncs += 1
+
+    def _garbage(self) -> bytes:
+        while True:
+            junk = bytes(self.rng.integers(0, 256, int(self.rng.integers(1, 33))).tolist()) + b"\x00"
+            probe = SerialDecoder(lambda s: None)
+            probe.feed(b"\x00" + junk)
+            if probe.counters.received == probe.counters.events == 0:  # never by chance a valid packet
+                return junk
+
+    def wire(self, samples: Iterator[tuple[int, int, int, tuple[int, ...]]], chunk: int = FS) -> Iterator[bytes]:
+        """The wire bytes, ``chunk`` samples at a time (the first chunk starts with 0x00)."""
+        e = self.expected
+        rng = self.rng
+        out: list[bytes] = [b"\x00"]
+        held: bytes | None = None         # a late packet, sent after the next one
+        stub: bytes | None = None         # a truncated packet, glued to the next one
+        force_clean = False
+        for g in range(self.n):
+            volt_cv, envelope_cv, status, counts = next(samples)
+            kind = None
+            if not force_clean and CLEAN_EDGE <= g < self.n - CLEAN_EDGE:
+                i = int(np.searchsorted(self.edges, rng.random(), side="right"))
+                kind = self.kinds[i] if i < len(self.kinds) else None
+            force_clean = False
+            if kind is not None:
+                e.injected[kind] += 1
+            if kind == "flag":
+                status |= 0x04 if rng.random() < 0.5 else 0x02
+                e.flagged_received += 1
+            elif kind == "absurd":
+                counts = (I32[int(rng.integers(2))],) * 6
+            frame = encode_sample((self.first_seq + g) % SEQ_MODULUS, (self.first_t_us + g * PERIOD_US) % 2**32,
+                                  volt_cv, counts, status, envelope_cv)
+            if stub is not None:
+                self._invalid(out, stub + frame, 1)
+                e.lost += 1
+                stub = None
+            elif kind == "corrupt":
+                pos = cobs_data_positions(frame)[int(rng.integers(len(cobs_data_positions(frame))))]
+                new = int(rng.integers(1, 255))
+                new = new if new < frame[pos] else new + 1
+                self._invalid(out, frame[:pos] + bytes((new,)) + frame[pos + 1:], 1)
+                e.lost += 1
+            elif kind == "zero_byte":
+                pos = int(rng.integers(1, len(frame) - 2))
+                self._invalid(out, frame[:pos] + b"\x00" + frame[pos + 1:], 2)
+                e.lost += 1
+            elif kind == "truncate":
+                stub = frame[:int(rng.integers(1, len(frame) - 1))]
+                e.lost += 1
+                force_clean = True
+            elif kind == "drop":
+                e.lost += 1
+            elif kind == "late":
+                held = frame
+                e.lost += 1
+                e.duplicates += 1
+                force_clean = True
+            else:
+                if kind == "garbage":
+                    junk = self._garbage()
+                    self._invalid(out, junk, invalid_chunks(junk))
+                elif kind == "event":
+                    self._valid(out, encode_event("overtemp"))
+                    e.events += 1
+                self._valid(out, frame)
+                e.received += 1
+                if kind == "duplicate":
+                    self._valid(out, frame)
+                    e.duplicates += 1
+                if held is not None:
+                    self._valid(out, held)
+                    held = None
+            if (g + 1) % chunk == 0 or g == self.n - 1:
+                yield b"".join(out)
+                out = []
+
+
+def rss_mb() -> float:
+    """Resident set size from /proc/self/status (MiB)."""
+    with open("/proc/self/status", encoding="ascii") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    raise RuntimeError("no VmRSS in /proc/self/status")
+
+
+def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: bool = False) -> dict:
+    n = int(round(minutes * 60 * FS))
+    model = make_model(np.random.default_rng(seed), kernel_len=300)
+    cal = Calibration()
+    model.observer_config = {"R": (0.02 / cal.q_area) ** 2, "q_x": 1e-8, "q_bias": 1e-9, "p0_bias": 1e-3}
+    observer = Observer(model, ObserverConfig.from_dict(model.observer_config))
+    tare = float(cal.cl_from_ft(cal.ft_from_counts(np.zeros(6))))
+    loop = ObserverLoop(observer, Converter(cal.with_tare(tare), FS), SEQ_MODULUS, fs_hz=FS)
+    queue: deque = deque()
+    decoder = SerialDecoder(queue.append, cal.counts_per_n, cal.counts_per_nm)
+    injector = FaultInjector(n, seed=seed, first_seq=SEQ_MODULUS - 1000, first_t_us=2**32 - 600 * 10**6)
+    samples = wire_samples(daq_stream("random", seed=seed), serial_wire)
+    reads = np.random.default_rng(seed + 1)
+    warm_at = int(min(warmup_minutes * 60 * FS, n // 10))
+    rss_warm = None
+    t0 = time.perf_counter()
+    fed = 0
+    for data in injector.wire(samples):
+        view = memoryview(data)
+        sizes = reads.integers(1, 4097, len(data) // 2048 + 2)
+        pos = k = 0
+        while pos < len(data):
+            step = int(sizes[k % sizes.size])
+            decoder.feed(view[pos:pos + step])
+            pos += step
+            k += 1
+            while queue:
+                loop.feed(queue.popleft())
+        fed += FS
+        if rss_warm is None and fed >= warm_at:
+            rss_warm = rss_mb()
+        if progress and fed % (600 * FS) == 0:
+            print(f"soak: {fed / FS / 60:.0f} min of data in {time.perf_counter() - t0:.0f} s, "
+                  f"RSS {rss_mb():.1f} MiB", file=sys.stderr, flush=True)
+    seconds = time.perf_counter() - t0
+    rss_end = rss_mb()
+    e = injector.expected
+    got = decoder.counters.as_dict()
+    mon = observer.monitors()
+    st = loop.stats
+    checks = {
+        "decoder_counters_equal_injected": got == e.counters(),
+        "sent_equals_received_plus_lost": got["received"] + got["lost"] == n,
+        "loop_steps_equal_received": st.samples == got["received"],
+        "loop_fills_equal_lost": st.filled == got["lost"],
+        "observer_steps_add_up": mon["updates"] + mon["rejected"] + mon["missing"] == n,
+        "missing_equals_flagged_plus_lost": mon["missing"] == e.flagged_received + got["lost"],
+    }
+    return {
+        "samples": n,
+        "faults_injected": int(sum(e.injected.values())),
+        "accounted_exactly": all(checks.values()),
+        "rss_growth_mb": round(rss_end - (rss_warm if rss_warm is not None else rss_end), 3),
+        "seconds": round(seconds, 2),
+        "us_per_sample": round(seconds / n * 1e6, 2),
+        "rss_warm_mb": round(rss_warm or rss_end, 1),
+        "rss_end_mb": round(rss_end, 1),
+        "injected": e.injected,
+        "expected_counters": e.counters(),
+        "counters": got,
+        "observer": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in mon.items()},
+        "checks": checks,
+        "expected": {k: v for k, v in asdict(e).items() if k == "flagged_received"},
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=60.0, help="minutes of 400 Hz data (default 60: 1.44 M samples)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    args = ap.parse_args()
+    if not args.minutes > 0:
+        ap.error("--minutes must be positive")
+    result = soak(args.minutes, args.seed, progress=not args.quiet)
+    print(f"soak: {result['samples']} samples, {result['faults_injected']} faults, accounted exactly: "
+          f"{result['accounted_exactly']}, RSS growth {result['rss_growth_mb']} MiB, {result['seconds']} s")
+    emit(result)
+
+
+if __name__ == "__main__":
+    main()
