@@ -193,7 +193,9 @@ def rss_mb() -> float:
     raise RuntimeError("no VmRSS in /proc/self/status")
 
 
-def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: bool = False) -> dict:
+def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: bool = False,
+         rates: dict[str, float] | None = None) -> dict:
+    """Run the soak over ``minutes`` of data; the result dict of :func:`main`'s JSON."""
     n = int(round(minutes * 60 * FS))
     model = make_model(np.random.default_rng(seed), kernel_len=300)
     cal = Calibration()
@@ -203,7 +205,7 @@ def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: b
     loop = ObserverLoop(observer, Converter(cal.with_tare(tare), FS), SEQ_MODULUS, fs_hz=FS)
     queue: deque = deque()
     decoder = SerialDecoder(queue.append, cal.counts_per_n, cal.counts_per_nm)
-    injector = FaultInjector(n, seed=seed, first_seq=SEQ_MODULUS - 1000, first_t_us=2**32 - 600 * 10**6)
+    injector = FaultInjector(n, seed=seed, rates=rates, first_seq=SEQ_MODULUS - 1000, first_t_us=2**32 - 600 * 10**6)
     samples = wire_samples(daq_stream("random", seed=seed), serial_wire)
     reads = np.random.default_rng(seed + 1)
     warm_at = int(min(warmup_minutes * 60 * FS, n // 10))

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +23,7 @@ RECORD = "t,cmu,cmu_envelope,dcl\n" + "".join(f"{k / 400!r},0.0,0.001,0.01\n" fo
 
 def message(run) -> str:
     """The error line without the prefix and the directory of the files."""
-    text = run.err[0].removeprefix("rtlift: error: ")
-    return " ".join(w.rsplit("/", 1)[-1] if "/" in w else w for w in text.split(" "))
+    return re.sub(r"(?<!\S)/\S*/", "", run.err[0].removeprefix("rtlift: error: "))
 
 
 def assert_one_line_error(run, *words: str) -> None:
