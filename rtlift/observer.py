@@ -304,6 +304,11 @@ class Observer:
         self._t = np.zeros(d)
         self._PH = np.zeros(d)
         self._K = np.zeros(d)
+        self._Kc = self._K.reshape(d, 1)        # views for outer products without np.outer's overhead
+        self._Kr = self._K.reshape(1, d)
+        self._Hr = self._H.reshape(1, d)
+        self._F = st.F
+        self._G = st.G
         self._T = np.zeros((d, d))
         self._M = np.zeros((d, d))
         self._MT = self._M.T
@@ -402,10 +407,11 @@ class Observer:
 
         x, P, t, T = self._x, self._P, self._t, self._T
         # predict: ξ⁻ = F ξ + G u,  P⁻ = F P Fᵀ + Q
-        np.dot(self.structure.F, x, out=t)
-        np.multiply(self.structure.G, env, out=x)
+        F = self._F
+        np.dot(F, x, out=t)
+        np.multiply(self._G, env, out=x)
         x += t
-        np.dot(self.structure.F, P, out=T)
+        np.dot(F, P, out=T)
         np.dot(T, self._FT, out=P)
         P += self._Q
         # measurement row H(k) and prediction ẑ⁻
@@ -452,11 +458,11 @@ class Observer:
                 np.multiply(PH, 1.0 / S, out=K)
                 np.multiply(K, nu, out=t)
                 x += t
-                np.outer(K, H, out=M)
+                np.multiply(self._Kc, self._Hr, out=M)
                 np.subtract(self._I, M, out=M)
                 np.dot(M, P, out=T)
                 np.dot(T, self._MT, out=P)
-                np.outer(K, K, out=T)
+                np.multiply(self._Kc, self._Kr, out=T)
                 T *= self._R
                 P += T
         est.flags = flags
