@@ -62,6 +62,7 @@ class Context:
     start: int                                   # first scored sample of every record
     tests: dict[str, TestResult] = field(default_factory=dict)   # on the training residual
     burst_hz: float = 0.0
+    envelope_hz: float = 0.0
 
 
 # ------------------------------------------------------------------ model surgery

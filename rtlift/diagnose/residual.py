@@ -212,7 +212,7 @@ def spectrum(e: np.ndarray, fs: float, exclude_hz: tuple[float, ...] = (), min_h
         if f[k] < min_hz or any(abs(f[k] - q.frequency_hz) <= 3.0 * df for q in peaks):
             continue
         width = _half_width(p, k, bg[k] + 0.5 * (p[k] - bg[k]), df)
-        near_excluded = any(abs(f[k] - x) <= 3.0 * df for x in exclude_hz)
+        near_excluded = any(abs(f[k] - x) <= (3.0 if x > 2.0 else 1.0) * df for x in exclude_hz)
         if near_excluded:
             if prom[k] >= 10.0:
                 peaks.append(Peak(float(f[k]), float(prom[k]), float(width), "input_line"))

@@ -33,7 +33,7 @@ from rtlift.records import Record
 @dataclass(frozen=True)
 class DiagnoseOptions:
     start_s: float = 2.0          # scored from here; the first seconds estimate a pickup's phase
-    min_gain: float = 0.01        # relative validation RMSE decrease
+    min_gain: float = 0.015       # relative validation RMSE decrease
     min_t: float = 3.0            # significance of the decrease (1 s blocks)
     max_effects: int = 4
 
@@ -81,12 +81,24 @@ def burst_rate_hz(rec: Record) -> float:
     return float(rec.fs_hz / np.median(np.diff(on)))
 
 
+def envelope_line_hz(rec: Record) -> float:
+    """Fundamental of a periodic envelope (0 if the envelope is not periodic): its low harmonics
+    are input-locked model error, not pickup."""
+    env = rec.cmu_envelope - rec.cmu_envelope.mean()
+    n = env.size
+    spec = np.abs(np.fft.rfft(env * np.hanning(n))) ** 2
+    f = np.fft.rfftfreq(n, 1.0 / rec.fs_hz)
+    k = int(np.argmax(spec[1:])) + 1
+    return float(f[k]) if spec[k] > 0.5 * spec[1:].sum() else 0.0
+
+
 def _tests(model: HybridModel, rec: Record, ctx: Context) -> tuple[dict[str, TestResult], np.ndarray]:
     out = predict(model, rec, ctx.start)
     s = ctx.start
     e = rec.dcl - out.total
     harmonics = tuple(ctx.burst_hz * k for k in range(1, int(0.5 * ctx.fs / ctx.burst_hz) + 1)) \
         if ctx.burst_hz > 0 else ()
+    harmonics += tuple(ctx.envelope_hz * k for k in range(1, 7)) if ctx.envelope_hz > 0 else ()
     tests = run_all(rec.dcl[s:], e[s:], out.total[s:], out.low[s:], rec.cmu_envelope[s:], rec.cmu[s:],
                     ctx.fs, harmonics)
     return tests, e
@@ -162,7 +174,7 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
     opt = options or DiagnoseOptions()
     fs = model.fs_hz
     start = int(round(opt.start_s * fs))
-    ctx = Context(fs=fs, start=start, burst_hz=burst_rate_hz(train))
+    ctx = Context(fs=fs, start=start, burst_hz=burst_rate_hz(train), envelope_hz=envelope_line_hz(train))
     judge = _Judge(validate, start, fs)
     current = model
     accepted: list[Trial] = []
