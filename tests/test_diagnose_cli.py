@@ -1,0 +1,63 @@
+"""``rtlift diagnose`` end to end: files written, schema of INTERFACES.md, augmented model loads."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from hil_sim.experiments import run_experiment, write_bench_record
+from rtlift.cli import main
+from rtlift.identify import identify_hybrid
+from rtlift.modelfile import load_model, save_model
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("diag")
+    recs = {n: run_experiment(n, seed=1).to_record() for n in ("static", "single_burst", "sine_k0125")}
+    save_model(identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"]).model, d / "model.json")
+    effect = ["periodic_disturbance:frequency_hz=20,amplitude=0.01"]
+    write_bench_record(run_experiment("sine_k0125", seed=21, effects=effect), d / "train.csv")
+    write_bench_record(run_experiment("sine_k0125", seed=22, effects=effect), d / "val.csv")
+    write_bench_record(run_experiment("random", seed=23, effects=effect), d / "valr.csv")
+    return d
+
+
+def test_diagnose_writes_the_report_the_figures_and_a_loadable_augmented_model(files, capsys):
+    out = files / "out"
+    rc = main(["diagnose", "--model", str(files / "model.json"), "--train", str(files / "train.csv"),
+               "--validate", str(files / "val.csv"), str(files / "valr.csv"), "--out", str(out)])
+    assert rc == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert set(rep) == {"version", "baseline", "augmented", "effects", "unexplained"}
+    assert rep["version"] == 1 and set(rep["baseline"]["records"]) == {"train", "val", "valr"}
+    for scores in (*rep["baseline"]["records"].values(), *rep["augmented"]["records"].values()):
+        assert set(scores) == {"corr", "nrmse", "rmse"}
+    for e in rep["effects"]:
+        assert set(e) == {"name", "accepted", "params", "evidence", "validation_rmse_before",
+                          "validation_rmse_after"}
+        assert "\n" not in e["evidence"]
+    acc = [e for e in rep["effects"] if e["accepted"]]
+    assert [e["name"] for e in acc] == ["periodic_disturbance"]
+    assert acc[0]["params"]["frequency_hz"] == pytest.approx(20.0, abs=0.01)
+    model = load_model(out / "model_augmented.json")
+    assert [s.name for s in model.output_stages] == ["periodic_disturbance"]
+    assert main(["validate", "--model", str(out / "model_augmented.json"), str(files / "val.csv")]) == 0
+    md = (out / "report.md").read_text()
+    for fig in ("residual_time", "residual_spectrum", "residual_autocorr"):
+        assert (out / "figures" / f"{fig}.png").stat().st_size > 1000
+        assert f"figures/{fig}.png" in md
+    assert "RMSE" in md and "NRMSE" in md
+
+
+def test_bad_input_is_a_one_line_error_with_status_2(files, tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,cmu,cmu_envelope\n0,0,0\n")
+    rc = main(["diagnose", "--model", str(files / "model.json"), "--train", str(bad),
+               "--validate", str(files / "val.csv"), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1
+    rc = main(["diagnose", "--model", str(files / "model.json"), "--train", str(files / "train.csv"),
+               "--validate", str(files / "train.csv"), "--out", str(tmp_path / "o")])
+    assert rc == 2
