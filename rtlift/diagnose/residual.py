@@ -125,7 +125,7 @@ class Peak:
 
 
 def welch_psd(e: np.ndarray, fs: float, seconds: float = 5.12) -> tuple[np.ndarray, np.ndarray]:
-    nper = int(min(e.size, round(seconds * fs)))
+    nper = int(min(e.size, round(seconds * fs), max(256, e.size // 8)))    # ≥ 8 segments averaged
     return signal.welch(e - e.mean(), fs=fs, nperseg=nper, window="hann", detrend="constant")
 
 
