@@ -33,6 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
     from rtlift.modelfile import save_model
+    from rtlift.observer import tune_observer
     from rtlift.records import read_record
 
     if args.order is not None and not 1 <= args.order <= 8:
@@ -48,12 +49,13 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"cannot identify from {args.static}, {args.single_burst}, "
                         f"{args.train}: {exc}") from None
     seconds = time.perf_counter() - t0
+    observer = {**idf.observer, **tune_observer(idf.model, [train])}   # Q, R from the data, for rtlift observe
     idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
                                "train": str(args.train)}
     idf.provenance["identify_seconds"] = seconds
     try:
         save_model(idf.model, args.out, provenance=idf.provenance, metrics=idf.metrics,
-                   observer=idf.observer)
+                   observer=observer)
     except OSError as exc:
         raise UserError(f"{args.out}: cannot write model file ({exc.strerror})") from None
     print(summary(idf, args.out, seconds))
