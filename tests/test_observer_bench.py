@@ -1,7 +1,10 @@
 """The observer on the simulated bench (σ(ΔCL) ≈ 0.004): accuracy against the bench's
-noise-free ΔCL, a zero drift, and NIS consistency. The model is identified from the
-standard campaign (seed 1, the paper's 2nd-order Wiener LTI) and the observer's Q and R
-are tuned on seed-1 records; every score is on seed-2 records it has not seen."""
+noise-free ΔCL, a zero drift, and NIS consistency.
+
+The model is identified by the default ``identify_hybrid`` (automatic Wiener order) from the
+clean standard campaign of seed 1, and the observer's noise settings are tuned by
+``tune_observer`` on seed-1 records (sine_k0125, random, train_T1p75). Every score is on
+seed-2 records neither has seen."""
 
 from __future__ import annotations
 
@@ -12,20 +15,20 @@ import pytest
 
 from hil_sim.experiments import run_experiment
 from rtlift.hybrid import HybridModel
-from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
+from rtlift.identify.campaign import identify_hybrid
 from rtlift.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, tune_observer
 from rtlift.records import Record
 
 TARE = 800                                          # the bench's 2 s actuator-off start
 TRAINS = ("train_T1p75", "train_T3p5", "train_T7")
+TUNED_ON = ("sine_k0125", "random", "train_T1p75")
 
 
 @functools.cache
 def _identified() -> dict:
     recs = {n: run_experiment(n, seed=1).to_record() for n in ("static", "single_burst", "sine_k0125")}
-    idf = identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"], IdentifyOptions(order=2))
-    return model_to_dict(idf.model)
+    return model_to_dict(identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"]).model)
 
 
 @functools.cache
@@ -34,8 +37,13 @@ def _tuned(experiments: tuple[str, ...]) -> dict:
     return tune_observer(model, [run_experiment(n, seed=1).to_record() for n in experiments])
 
 
-def bench_model(tuned_on: tuple[str, ...] = ("random",)) -> HybridModel:
-    """The identified model with observer settings tuned on seed-1 records (a fresh copy)."""
+@functools.cache
+def _test_record(name: str) -> Record:
+    return run_experiment(name, seed=2).to_record()
+
+
+def bench_model(tuned_on: tuple[str, ...] = TUNED_ON) -> HybridModel:
+    """The identified model with the observer settings tuned on seed-1 records (a fresh copy)."""
     model = model_from_dict(_identified())
     model.observer_config = dict(_tuned(tuned_on))
     return model
@@ -48,31 +56,45 @@ def observe(model: HybridModel, rec: Record) -> dict[str, np.ndarray]:
     return out
 
 
-def rmse(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.sqrt(np.mean((a[TARE:] - b[TARE:]) ** 2)))
-
-
-def test_on_burst_trains_the_estimate_beats_the_raw_measurement_and_the_open_loop_model():
-    model = bench_model(TRAINS)
+def errors(names: tuple[str, ...]) -> dict[str, float]:
+    """RMSE against the noise-free ΔCL after the tare, pooled over ``names``: observer, raw
+    measurement, open-loop model."""
+    model = bench_model()
     est, raw, ol, truth = [], [], [], []
-    for name in TRAINS:
-        rec = run_experiment(name, seed=2).to_record()
+    for name in names:
+        rec = _test_record(name)
         out = observe(model, rec)
-        assert rmse(out["dcl"], rec.extra["dcl_true"]) < rmse(rec.dcl, rec.extra["dcl_true"]), name
         est.append(out["dcl"][TARE:])
         raw.append(rec.dcl[TARE:])
         ol.append(out["model_dcl"][TARE:])
         truth.append(rec.extra["dcl_true"][TARE:])
     est, raw, ol, truth = map(np.concatenate, (est, raw, ol, truth))
-    e_obs, e_raw, e_ol = (float(np.sqrt(np.mean((x - truth) ** 2))) for x in (est, raw, ol))
-    assert 0.0035 < e_raw < 0.0045                   # the bench's sensor noise
-    assert e_obs <= 0.75 * e_raw
-    assert e_obs <= 0.50 * e_ol
+    return {k: float(np.sqrt(np.mean((x - truth) ** 2))) for k, x in (("obs", est), ("raw", raw), ("ol", ol))}
+
+
+@pytest.mark.parametrize("name", ["sine_k0125", "random"])
+def test_on_high_amplitude_records_the_estimate_beats_raw_by_25_and_open_loop_by_50_percent(name):
+    """Issue 6's criterion, per record, where the burst ripple's model error is largest."""
+    e = errors((name,))
+    assert 0.0033 < e["raw"] < 0.0040                # the bench's sensor noise
+    assert e["obs"] <= 0.75 * e["raw"]
+    assert e["obs"] <= 0.50 * e["ol"]
+
+
+def test_on_burst_trains_the_estimate_beats_raw_by_25_percent_each_and_open_loop_by_50_pooled():
+    """Per train the raw criterion; the open-loop one pooled over the three trains (at
+    T = 1.75 t⁺ alone the open-loop model is already within noise level: 0.0027)."""
+    for name in TRAINS:
+        e = errors((name,))
+        assert e["obs"] <= 0.75 * e["raw"], name
+    pooled = errors(TRAINS)
+    assert 0.0033 < pooled["raw"] < 0.0042
+    assert pooled["obs"] <= 0.50 * pooled["ol"]
 
 
 def test_with_a_zero_drift_the_estimate_stays_unbiased_while_the_open_loop_model_drifts_away():
     rate = 1.5e-3                                    # ΔCL per second, the top of the effect's range
-    model = bench_model(TRAINS)
+    model = bench_model()
     rec = run_experiment("train_T1p75", seed=2, effects=[f"zero_drift:rate_per_s={rate}"]).to_record()
     drift = rate * rec.t
     drift -= drift[:TARE][rec.cmu[:TARE] == 0].mean()   # the tare removes its start
@@ -85,20 +107,29 @@ def test_with_a_zero_drift_the_estimate_stays_unbiased_while_the_open_loop_model
 
 
 def test_nis_stays_in_its_95_percent_band_on_the_default_bench():
-    model = bench_model(("random",))
-    assert model.observer_config["R"] == pytest.approx(0.004**2, rel=0.3)   # from the tare seconds
-    rec = run_experiment("random", seed=2).to_record()
-    obs = observe(model, rec)["observer"]
-    assert 0.90 <= obs.nis_band_fraction <= 0.99
-    assert 0.7 <= obs.nis_mean <= 1.4
-    assert obs.rejected < 0.02 * obs.updates
+    model = bench_model()
+    cfg = model.observer_config
+    total = cfg["R"] + cfg["q_noise"] * _ar2_variance(cfg["noise_ar"])
+    assert cfg["measurement_noise_std"] == pytest.approx(0.004, rel=0.15)   # from the tare seconds
+    assert total == pytest.approx(cfg["measurement_noise_std"] ** 2, rel=0.1)  # white + buffeting
+    assert cfg["ripple_harmonics"] == 8 and len(cfg["noise_ar"]) == 2
+    for name in ("random", "sine_k0125"):
+        obs = observe(model, _test_record(name))["observer"]
+        assert 0.92 <= obs.nis_band_fraction <= 0.97, name
+        assert 0.85 <= obs.nis_mean <= 1.2, name
+        assert obs.rejected < 0.005 * obs.updates, name
+
+
+def _ar2_variance(a: list[float]) -> float:
+    a1, a2 = a
+    return (1 - a2) / ((1 + a2) * ((1 - a2) ** 2 - a1**2))
 
 
 def test_the_tuned_settings_round_trip_through_the_model_file(tmp_path):
     from rtlift.modelfile import load_model, save_model
 
-    model = bench_model(("random",))
+    model = bench_model()
     save_model(model, tmp_path / "m.json", observer=model.observer_config)
     back = Observer.from_model(load_model(tmp_path / "m.json"))
     assert back.config.to_dict() == Observer.from_model(model).config.to_dict()
-    assert 0.6 <= back.config.extra["nis_mean"] <= 1.5
+    assert 0.8 <= back.config.extra["nis_mean"] <= 1.25
