@@ -92,7 +92,8 @@ def test_highpass_step_equals_scipy_sosfilt(seed, order, cutoff):
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), order=st.integers(1, 2), cutoff=st.floats(0.3, 50.0))
 def test_highpass_step_equals_scipy_lfilter(seed, order, cutoff):
-    """Against the transfer-function form too, where that form is itself accurate (order ≤ 2; above, lfilter's single polynomial loses digits near z = 1)."""
+    """Against the transfer-function form too, where that form is itself accurate (order ≤ 2; above,
+    lfilter's single polynomial loses digits near z = 1)."""
     rng = np.random.default_rng(seed)
     x = rng.normal(size=2000) * 0.02
     hp = HighPassFilter.design(order, cutoff, 400.0)
