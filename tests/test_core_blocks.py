@@ -162,3 +162,13 @@ def test_delay_stage_shifts_by_whole_samples_in_both_paths():
     c2, e2 = d.simulate(cmu, env)
     np.testing.assert_array_equal(c2, streamed[:, 0])
     np.testing.assert_array_equal(e2, streamed[:, 1])
+
+
+def test_long_records_take_the_fft_path_and_still_equal_the_steps():
+    """A 300-tap kernel over 20 000 samples (6e6 multiply-adds) is convolved by overlap-add FFT."""
+    rng = np.random.default_rng(7)
+    m = make_model(rng, kernel_len=300)
+    cmu, env = burst_input(rng, 20_000)
+    streamed = _steps(m, cmu, env)[0]
+    m.reset()
+    np.testing.assert_allclose(m.simulate(cmu, env).total, streamed, atol=TOL, rtol=0)

@@ -116,18 +116,25 @@ class LTIBlock:
             self._x[:] = [float(v) for v in X[-1]]
         return X
 
-    def _simulate_canonical(self, u: np.ndarray) -> np.ndarray:
+    def _canonical_first_state(self, u: np.ndarray) -> np.ndarray:
+        """x₁ over ``u`` preceded by its n−1 past values (oldest first); advances the state."""
         n = self.n
         past = np.array(self._x)                              # x₁(k−1), x₁(k−2), … x₁(k−n)
         zi = signal.lfiltic([self._B[0]], self._den, past)
         x1, _ = signal.lfilter([self._B[0]], self._den, u, zi=zi)
         ext = np.concatenate([past[::-1][1:], x1])            # x₁(k−n+1) … x₁(k+N−1)
-        X = np.lib.stride_tricks.sliding_window_view(ext, n)[:, ::-1]
-        self._x[:] = [float(v) for v in X[-1]]
-        return X
+        self._x[:] = [float(v) for v in ext[::-1][:n]]
+        return ext
+
+    def _simulate_canonical(self, u: np.ndarray) -> np.ndarray:
+        ext = self._canonical_first_state(u)
+        return np.lib.stride_tricks.sliding_window_view(ext, self.n)[:, ::-1]
 
     def simulate(self, u: np.ndarray) -> np.ndarray:
         """Batch twin of :meth:`step`: y(k) for every sample of ``u``."""
+        u = np.asarray(u, dtype=float)
+        if self.canonical and u.size:                         # y(k) = Σᵢ Cᵢ x₁(k−i+1): a short FIR of x₁
+            return np.convolve(self._canonical_first_state(u), self.C, mode="valid")
         return self.simulate_states(u) @ self.C
 
     def reset(self) -> None:
