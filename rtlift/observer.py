@@ -97,6 +97,8 @@ FLAG_REJECTED = 2
 """Innovation outside the χ² gate: measurement rejected, predict only."""
 FLAG_GATE_RELEASED = 4
 """Outside the gate but accepted: ``max_rejections`` outliers have piled up (module docstring)."""
+FLAG_BAD_INPUT = 8
+"""Cμ or Cμ_env was NaN/±inf: the last finite inputs are held and the sample is predict-only."""
 GATE_LEAK = 0.25
 """What a sample inside the gate takes off the outlier count: the gate opens when more than
 one sample in five falls outside it for a while (a consistent filter: one in 10⁴)."""
@@ -547,6 +549,7 @@ class Observer:
         self._sync_kf()
         self._rejected_run = 0
         self._gate_open = False
+        self._last_cmu = self._last_env = 0.0
         self.clear_monitors()
         e = self.estimate
         e.dcl = e.model_dcl = e.bias = 0.0
@@ -589,7 +592,7 @@ class Observer:
     # -- monitors ---------------------------------------------------------------------
     def clear_monitors(self) -> None:
         """Zero the counters and NIS/likelihood sums (the state is kept)."""
-        self.updates = self.rejected = self.missing = 0
+        self.updates = self.rejected = self.missing = self.bad_inputs = 0
         self._nis_sum = 0.0
         self._nis_in_band = 0
         self._nll_sum = 0.0
@@ -612,14 +615,25 @@ class Observer:
 
     def monitors(self) -> dict[str, float | int]:
         return {"updates": self.updates, "rejected": self.rejected, "missing": self.missing,
+                "bad_inputs": self.bad_inputs,
                 "nis_mean": self.nis_mean, "nis_band_fraction": self.nis_band_fraction}
 
     # -- the 400 Hz step --------------------------------------------------------------
     def step(self, cmu: float, env: float, dcl: float | None) -> Estimate:
         """One sample: Cμ(k), Cμ_env(k) and the measured ΔCL(k) (``None``, NaN or ±inf: predict only).
 
-        Returns the observer's preallocated :class:`Estimate`, updated in place.
+        Returns the observer's preallocated :class:`Estimate`, updated in place. A non-finite
+        Cμ or Cμ_env would poison the model's state for good: the last finite inputs are held
+        instead and the sample is predict-only (``FLAG_BAD_INPUT``).
         """
+        bad_input = 0
+        if -math.inf < cmu < math.inf and -math.inf < env < math.inf:
+            self._last_cmu = cmu
+            self._last_env = env
+        else:
+            cmu, env, dcl = self._last_cmu, self._last_env, None
+            bad_input = FLAG_BAD_INPUT
+            self.bad_inputs += 1
         for s in self._input_stages:
             cmu, env = s.step(cmu, env)
         high = self._hp_step(self._conv_step(cmu))
@@ -707,7 +721,7 @@ class Observer:
                 daxpy(u, x, a=nu / S)
                 self._dscal(1.0 / math.sqrt(S), u)
                 self._dger(-1.0, u, u, a=self._PT, overwrite_a=1)
-        est.flags = flags
+        est.flags = flags | bad_input
         xw = self._xw
         est.bias = float(x[self.structure.n])
         wiener = g * ddot(self._C, xw) if self._input_gain else self._nl.step(env, ddot(self._C, xw))

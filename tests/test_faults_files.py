@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from rtlift.modelfile import load_model
-from rtlift.observer import FLAG_MISSING, Observer
+from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer
 from tests.test_faults_support import rtlift, write_model
 
 PAPER_MODEL = Path(__file__).resolve().parents[1] / "rtlift" / "data" / "paper_model.json"
@@ -155,3 +155,24 @@ def test_nan_measurement(model, record_property):
     assert obs.monitors()["missing"] == 3 and np.all(np.isfinite(obs.get_state()))
     record_property("measured", f"3 non-finite ΔCL: missing {obs.monitors()['missing']}, estimates identical to "
                                 "'no measurement', state finite")
+
+
+def test_nan_input(model, record_property):
+    """Through the Python API a NaN or infinite Cμ or Cμ_env holds the last finite inputs and
+    is predict-only (FLAG_BAD_INPUT, counted): the model's state stays finite for good."""
+    obs = Observer.from_model(load_model(model))
+    ref = Observer.from_model(load_model(model))
+    rng = np.random.default_rng(6)
+    env = 0.011 + 0.005 * np.sin(np.arange(400) / 40)
+    z = 0.05 + 0.01 * rng.standard_normal(400)
+    for k in range(400):
+        bad = k in (120, 220, 320)
+        c, e = (math.nan, env[k]) if k == 120 else (env[k], math.inf) if k == 220 else \
+            (math.nan, math.nan) if k == 320 else (env[k], env[k])
+        est = obs.step(c, e, float(z[k]))
+        ref_est = ref.step(env[k - 1], env[k - 1], None) if bad else ref.step(env[k], env[k], float(z[k]))
+        assert math.isfinite(est.dcl) and est.dcl == ref_est.dcl
+        assert bool(est.flags & FLAG_BAD_INPUT) == bad
+    assert obs.monitors()["bad_inputs"] == 3 and np.all(np.isfinite(obs.get_state()))
+    record_property("measured", f"3 non-finite inputs: bad_inputs {obs.monitors()['bad_inputs']}, estimates "
+                                "identical to holding the last inputs without a measurement, state finite")
