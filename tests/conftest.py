@@ -56,3 +56,16 @@ def burst_input(rng: np.random.Generator, n: int, period: int = 50, width: int =
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def model_file(tmp_path_factory):
+    """A model identified on the bench and tuned for the observer, as a file (shared by the
+    live-observe and replay tests; a module may define its own ``model_file``)."""
+    from rtlift.modelfile import save_model
+    from tests.test_observer_bench import bench_model
+
+    path = tmp_path_factory.mktemp("model") / "model.json"
+    model = bench_model(("random",))
+    save_model(model, path, observer=model.observer_config)
+    return path

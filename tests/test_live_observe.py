@@ -24,14 +24,6 @@ KEYS = ("received", "crc_errors", "lost", "resyncs", "events", "duplicates", "es
         "latency_p50_ms", "latency_p99_ms")
 
 
-@pytest.fixture(scope="module")
-def model_file(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("model") / "model.json"
-    model = bench_model(("random",))
-    save_model(model, path, observer=model.observer_config)
-    return path
-
-
 def link_args(dev) -> list[str]:
     return ["--serial", dev.path] if isinstance(dev, SerialDaq) else ["--can", f"slcan:{dev.path}"]
 

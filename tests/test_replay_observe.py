@@ -13,19 +13,9 @@ import pytest
 from hil_sim.devices import FaultPlan, SerialDaq, SlcanAdapter
 from hil_sim.experiments import daq_stream
 from rtlift.cli import main
-from rtlift.modelfile import save_model
 from tests.test_live_observe import estimate_rows, start_observe
-from tests.test_observer_bench import bench_model
 
 FAULTS = FaultPlan(corrupt=0.01, drop=0.01, duplicate=0.01, garbage=0.005)
-
-
-@pytest.fixture(scope="module")
-def model_file(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("model") / "model.json"
-    model = bench_model(("random",))
-    save_model(model, path, observer=model.observer_config)
-    return path
 
 
 def live_run(make, model_file: Path, tmp: Path, seconds: float) -> tuple[Path, dict, list[str]]:
