@@ -52,21 +52,29 @@ def log_kind(path: str | os.PathLike) -> str:
                    f"{'/'.join(RAW_SUFFIXES)} for serial captures, {'/'.join(CAN_SUFFIXES)} for CAN")
 
 
-class RawCapture:
-    """The exact bytes of a serial link, appended as read, flushed every ``flush_s``."""
+class FlushedFile:
+    """A log file appended to as data arrives, flushed every ``flush_s`` and on close. A disk
+    that fails (full, gone) closes it and raises a one-line :class:`LogError` naming the file
+    and ``what`` it holds — never a bare ``OSError``."""
 
-    def __init__(self, path: str | os.PathLike, flush_s: float = FLUSH_S) -> None:
-        try:
-            self._file = open(path, "wb")  # noqa: SIM115 - closed in close()
-        except OSError as exc:
-            raise LogError(f"{path}: cannot write log ({exc.strerror})") from None
+    def __init__(self, path: str | os.PathLike, what: str, *, binary: bool = False,
+                 flush_s: float = FLUSH_S) -> None:
         self.path = Path(path)
+        self._what = what
+        try:
+            self._file = (open(path, "wb") if binary  # noqa: SIM115 - closed in close()
+                          else open(path, "w", encoding="utf-8", newline=""))
+        except OSError as exc:
+            raise LogError(f"{path}: cannot write {what} ({exc.strerror})") from None
         self._flush_s = flush_s
         self._last_flush = time.perf_counter()
-        self.bytes_written = 0
 
-    def write(self, data: bytes) -> None:
-        """Append ``data``; a failing disk (full, gone) closes the log and raises :class:`LogError`."""
+    def _start(self, meta: dict[str, Any] | None, columns: Iterable[str]) -> None:
+        """``# key: value`` metadata lines and the CSV header, on disk at once."""
+        self._append("".join(f"# {k}: {v}\n" for k, v in (meta or {}).items()) + ",".join(columns) + "\n")
+        self._flush()
+
+    def _append(self, data: str | bytes) -> None:
         try:
             self._file.write(data)
             now = time.perf_counter()
@@ -74,21 +82,39 @@ class RawCapture:
                 self._file.flush()
                 self._last_flush = now
         except OSError as exc:
-            raise _failed(self._file, self.path, exc) from None
-        self.bytes_written += len(data)
+            raise _failed(self._file, self.path, exc, self._what) from None
+
+    def _flush(self) -> None:
+        try:
+            self._file.flush()
+        except OSError as exc:
+            raise _failed(self._file, self.path, exc, self._what) from None
 
     def close(self) -> None:
         if not self._file.closed:
             try:
                 self._file.close()
             except OSError as exc:
-                raise _failed(self._file, self.path, exc) from None
+                raise _failed(self._file, self.path, exc, self._what) from None
 
-    def __enter__(self) -> RawCapture:
+    def __enter__(self) -> FlushedFile:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class RawCapture(FlushedFile):
+    """The exact bytes of a serial link, appended as read, flushed every ``flush_s``."""
+
+    def __init__(self, path: str | os.PathLike, flush_s: float = FLUSH_S) -> None:
+        super().__init__(path, "log", binary=True, flush_s=flush_s)
+        self.bytes_written = 0
+
+    def write(self, data: bytes) -> None:
+        """Append ``data``; a failing disk (full, gone) closes the log and raises :class:`LogError`."""
+        self._append(data)
+        self.bytes_written += len(data)
 
 
 class CanLog:
@@ -135,11 +161,11 @@ class CanLog:
         self.close()
 
 
-def _failed(file: Any, path: Path, exc: OSError) -> LogError:
+def _failed(file: Any, path: Path, exc: OSError, what: str = "log") -> LogError:
     """Close a log whose disk failed (whatever is left in its buffer is lost) and say so in one line."""
     with contextlib.suppress(OSError, ValueError):
         (file.stop if hasattr(file, "stop") else file.close)()
-    return LogError(f"{path}: cannot write log ({exc.strerror or exc}); the run stopped")
+    return LogError(f"{path}: cannot write {what} ({exc.strerror or exc}); the run stopped")
 
 
 def open_link_log(path: str | os.PathLike, link_kind: str) -> RawCapture | CanLog:
@@ -151,47 +177,23 @@ def open_link_log(path: str | os.PathLike, link_kind: str) -> RawCapture | CanLo
     return RawCapture(path) if kind == "serial" else CanLog(path)
 
 
-class RecordWriter:
+class RecordWriter(FlushedFile):
     """A record CSV (INTERFACES.md) written row by row: ``# key: value`` metadata, the
     header ``t,cmu,cmu_envelope,dcl,<extra...>``, flushed every ``flush_s`` and on close."""
 
     def __init__(self, path: str | os.PathLike, meta: dict[str, Any] | None = None,
                  extra_columns: Iterable[str] = (), flush_s: float = FLUSH_S) -> None:
+        super().__init__(path, "record", flush_s=flush_s)
         self.extra_columns = tuple(extra_columns)
-        try:
-            self._file = open(path, "w", encoding="utf-8", newline="")  # noqa: SIM115
-        except OSError as exc:
-            raise LogError(f"{path}: cannot write record ({exc.strerror})") from None
-        for key, value in (meta or {}).items():
-            self._file.write(f"# {key}: {value}\n")
-        self._file.write(",".join(("t", "cmu", "cmu_envelope", "dcl", *self.extra_columns)) + "\n")
-        self._file.flush()
-        self.path = Path(path)
-        self._flush_s = flush_s
-        self._last_flush = time.perf_counter()
+        self._start(meta, ("t", "cmu", "cmu_envelope", "dcl", *self.extra_columns))
         self.rows = 0
 
     def write(self, t: float, cmu: float, cmu_envelope: float, dcl: float, *extra: float) -> None:
         """One row; ``t`` must increase strictly and ``dcl`` be finite (skip missing samples)."""
         if len(extra) != len(self.extra_columns):
             raise ValueError(f"{len(extra)} extra values for {len(self.extra_columns)} extra columns")
-        self._file.write(",".join(repr(float(v)) for v in (t, cmu, cmu_envelope, dcl, *extra)) + "\n")
+        self._append(",".join(repr(float(v)) for v in (t, cmu, cmu_envelope, dcl, *extra)) + "\n")
         self.rows += 1
-        now = time.perf_counter()
-        if now - self._last_flush >= self._flush_s:
-            self._file.flush()
-            self._last_flush = now
-
-    def close(self) -> None:
-        if not self._file.closed:
-            self._file.flush()
-            self._file.close()
-
-    def __enter__(self) -> RecordWriter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 @contextlib.contextmanager

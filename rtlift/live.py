@@ -15,7 +15,6 @@ here depends on the host clock except the latency figures.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
@@ -27,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from firmware_io.logs import FlushedFile
 from firmware_io.samples import Sample
 from rtlift.observer import Observer
 
@@ -39,54 +39,24 @@ COLUMNS = ("index", "t", "seq", "t_us", "cmu", "cmu_envelope", "dcl_meas", "dcl_
            "innovation", "nis", "flags")
 
 
-class EstimateWriter:
+class EstimateWriter(FlushedFile):
     """Estimates as CSV (:data:`COLUMNS`; floats as ``repr`` so they read back exactly; empty
-    cells for what a filled-in sample does not have), flushed every ``flush_s`` and on close."""
+    cells for what a filled-in sample does not have), flushed every ``flush_s`` and on close;
+    a failing disk is a one-line error (:class:`~firmware_io.errors.LogError`)."""
 
     def __init__(self, path: str | os.PathLike, meta: dict[str, Any] | None = None,
                  flush_s: float = FLUSH_S) -> None:
-        from rtlift.errors import UserError
-
-        try:
-            self._file = open(path, "w", encoding="utf-8", newline="")  # noqa: SIM115 - closed in close()
-        except OSError as exc:
-            raise UserError(f"{path}: cannot write estimates ({exc.strerror})") from None
-        for key, value in (meta or {}).items():
-            self._file.write(f"# {key}: {value}\n")
-        self._file.write(",".join(COLUMNS) + "\n")
-        self._flush_s = flush_s
-        self._last = time.perf_counter()
+        super().__init__(path, "estimates", flush_s=flush_s)
+        self._start(meta, COLUMNS)
         self.rows = 0
 
     def write(self, index: int, t: float, seq: int, t_us: int | None, cmu: float, env: float,
               dcl: float | None, est: Any) -> None:
-        try:
-            self._file.write(
-                f"{index},{t!r},{seq},{'' if t_us is None else t_us},{cmu!r},{env!r},"
-                f"{'' if dcl is None else repr(dcl)},{est.dcl!r},{est.model_dcl!r},"
-                f"{est.innovation!r},{est.nis!r},{est.flags}\n")
-            now = time.perf_counter()
-            if now - self._last >= self._flush_s:
-                self._file.flush()
-                self._last = now
-        except OSError as exc:
-            raise self._failed(exc) from None
+        self._append(
+            f"{index},{t!r},{seq},{'' if t_us is None else t_us},{cmu!r},{env!r},"
+            f"{'' if dcl is None else repr(dcl)},{est.dcl!r},{est.model_dcl!r},"
+            f"{est.innovation!r},{est.nis!r},{est.flags}\n")
         self.rows += 1
-
-    def close(self) -> None:
-        if not self._file.closed:
-            try:
-                self._file.close()
-            except OSError as exc:
-                raise self._failed(exc) from None
-
-    def _failed(self, exc: OSError) -> Exception:
-        """Close the file of a failing disk (full, gone): a one-line error instead of an OSError."""
-        from rtlift.errors import UserError
-
-        with contextlib.suppress(OSError):
-            self._file.close()
-        return UserError(f"{self._file.name}: cannot write estimates ({exc.strerror or exc}); the run stopped")
 
 
 class LatencyHistogram:
