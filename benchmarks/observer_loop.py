@@ -9,6 +9,11 @@ observer once per received sample, as ``rtlift observe`` does. Prints JSON as it
 one step (bytes retained after 2000 steps, transient peak). Targets: step p99 ≤ 100 µs,
 latency p99 ≤ 1 ms. Measured, not asserted.
 
+``--load`` runs the loop under load: a CPU hog pinned to the other core (this process is
+pinned to core 0 when the machine has two or more) and bursts of disk writes (``--burst-mb``
+MB written and fsync'd every ``--burst-every`` s into a temporary directory), both in their
+own processes; the JSON gains ``load`` (what the hog and the writer did).
+
 ``--model MODEL.json`` uses a model file with observer settings; by default the model is
 identified from the bench (seed 1, 2nd-order Wiener) and the observer tuned on a seed-1
 ``random`` record first (≈ 15 s, not timed).
@@ -59,11 +64,67 @@ def allocation(model) -> dict:
     return {"alloc_retained_bytes_after_2000_steps": current, "alloc_transient_peak_bytes": peak - current}
 
 
+HOG = "import time\nend = time.perf_counter() + {s}\nn = 0\nwhile time.perf_counter() < end:\n    n += 1\nprint(n)"
+WRITER = """
+import os, sys, time
+d, mb, every, seconds = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4])
+block = os.urandom(1 << 20)
+end = time.perf_counter() + seconds
+written = bursts = 0
+worst = 0.0
+while time.perf_counter() < end:
+    t = time.perf_counter()
+    with open(os.path.join(d, "burst.bin"), "wb") as f:
+        for _ in range(mb):
+            f.write(block)
+        f.flush()
+        os.fsync(f.fileno())
+    worst = max(worst, time.perf_counter() - t)
+    written += mb
+    bursts += 1
+    time.sleep(max(0.0, every - (time.perf_counter() - t)))
+print(written, bursts, round(worst, 3))
+"""
+
+
+def start_load(seconds: float, burst_mb: int, burst_every: float, tmp: str) -> list[subprocess.Popen]:
+    """The CPU hog (on the last core) and the disk writer, for ``seconds``."""
+    cpus = sorted(os.sched_getaffinity(0))
+    hog = subprocess.Popen([sys.executable, "-c", HOG.format(s=seconds)], stdout=subprocess.PIPE, text=True)
+    if len(cpus) >= 2:
+        os.sched_setaffinity(hog.pid, {cpus[-1]})
+        os.sched_setaffinity(0, {cpus[0]})
+    writer = subprocess.Popen([sys.executable, "-c", WRITER, tmp, str(burst_mb), str(burst_every), str(seconds)],
+                              stdout=subprocess.PIPE, text=True)
+    return [hog, writer]
+
+
+def stop_load(procs: list[subprocess.Popen]) -> dict:
+    hog, writer = procs
+    out = {}
+    for name, p in (("hog", hog), ("writer", writer)):
+        try:
+            text, _ = p.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            text, _ = p.communicate()
+        out[name] = text.split()
+    n = out["hog"]
+    w = out["writer"]
+    return {"cpu_hog_iterations": int(n[0]) if n else None,
+            "disk_mb_written": int(w[0]) if w else None, "disk_bursts": int(w[1]) if w else None,
+            "disk_burst_worst_s": float(w[2]) if w else None}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="device seconds to run (default 20)")
     ap.add_argument("--model", help="model file with observer settings (default: identify and tune)")
+    ap.add_argument("--load", action="store_true", help="run under a CPU hog on the other core and disk bursts")
+    ap.add_argument("--burst-mb", type=int, default=64, help="MB per disk burst with --load (default 64)")
+    ap.add_argument("--burst-every", type=float, default=1.0, help="seconds between disk bursts (default 1)")
     args = ap.parse_args()
+    import tempfile
 
     from firmware_io import Converter, open_link
     from rtlift.live import ObserverLoop
@@ -74,8 +135,12 @@ def main() -> None:
     observer = Observer.from_model(model)
     serve = subprocess.Popen([sys.executable, "-m", "rtlift", "bench", "serve", "--serial", "--experiment", "random",
                               "--seed", "3"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    load = None
+    tmp = tempfile.TemporaryDirectory()
     try:
         path = serve.stdout.readline().strip()
+        if args.load:
+            load = start_load(args.seconds + 2.0, args.burst_mb, args.burst_every, tmp.name)
         with open_link({"kind": "serial", "port": path}) as link:
             loop = ObserverLoop(observer, Converter(), link.seq_modulus, fs_hz=model.fs_hz,
                                 max_samples=int(round(args.seconds * model.fs_hz)), time_steps=True)
@@ -86,6 +151,8 @@ def main() -> None:
     finally:
         serve.terminate()
         serve.wait(10)
+        load_stats = stop_load(load) if load is not None else None
+        tmp.cleanup()
     step_median, step_p99 = percentiles_us(np.frombuffer(loop.stats.step_times, dtype=float))
     lat50, lat99 = loop.stats.latency_ms()
     result = {
@@ -100,6 +167,8 @@ def main() -> None:
         **{k: v for k, v in counters.items() if k != "lost"},
         **allocation(model),
     }
+    if load_stats is not None:
+        result["load"] = load_stats
     emit(result)
 
 

@@ -1,5 +1,6 @@
 """Soak: an hour of 400 Hz serial frames (1.44 M samples) through the decoder and the
 observer loop as fast as possible, with faults sprinkled in — nothing lost, memory flat.
+``--can``: the same hour as CAN frames (three per sample) through ``CanAssembler``.
 
 The frames are the simulated bench's (``hil_sim.experiments.daq_stream``), encoded with
 ``firmware_io.serial_codec.encode_sample``; a seeded :class:`FaultInjector` changes the wire
@@ -13,6 +14,13 @@ events); loop steps == received, fills == lost; observer updates + rejected + mi
 samples sent, missing == flagged + lost. Memory: VmRSS from /proc/self/status after a
 warm-up (the first minute of data) and at the end.
 
+With ``--can`` the wire is three 8-byte frames per sample (u8 ``seq``, the DBC's layout) fed
+to :class:`~firmware_io.can_codec.CanAssembler` as ``rtlift observe --can`` does after
+python-can's driver, with the CAN fault mix (:data:`CAN_RATES`): truncated frames (DLC 4),
+dropped, duplicated, late samples, reordered frames, error frames, other nodes' frames,
+flagged and absurd samples. The frames are packed with ``struct`` (checked equal to the
+cantools encoder on the first samples) so that building the wire does not dominate.
+
 Prints JSON as its last line: ``samples``, ``faults_injected``, ``accounted_exactly``,
 ``rss_growth_mb``, ``seconds`` (and the details).
 """
@@ -21,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import struct
 import sys
 import time
 from collections import deque
@@ -33,10 +42,12 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit  # noqa: E402
 from firmware_io.calibration import Calibration  # noqa: E402
+from firmware_io.can_codec import ACT_ID, FT_FORCE_ID, FT_TORQUE_ID, CanAssembler, encode_sample_frames  # noqa: E402
+from firmware_io.can_codec import SEQ_MODULUS as CAN_SEQ_MODULUS  # noqa: E402
 from firmware_io.convert import Converter  # noqa: E402
 from firmware_io.serial_codec import SEQ_MODULUS, SerialDecoder, encode_event, encode_sample  # noqa: E402
 from hil_sim.devices.serial_daq import cobs_data_positions, invalid_chunks  # noqa: E402
-from hil_sim.devices.source import serial_wire, wire_samples  # noqa: E402
+from hil_sim.devices.source import can_wire, serial_wire, wire_samples  # noqa: E402
 from hil_sim.experiments import daq_stream  # noqa: E402
 from rtlift.live import ObserverLoop  # noqa: E402
 from rtlift.observer import Observer, ObserverConfig  # noqa: E402
@@ -57,6 +68,19 @@ RATES = {
     "flag": 1e-3,         # sensor-fault or ADC-saturated status: received, predict-only
     "absurd": 2e-4,       # counts at the i32 limits: received, gated by the observer
 }
+CAN_RATES = {
+    "corrupt": 1e-3,      # one frame truncated to DLC 4: 1 crc_error, 1 lost
+    "drop": 1e-3,         # one frame never arrives: 1 lost
+    "duplicate": 1e-3,    # one frame sent twice: 1 duplicate
+    "late": 5e-4,         # the sample's frames arrive after the next sample's: 1 lost + 3 duplicates
+    "reorder": 1e-3,      # its three frames in another order: received
+    "error_frame": 2e-4,  # an error frame before it: 1 crc_error
+    "foreign": 1e-3,      # another node's frame before it: ignored
+    "flag": 1e-3,         # sensor-fault or ADC-saturated status: received, predict-only
+    "absurd": 2e-4,       # raw forces and torques at the i16 limits: received, gated by the observer
+}
+ACT = struct.Struct("<BHHBH")
+FT = struct.Struct("<Bhhhx")
 CLEAN_EDGE = 10
 """The first and last samples are left intact (the decoder's first sample sets its seq)."""
 
@@ -78,7 +102,35 @@ class Expected:
         return {k: getattr(self, k) for k in ("received", "crc_errors", "lost", "duplicates", "events", "resyncs")}
 
 
-class FaultInjector:
+class _Injector:
+    """Seeded choice of at most one fault per sample (none near the ends)."""
+
+    n: int
+    rng: np.random.Generator
+    kinds: list[str]
+    edges: np.ndarray
+    expected: Expected
+
+    def _pick(self, g: int, clean: bool, status: int, values: tuple[int, ...], limits: tuple[int, int]
+              ) -> tuple[str | None, int, tuple[int, ...]]:
+        """(fault kind or None, status, force/torque values) of sample ``g``; flagged and
+        absurd samples are made here."""
+        rng = self.rng
+        kind = None
+        if not clean and CLEAN_EDGE <= g < self.n - CLEAN_EDGE:
+            i = int(np.searchsorted(self.edges, rng.random(), side="right"))
+            kind = self.kinds[i] if i < len(self.kinds) else None
+        if kind is not None:
+            self.expected.injected[kind] += 1
+        if kind == "flag":
+            status |= 0x04 if rng.random() < 0.5 else 0x02
+            self.expected.flagged_received += 1
+        elif kind == "absurd":
+            values = (limits[int(rng.integers(2))],) * 6
+        return kind, status, values
+
+
+class FaultInjector(_Injector):
     """Serial wire bytes of a sample stream with seeded faults (:data:`RATES`, at most one
     per sample), counting in :attr:`expected` exactly what a decoder must report."""
 
@@ -125,18 +177,8 @@ class FaultInjector:
         force_clean = False
         for g in range(self.n):
             volt_cv, envelope_cv, status, counts = next(samples)
-            kind = None
-            if not force_clean and CLEAN_EDGE <= g < self.n - CLEAN_EDGE:
-                i = int(np.searchsorted(self.edges, rng.random(), side="right"))
-                kind = self.kinds[i] if i < len(self.kinds) else None
+            kind, status, counts = self._pick(g, force_clean, status, counts, I32)
             force_clean = False
-            if kind is not None:
-                e.injected[kind] += 1
-            if kind == "flag":
-                status |= 0x04 if rng.random() < 0.5 else 0x02
-                e.flagged_received += 1
-            elif kind == "absurd":
-                counts = (I32[int(rng.integers(2))],) * 6
             frame = encode_sample((self.first_seq + g) % SEQ_MODULUS, (self.first_t_us + g * PERIOD_US) % 2**32,
                                   volt_cv, counts, status, envelope_cv)
             if stub is not None:
@@ -184,55 +226,96 @@ class FaultInjector:
                 out = []
 
 
-def rss_mb() -> float:
-    """Resident set size from /proc/self/status (MiB)."""
-    with open("/proc/self/status", encoding="ascii") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    raise RuntimeError("no VmRSS in /proc/self/status")
+
+class CanFaultInjector(_Injector):
+    """CAN frames ``(arbitration_id, data)`` of a sample stream with seeded faults
+    (:data:`CAN_RATES`, at most one per sample), counting in :attr:`expected` exactly what an
+    assembler must report (``resyncs`` and ``events`` stay 0 on CAN)."""
+
+    ERROR = object()
+    """Stands for an error frame in the wire list."""
+
+    def __init__(self, n: int, seed: int = 0, rates: dict[str, float] | None = None, first_seq: int = 0) -> None:
+        self.n = n
+        self.rng = np.random.default_rng(seed)
+        rates = dict(CAN_RATES if rates is None else rates)
+        self.kinds = list(rates)
+        self.edges = np.cumsum([rates[k] for k in self.kinds])
+        self.first_seq = first_seq
+        self.expected = Expected(injected=dict.fromkeys(rates, 0))
+        self.checked = 0
+
+    def frames(self, g: int, volt_cv: int, envelope_cv: int, status: int, ft: tuple[int, ...]) -> list:
+        seq = (self.first_seq + g) % CAN_SEQ_MODULUS
+        t_10us = (g * (PERIOD_US // 10)) & 0xFFFF
+        out = [(ACT_ID, ACT.pack(seq, volt_cv, envelope_cv, status, t_10us)),
+               (FT_FORCE_ID, FT.pack(seq, *ft[:3])), (FT_TORQUE_ID, FT.pack(seq, *ft[3:]))]
+        if self.checked < 1000:  # the packed layout is the DBC's
+            assert out == encode_sample_frames(seq, t_10us, volt_cv, envelope_cv, status, ft[:3], ft[3:])
+            self.checked += 1
+        return out
+
+    def wire(self, samples: Iterator[tuple[int, int, int, tuple[int, ...]]], chunk: int = FS) -> Iterator[list]:
+        """The frames, ``chunk`` samples at a time."""
+        e = self.expected
+        rng = self.rng
+        out: list = []
+        held: list | None = None
+        force_clean = False
+        for g in range(self.n):
+            volt_cv, envelope_cv, status, ft = next(samples)
+            kind, status, ft = self._pick(g, force_clean, status, ft, (-32768, 32767))
+            force_clean = False
+            frames = self.frames(g, volt_cv, envelope_cv, status, ft)
+            if kind == "corrupt":
+                j = int(rng.integers(3))
+                frames[j] = (frames[j][0], frames[j][1][:4])
+                e.crc_errors += 1
+                e.lost += 1
+            elif kind == "drop":
+                del frames[int(rng.integers(3))]
+                e.lost += 1
+            elif kind == "late":
+                held = frames
+                frames = []
+                e.lost += 1
+                e.duplicates += 3
+                force_clean = True
+            else:
+                e.received += 1
+                if kind == "duplicate":
+                    j = int(rng.integers(3))
+                    frames.insert(j + 1, frames[j])
+                    e.duplicates += 1
+                elif kind == "reorder":
+                    frames = [frames[j] for j in rng.permutation(3)]
+                elif kind == "error_frame":
+                    frames.insert(0, self.ERROR)
+                    e.crc_errors += 1
+                elif kind == "foreign":
+                    frames.insert(0, (0x200, bytes(8)))
+            out += frames
+            if held is not None and kind is None:
+                out += held
+                held = None
+            if (g + 1) % chunk == 0 or g == self.n - 1:
+                yield out
+                out = []
 
 
-def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: bool = False,
-         rates: dict[str, float] | None = None) -> dict:
-    """Run the soak over ``minutes`` of data; the result dict of :func:`main`'s JSON."""
-    n = int(round(minutes * 60 * FS))
+def _observer_loop(seed: int, seq_modulus: int) -> tuple[Observer, ObserverLoop, Calibration]:
+    """The soak's observer (a bench-sized model) and loop, tared at rest."""
     model = make_model(np.random.default_rng(seed), kernel_len=300)
     cal = Calibration()
     model.observer_config = {"R": (0.02 / cal.q_area) ** 2, "q_x": 1e-8, "q_bias": 1e-9, "p0_bias": 1e-3}
     observer = Observer(model, ObserverConfig.from_dict(model.observer_config))
     tare = float(cal.cl_from_ft(cal.ft_from_counts(np.zeros(6))))
-    loop = ObserverLoop(observer, Converter(cal.with_tare(tare), FS), SEQ_MODULUS, fs_hz=FS)
-    queue: deque = deque()
-    decoder = SerialDecoder(queue.append, cal.counts_per_n, cal.counts_per_nm)
-    injector = FaultInjector(n, seed=seed, rates=rates, first_seq=SEQ_MODULUS - 1000, first_t_us=2**32 - 600 * 10**6)
-    samples = wire_samples(daq_stream("random", seed=seed), serial_wire)
-    reads = np.random.default_rng(seed + 1)
-    warm_at = int(min(warmup_minutes * 60 * FS, n // 10))
-    rss_warm = None
-    t0 = time.perf_counter()
-    fed = 0
-    for data in injector.wire(samples):
-        view = memoryview(data)
-        sizes = reads.integers(1, 4097, len(data) // 2048 + 2)
-        pos = k = 0
-        while pos < len(data):
-            step = int(sizes[k % sizes.size])
-            decoder.feed(view[pos:pos + step])
-            pos += step
-            k += 1
-            while queue:
-                loop.feed(queue.popleft())
-        fed += FS
-        if rss_warm is None and fed >= warm_at:
-            rss_warm = rss_mb()
-        if progress and fed % (600 * FS) == 0:
-            print(f"soak: {fed / FS / 60:.0f} min of data in {time.perf_counter() - t0:.0f} s, "
-                  f"RSS {rss_mb():.1f} MiB", file=sys.stderr, flush=True)
-    seconds = time.perf_counter() - t0
-    rss_end = rss_mb()
-    e = injector.expected
-    got = decoder.counters.as_dict()
+    return observer, ObserverLoop(observer, Converter(cal.with_tare(tare), FS), seq_modulus, fs_hz=FS), cal
+
+
+def _result(n: int, e: Expected, got: dict[str, int], observer: Observer, loop: ObserverLoop, seconds: float,
+            rss_warm: float | None, rss_end: float) -> dict:
+    got = {k: got[k] for k in e.counters()}
     mon = observer.monitors()
     st = loop.stats
     checks = {
@@ -261,17 +344,95 @@ def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: b
     }
 
 
+def can_soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: bool = False,
+             rates: dict[str, float] | None = None) -> dict:
+    """The soak over ``minutes`` of CAN frames (module docstring); the result dict as :func:`soak`'s."""
+    import can
+
+    n = int(round(minutes * 60 * FS))
+    observer, loop, _ = _observer_loop(seed, CAN_SEQ_MODULUS)
+    assembler = CanAssembler()
+    error_frame = can.Message(is_error_frame=True)
+    injector = CanFaultInjector(n, seed=seed, rates=rates, first_seq=200)
+    samples = wire_samples(daq_stream("random", seed=seed), can_wire)
+    warm_at = int(min(warmup_minutes * 60 * FS, n // 10))
+    rss_warm = None
+    t0 = time.perf_counter()
+    fed = 0
+    feed, feed_loop, error = assembler.feed, loop.feed, injector.ERROR
+    for frames in injector.wire(samples):
+        for f in frames:
+            sample = assembler.feed_message(error_frame) if f is error else feed(f[0], f[1])
+            if sample is not None:
+                feed_loop(sample)
+        fed += FS
+        if rss_warm is None and fed >= warm_at:
+            rss_warm = rss_mb()
+        if progress and fed % (600 * FS) == 0:
+            print(f"soak --can: {fed / FS / 60:.0f} min of data in {time.perf_counter() - t0:.0f} s, "
+                  f"RSS {rss_mb():.1f} MiB", file=sys.stderr, flush=True)
+    seconds = time.perf_counter() - t0
+    return _result(n, injector.expected, assembler.counters.as_dict(), observer, loop, seconds, rss_warm, rss_mb())
+
+
+def rss_mb() -> float:
+    """Resident set size from /proc/self/status (MiB)."""
+    with open("/proc/self/status", encoding="ascii") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    raise RuntimeError("no VmRSS in /proc/self/status")
+
+
+def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: bool = False,
+         rates: dict[str, float] | None = None) -> dict:
+    """Run the soak over ``minutes`` of data; the result dict of :func:`main`'s JSON."""
+    n = int(round(minutes * 60 * FS))
+    observer, loop, cal = _observer_loop(seed, SEQ_MODULUS)
+    queue: deque = deque()
+    decoder = SerialDecoder(queue.append, cal.counts_per_n, cal.counts_per_nm)
+    injector = FaultInjector(n, seed=seed, rates=rates, first_seq=SEQ_MODULUS - 1000, first_t_us=2**32 - 600 * 10**6)
+    samples = wire_samples(daq_stream("random", seed=seed), serial_wire)
+    reads = np.random.default_rng(seed + 1)
+    warm_at = int(min(warmup_minutes * 60 * FS, n // 10))
+    rss_warm = None
+    t0 = time.perf_counter()
+    fed = 0
+    for data in injector.wire(samples):
+        view = memoryview(data)
+        sizes = reads.integers(1, 4097, len(data) // 2048 + 2)
+        pos = k = 0
+        while pos < len(data):
+            step = int(sizes[k % sizes.size])
+            decoder.feed(view[pos:pos + step])
+            pos += step
+            k += 1
+            while queue:
+                loop.feed(queue.popleft())
+        fed += FS
+        if rss_warm is None and fed >= warm_at:
+            rss_warm = rss_mb()
+        if progress and fed % (600 * FS) == 0:
+            print(f"soak: {fed / FS / 60:.0f} min of data in {time.perf_counter() - t0:.0f} s, "
+                  f"RSS {rss_mb():.1f} MiB", file=sys.stderr, flush=True)
+    seconds = time.perf_counter() - t0
+    return _result(n, injector.expected, decoder.counters.as_dict(), observer, loop, seconds, rss_warm, rss_mb())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=60.0, help="minutes of 400 Hz data (default 60: 1.44 M samples)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--can", action="store_true", help="CAN frames (three per sample) instead of serial packets")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     args = ap.parse_args()
     if not args.minutes > 0:
         ap.error("--minutes must be positive")
-    result = soak(args.minutes, args.seed, progress=not args.quiet)
-    print(f"soak: {result['samples']} samples, {result['faults_injected']} faults, accounted exactly: "
-          f"{result['accounted_exactly']}, RSS growth {result['rss_growth_mb']} MiB, {result['seconds']} s")
+    result = (can_soak if args.can else soak)(args.minutes, args.seed, progress=not args.quiet)
+    result["link"] = "can" if args.can else "serial"
+    print(f"soak ({result['link']}): {result['samples']} samples, {result['faults_injected']} faults, "
+          f"accounted exactly: {result['accounted_exactly']}, RSS growth {result['rss_growth_mb']} MiB, "
+          f"{result['seconds']} s")
     emit(result)
 
 

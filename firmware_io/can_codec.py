@@ -64,7 +64,10 @@ class CanAssembler:
     ``crc_errors``; a frame whose (identifier, ``seq``) was already received for a pending
     sample, or whose ``seq`` is that of the last completed sample or up to
     :data:`PENDING_WINDOW` behind it (late, out of order), is a ``duplicates`` and dropped;
-    ``lost`` grows by the ``seq`` gap − 1 each time a sample completes. Frames of other
+    ``lost`` grows by the ``seq`` gap − 1 each time a sample completes. The first sample is
+    judged like any other: complete (all three frames, any order) it is delivered; the
+    frames of samples still incomplete when the first one completes (the bus joined
+    mid-sample) are dropped and counted as one ``resyncs``. Frames of other
     identifiers (other nodes on the bus), remote and extended frames are ignored.
     """
 
@@ -77,6 +80,12 @@ class CanAssembler:
         self._clock = clock or time.perf_counter
         self._pending: dict[int, list] = {}
         self.last_seq: int | None = None
+
+    def restart(self) -> None:
+        """A new stream (the device came back): forget pending frames and the last ``seq``;
+        the counters go on."""
+        self._pending.clear()
+        self.last_seq = None
 
     def feed_message(self, msg: object) -> Sample | None:
         """Feed one ``can.Message`` (error frames counted; remote and extended ignored)."""
@@ -123,6 +132,8 @@ class CanAssembler:
         del self._pending[seq]
         if last is not None:
             c.lost += ((seq - last) & 0xFF) - 1
+        elif self._pending:
+            c.resyncs += 1  # frames of a sample joined mid-way before the first complete one
         self.last_seq = seq
         if self._pending:
             for p in [p for p in self._pending if ((p - seq) & 0xFF) > PENDING_WINDOW]:

@@ -8,7 +8,9 @@ Config dictionaries (DESIGN.md)::
     {"kind": "can", "interface": "slcan", "channel": "/dev/ttyACM0", "bitrate": 500000}
 
 Optional keys: ``log`` (a path: ``.bin``/``.raw`` raw serial capture, ``.asc``/``.blf`` CAN
-log, written as frames arrive), ``calibration`` (serial only: a
+log, written as frames arrive), ``reconnect`` (``True``, a number of seconds to give up after,
+or a dict of :class:`Reconnect` fields: when the device vanishes, reopen it with backoff and
+go on with the same counters and log), ``calibration`` (serial only: a
 :class:`~firmware_io.calibration.Calibration` or a TOML path, for counts per N and N·m).
 Any other key of a CAN config is passed to ``can.Bus`` (``ignore_config=True`` is the
 default, and ``sleep_after_open=0`` for ``slcan``).
@@ -21,7 +23,8 @@ import errno
 import time
 from abc import ABC, abstractmethod
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, fields
 from typing import Any
 
 import can
@@ -47,6 +50,46 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+@dataclass(frozen=True)
+class Reconnect:
+    """What a link does when its device vanishes (an unplugged or re-enumerating adapter):
+    close it, then try to reopen it — the configured port or channel, then each of
+    ``also`` in turn — after ``first_delay_s``, doubling to ``max_delay_s`` between tries,
+    until it is back or ``give_up_s`` passed (``None``: forever). ``fs_hz`` is the device's
+    sample rate, for the host-clock check of the gap."""
+
+    give_up_s: float | None = None
+    first_delay_s: float = 0.05
+    max_delay_s: float = 1.0
+    also: tuple[str, ...] = ()
+    fs_hz: float = 400.0
+
+    @classmethod
+    def from_config(cls, value: Any) -> Reconnect | None:
+        """``None``/``False`` (off), ``True``, seconds to give up after, or a dict of fields."""
+        if value is None or value is False:
+            return None
+        if value is True:
+            return cls()
+        if isinstance(value, (int, float)):
+            value = {"give_up_s": value}
+        if not isinstance(value, dict):
+            raise LinkError(f"reconnect: expected true, seconds or a table, got {value!r}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(value) - known)
+        if unknown:
+            raise LinkError(f"reconnect: unknown option {unknown[0]!r} (known: {', '.join(sorted(known))})")
+        try:
+            r = cls(**{**value, "also": tuple(str(p) for p in value.get("also", ()))})
+            ok = (r.give_up_s is None or r.give_up_s >= 0) and 0 < r.first_delay_s <= r.max_delay_s and r.fs_hz > 0
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise LinkError(f"reconnect: give_up_s >= 0, 0 < first_delay_s <= max_delay_s and fs_hz > 0 "
+                            f"expected, got {value!r}")
+        return r
+
+
 class Link(ABC):
     """A source of samples. ``recv(timeout)`` returns the next sample, or ``None`` on
     timeout or once the device is gone (then ``disconnected`` is true) or the link is
@@ -54,18 +97,132 @@ class Link(ABC):
 
     kind: str
     seq_modulus: int
+    t_us_modulus: int
     counters: Counters
     disconnected: bool = False
     closed: bool = False
+    reconnect: Reconnect | None = None
+    on_gap: Callable[[int, bool], object] | None = None
+    """Called with (samples missed, known from ``seq``) before the first sample after a
+    reconnect is returned (an observer loop predicts through the gap)."""
+    _down_since: float | None = None
+    _gap_pending: bool = False
+    _last: Sample | None = None
+    _gap_from: Sample | None = None
+
+    @property
+    def down(self) -> bool:
+        """The device is gone and the link is trying to get it back (``reconnect``)."""
+        return self._down_since is not None
+
+    def _start(self, where: Any, log: str | None) -> None:
+        """Open the device and the log (nothing left open if either fails)."""
+        self._open_device(where)
+        self.closed = False
+        try:
+            self._log = open_link_log(log, self.kind) if log else None
+        except BaseException:
+            self._close_device()
+            self.closed = True
+            raise
+
+    # -- reconnection (the same for every kind; subclasses open and close the device) ----
+    @abstractmethod
+    def _open_device(self, where: Any) -> None:
+        """Open the port or bus at ``where`` (raise :class:`LinkError` if it is not there)."""
+
+    @abstractmethod
+    def _close_device(self) -> None:
+        """Close the port or bus only (the log stays open)."""
+
+    @abstractmethod
+    def _restart_stream(self) -> None:
+        """Forget the partial stream of the device that vanished (counters go on)."""
+
+    def _device_gone(self) -> None:
+        """The port or bus failed: reconnect if asked to, else end the link."""
+        self._close_device()
+        policy = self.reconnect
+        if policy is None:
+            self.disconnected = True
+            self.close()
+            return
+        now = time.perf_counter()
+        self._down_since = now
+        self._delay = policy.first_delay_s
+        self._next_try = now + self._delay
+        self._gap_from = self._last
+
+    def _wait_device(self, deadline: float | None) -> bool:
+        """Try to reopen the device until it is back (``True``), ``deadline`` passed or the
+        policy gave up (``False``; then ``disconnected``)."""
+        policy = self.reconnect
+        while True:
+            now = time.perf_counter()
+            if now >= self._next_try:
+                for where in (self._where, *policy.also):
+                    try:
+                        self._open_device(where)
+                    except LinkError:
+                        continue
+                    self._restart_stream()
+                    self.counters.reconnects += 1
+                    self._down_since = None
+                    self._gap_pending = self._gap_from is not None
+                    return True
+                if policy.give_up_s is not None and now - self._down_since >= policy.give_up_s:
+                    self.disconnected = True
+                    self.close()
+                    return False
+                self._delay = min(2 * self._delay, policy.max_delay_s)
+                self._next_try = now + self._delay
+            wake = self._next_try if deadline is None else min(self._next_try, deadline)
+            if deadline is not None and now >= deadline:
+                return False
+            time.sleep(max(0.0, wake - now))
+
+    def _close_gap(self, first: Sample) -> None:
+        """Count the samples missed between the last sample before the device vanished and
+        ``first`` after it came back: from ``seq`` when the host clock and the device clock
+        agree with it (the device kept counting), else an estimate from the host clock."""
+        self._gap_pending = False
+        last = self._gap_from
+        c = self.counters
+        fs = self.reconnect.fs_hz
+        host_steps = (first.host_time - last.host_time) * fs
+        seq_steps = (first.seq - last.seq) % self.seq_modulus
+        tol = 0.25 * fs + 0.1 * host_steps
+        known = host_steps + tol < self.seq_modulus and abs(seq_steps - host_steps) <= tol and seq_steps > 0
+        period_us = 1e6 / fs
+        if known and host_steps * period_us < self.t_us_modulus / 2:
+            dt_us = (first.t_us - last.t_us) % self.t_us_modulus
+            known = abs(dt_us - seq_steps * period_us) <= max(period_us / 2, 1e-3 * dt_us)
+        if known:
+            missed = seq_steps - 1
+            c.lost += missed
+            c.gap_lost += missed
+        else:
+            missed = max(0, round(host_steps) - 1)
+            c.gaps_unknown += 1
+            c.gap_lost_estimated += missed
+        if self.on_gap is not None:
+            self.on_gap(missed, known)
 
     @abstractmethod
     def recv(self, timeout: float | None = None) -> Sample | None:
         """The next sample; ``None`` after ``timeout`` seconds of silence (``None``: wait
         as long as the device is there) or when the device is gone or the link closed."""
 
-    @abstractmethod
+    _log: Any = None
+
     def close(self) -> None:
         """Release the port or bus and flush and close the log (idempotent)."""
+        if self.closed:
+            return
+        self.closed = True
+        self._close_device()
+        if self._log is not None:
+            self._log.close()
 
     @property
     def events(self) -> list[str]:
@@ -106,14 +263,21 @@ class SerialLink(Link):
 
     kind = "serial"
     seq_modulus = SERIAL_SEQ_MODULUS
+    t_us_modulus = 1 << 32
 
-    def __init__(self, port: str, *, calibration: Calibration | None = None, log: str | None = None) -> None:
+    def __init__(self, port: str, *, calibration: Calibration | None = None, log: str | None = None,
+                 reconnect: Reconnect | None = None) -> None:
         self.closed = True
         cal = calibration or Calibration()
         self._queue: deque[Sample] = deque()
         self._decoder = SerialDecoder(self._queue.append, cal.counts_per_n, cal.counts_per_nm)
         self.counters = self._decoder.counters
-        self.port = port
+        self.port = self._where = port
+        self.reconnect = reconnect
+        self._ser = None
+        self._start(port, log)
+
+    def _open_device(self, port: str) -> None:
         try:
             self._ser = serial.serial_for_url(port, baudrate=SERIAL_BAUD, timeout=POLL_S)
         except serial.SerialException as exc:
@@ -122,13 +286,18 @@ class SerialLink(Link):
             raise LinkError(f"serial port {port}: cannot open ({_one_line(exc)})") from None
         except (ValueError, OSError) as exc:
             raise LinkError(f"serial port {port}: cannot open ({_one_line(exc)})") from None
-        self.closed = False
-        try:
-            self._log = open_link_log(log, "serial") if log else None
-        except BaseException:
-            self._ser.close()
-            self.closed = True
-            raise
+        self.port = port
+
+    def _close_device(self) -> None:
+        ser, self._ser = self._ser, None
+        if ser is not None:
+            try:
+                ser.close()
+            except (serial.SerialException, OSError):
+                pass
+
+    def _restart_stream(self) -> None:
+        self._decoder.restart()
 
     @property
     def events(self) -> list[str]:
@@ -137,10 +306,13 @@ class SerialLink(Link):
     def recv(self, timeout: float | None = None) -> Sample | None:
         queue = self._queue
         if queue:
-            return queue.popleft()
+            sample = self._last = queue.popleft()
+            return sample
         if self.closed or self.disconnected:
             return None
         deadline = None if timeout is None else time.perf_counter() + timeout
+        if self._down_since is not None and not self._wait_device(deadline):
+            return None
         ser = self._ser
         while True:
             try:
@@ -149,26 +321,20 @@ class SerialLink(Link):
                     return None
                 data = ser.read(waiting or 1)
             except (serial.SerialException, OSError):
-                self.disconnected = True
-                self.close()
-                return None
+                self._device_gone()
+                if self._down_since is None or not self._wait_device(deadline):
+                    return None
+                ser = self._ser
+                continue
             if data:
                 if self._log is not None:
                     self._log.write(data)
                 self._decoder.feed(data)
                 if queue:
-                    return queue.popleft()
-
-    def close(self) -> None:
-        if self.closed:
-            return
-        self.closed = True
-        try:
-            self._ser.close()
-        except (serial.SerialException, OSError):
-            pass
-        if self._log is not None:
-            self._log.close()
+                    sample = self._last = queue.popleft()
+                    if self._gap_pending:
+                        self._close_gap(sample)
+                    return sample
 
 
 class CanLink(Link):
@@ -177,42 +343,56 @@ class CanLink(Link):
 
     kind = "can"
     seq_modulus = CAN_SEQ_MODULUS
+    t_us_modulus = 655_360
 
     def __init__(self, interface: str, channel: Any, bitrate: int | None = CAN_BITRATE, *,
-                 log: str | None = None, **bus_kwargs: Any) -> None:
+                 log: str | None = None, reconnect: Reconnect | None = None, **bus_kwargs: Any) -> None:
         self.closed = True
         self._assembler = CanAssembler()
         self.counters = self._assembler.counters
         self.interface = interface
-        self.channel = channel
+        self.channel = self._where = channel
+        self.reconnect = reconnect
         kwargs = dict(bus_kwargs)
         kwargs.setdefault("ignore_config", True)
         if interface == "slcan":
             kwargs.setdefault("sleep_after_open", 0)
         if bitrate is not None:
             kwargs["bitrate"] = bitrate
-        where = f"CAN {interface}:{channel}"
+        self._bus_kwargs = kwargs
         if interface not in can.VALID_INTERFACES:
-            raise LinkError(f"{where}: unknown CAN interface {interface!r} "
+            raise LinkError(f"CAN {interface}:{channel}: unknown CAN interface {interface!r} "
                             f"(python-can knows {', '.join(sorted(can.VALID_INTERFACES))})")
+        self._bus = None
+        self._start(channel, log)
+
+    def _open_device(self, channel: Any) -> None:
+        where = f"CAN {self.interface}:{channel}"
         try:
-            self._bus = can.Bus(interface=interface, channel=channel, **kwargs)
+            self._bus = can.Bus(interface=self.interface, channel=channel, **self._bus_kwargs)
         except NotImplementedError as exc:
             raise LinkError(f"{where}: interface not available ({_one_line(exc)})") from None
-        except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
+        except (can.CanError, OSError, ValueError, TypeError, ImportError, serial.SerialException) as exc:
             raise LinkError(f"{where}: cannot open ({_one_line(exc)})") from None
-        self.closed = False
-        try:
-            self._log = open_link_log(log, "can") if log else None
-        except BaseException:
-            self._bus.shutdown()
-            self.closed = True
-            raise
+        self.channel = channel
+
+    def _close_device(self) -> None:
+        bus, self._bus = self._bus, None
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except (can.CanError, OSError, serial.SerialException, ValueError):
+                pass
+
+    def _restart_stream(self) -> None:
+        self._assembler.restart()
 
     def recv(self, timeout: float | None = None) -> Sample | None:
         if self.closed or self.disconnected:
             return None
         deadline = None if timeout is None else time.perf_counter() + timeout
+        if self._down_since is not None and not self._wait_device(deadline):
+            return None
         bus = self._bus
         assembler = self._assembler
         while True:
@@ -224,9 +404,11 @@ class CanLink(Link):
                 self.counters.crc_errors += 1
                 continue
             except (can.CanError, OSError, serial.SerialException):
-                self.disconnected = True
-                self.close()
-                return None
+                self._device_gone()
+                if self._down_since is None or not self._wait_device(deadline):
+                    return None
+                bus = self._bus
+                continue
             if msg is None:
                 if deadline is None:
                     continue
@@ -235,20 +417,12 @@ class CanLink(Link):
                 self._log(msg)
             sample = assembler.feed_message(msg)
             if sample is not None:
+                self._last = sample
+                if self._gap_pending:
+                    self._close_gap(sample)
                 return sample
             if deadline is not None and time.perf_counter() >= deadline:
                 return None
-
-    def close(self) -> None:
-        if self.closed:
-            return
-        self.closed = True
-        try:
-            self._bus.shutdown()
-        except (can.CanError, OSError, serial.SerialException, ValueError):
-            pass
-        if self._log is not None:
-            self._log.close()
 
 
 def open_link(config: dict[str, Any]) -> Link:
@@ -263,9 +437,10 @@ def open_link(config: dict[str, Any]) -> Link:
         if calibration is not None and not isinstance(calibration, Calibration):
             calibration = Calibration.load(calibration)
         log = cfg.pop("log", None)
+        reconnect = Reconnect.from_config(cfg.pop("reconnect", None))
         if cfg:
             raise LinkError(f"serial link: unknown option {sorted(cfg)[0]!r}")
-        return SerialLink(str(port), calibration=calibration, log=log)
+        return SerialLink(str(port), calibration=calibration, log=log, reconnect=reconnect)
     if kind == "can":
         interface = cfg.pop("interface", None)
         channel = cfg.pop("channel", None)
@@ -273,8 +448,9 @@ def open_link(config: dict[str, Any]) -> Link:
             raise LinkError("CAN link: no interface given")
         bitrate = cfg.pop("bitrate", CAN_BITRATE)
         log = cfg.pop("log", None)
+        reconnect = Reconnect.from_config(cfg.pop("reconnect", None))
         cfg.pop("calibration", None)
-        return CanLink(str(interface), channel, bitrate, log=log, **cfg)
+        return CanLink(str(interface), channel, bitrate, log=log, reconnect=reconnect, **cfg)
     raise LinkError(f"link kind must be 'serial' or 'can', got {kind!r}")
 
 

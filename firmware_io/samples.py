@@ -45,8 +45,15 @@ class Counters:
     - ``lost``: samples missing from the ``seq`` sequence between valid samples;
     - ``duplicates``: repeated ``seq`` dropped (serial: packets; CAN: frames);
     - ``events``: firmware event packets;
-    - ``resyncs``: times the serial decoder lost frame sync and dropped bytes to the next
-      delimiter (one per run of invalid packets, and one for a partial packet at start-up).
+    - ``resyncs``: times the decoder lost frame sync and dropped bytes to the next
+      delimiter (one per run of invalid packets, and one for a partial packet or sample at
+      start-up or after a reconnect);
+    - ``reconnects``: times a link opened with ``reconnect`` got its device back;
+    - ``gap_lost``: samples lost while the device was gone, known from ``seq`` (and the device
+      clock): included in ``lost``;
+    - ``gaps_unknown``: reconnect gaps whose loss ``seq`` cannot tell (the device restarted, or
+      the gap is longer than ``seq`` wraps); ``gap_lost_estimated`` holds their host-clock
+      estimate, not included in ``lost``.
     """
 
     received: int = 0
@@ -55,6 +62,10 @@ class Counters:
     duplicates: int = 0
     events: int = 0
     resyncs: int = 0
+    reconnects: int = 0
+    gap_lost: int = 0
+    gaps_unknown: int = 0
+    gap_lost_estimated: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)

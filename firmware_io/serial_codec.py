@@ -59,8 +59,9 @@ def encode_event(text: str) -> bytes:
 class SerialDecoder:
     """Incremental decoder: ``feed(bytes)`` delivers complete samples to ``emit``.
 
-    Bytes before the first 0x00 are a partial packet (the stream was joined mid-packet):
-    they are dropped and counted as one resync, not as a CRC error. Every non-empty run of
+    Bytes before the first 0x00 are judged like any packet: a valid one (COBS, version, CRC,
+    length) is a sample; one that fails is the tail of a packet joined mid-way, dropped and
+    counted as one resync, not as a CRC error. Every non-empty run of
     bytes between two delimiters is one packet: valid, or counted in ``crc_errors``.
     ``lost`` counts the gaps of the u16 ``seq`` between consecutive valid samples (with
     wrap-around); a repeated ``seq``, or one up to :data:`STALE_WINDOW` behind the last (a
@@ -82,6 +83,13 @@ class SerialDecoder:
         self._overflow = False
         self.last_seq: int | None = None
 
+    def restart(self) -> None:
+        """A new stream (the device came back): forget buffered bytes, frame sync and the last
+        ``seq``; the counters go on."""
+        self._buf.clear()
+        self._synced = self._partial = self._in_error = self._overflow = False
+        self.last_seq = None
+
     def feed(self, data: bytes | bytearray | memoryview) -> None:
         """Decode every complete packet in ``data`` (plus what was buffered before)."""
         buf = self._buf
@@ -94,8 +102,10 @@ class SerialDecoder:
                 break
             if not self._synced:
                 self._synced = True
-                if end > start or self._partial:
+                if self._partial:
                     self.counters.resyncs += 1
+                elif end > start:
+                    self._first(bytes(buf[start:end]), now)
             elif self._overflow:
                 self._overflow = False
                 self._invalid()
@@ -110,6 +120,21 @@ class SerialDecoder:
                 self._overflow = True
             else:
                 self._partial = True
+
+    def _first(self, chunk: bytes, now: float) -> None:
+        """Bytes before the first delimiter: a sample or event when they decode to a valid
+        packet (COBS, version, CRC, length), else the tail of a packet joined mid-way — one
+        resync, not a CRC error."""
+        try:
+            pkt = cobs.decode(chunk)
+        except cobs.DecodeError:
+            pkt = b""
+        n = len(pkt)
+        if (n >= 4 and pkt[0] == VERSION and crc_hqx(pkt[:n - 2], 0xFFFF) == CRC.unpack_from(pkt, n - 2)[0]
+                and ((pkt[1] == KIND_SAMPLE and n == SAMPLE_PACKET_LEN) or pkt[1] == KIND_EVENT)):
+            self._packet(chunk, now)
+        else:
+            self.counters.resyncs += 1
 
     def _invalid(self) -> None:
         c = self.counters

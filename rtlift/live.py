@@ -34,6 +34,12 @@ FS_HZ = 400.0
 MAX_FILL = 400
 """At most this many predict-only steps for one gap in ``seq`` (1 s); a longer gap is a
 device restart or an ambiguity of the wrapping counter, not something to extrapolate over."""
+MAX_BRIDGE_S = 60.0
+"""At most this much device time is predicted through (flagged) when a link comes back after a
+reconnect; the sample index (and ``t``) still advances by the whole gap."""
+FLAG_LINK_GAP = 16
+"""Estimate-row flag (beside the observer's FLAG_* bits 1–8): a predict-only step across a
+gap while the device was gone (``--reconnect``)."""
 FLUSH_S = 0.05
 COLUMNS = ("index", "t", "seq", "t_us", "cmu", "cmu_envelope", "dcl_meas", "dcl_hat", "model_dcl",
            "innovation", "nis", "flags")
@@ -94,6 +100,7 @@ class LoopStats:
 
     samples: int = 0
     filled: int = 0
+    bridged: int = 0
     estimates: int = 0
     end: str = "running"
     latencies: LatencyHistogram = field(default_factory=LatencyHistogram)
@@ -162,6 +169,27 @@ class ObserverLoop:
             writer.write(self._index, self._index / self.fs_hz, sample.seq, sample.t_us, cmu, env, dcl, est)
             stats.estimates += 1
 
+    def bridge(self, missed: int, known: bool) -> None:
+        """The link came back after its device vanished (``link.on_gap``): ``missed`` samples
+        (from ``seq`` if ``known``, else the host clock's estimate) are predicted through, up to
+        :data:`MAX_BRIDGE_S`, each row flagged :data:`FLAG_LINK_GAP` (``seq`` left empty when
+        unknown); the next sample starts a new ``seq`` run."""
+        obs, writer, stats = self.observer, self.writer, self.stats
+        last = self._last_seq
+        steps = min(missed, int(MAX_BRIDGE_S * self.fs_hz)) if last is not None else 0
+        for i in range(1, steps + 1):
+            est = obs.step(self._last_cmu, self._last_env, None)
+            est.flags |= FLAG_LINK_GAP
+            stats.bridged += 1
+            if writer is not None:
+                index = self._index + i
+                writer.write(index, index / self.fs_hz, (last + i) % self.seq_modulus if known else "", None,
+                             self._last_cmu, self._last_env, None, est)
+                stats.estimates += 1
+        if last is not None:
+            self._index += missed
+        self._last_seq = None
+
     def run(self, samples: Iterable[Sample | None], *, host_timeout_s: float | None = None) -> str:
         """Consume samples until the source ends (``"ended"``), ``max_samples`` device samples
         are done (``"completed"``) or ``host_timeout_s`` of host time passed (``"timeout"``);
@@ -188,9 +216,12 @@ def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,
         "version": 1,
         **{k: int(link_counters[k]) for k in ("received", "crc_errors", "lost", "resyncs", "events",
                                               "duplicates")},
+        **{k: int(link_counters[k]) for k in ("reconnects", "gap_lost", "gaps_unknown", "gap_lost_estimated")
+           if k in link_counters},
         "estimates": stats.estimates,
         "samples_stepped": stats.samples,
         "samples_filled": stats.filled,
+        "samples_bridged": stats.bridged,
         "latency_p50_ms": p50,
         "latency_p99_ms": p99,
         "end": stats.end,

@@ -3,11 +3,11 @@
 adapter (python-can's real ``slcan`` driver), with the emulators' exact statistics as the
 oracle: link faults mid-stream, a device that vanishes and comes back, a full disk.
 
-Decision for a vanished device: ``rtlift observe`` does not reconnect by itself. It ends
-with exit status 1 and one line, the summary and the log complete up to the last byte read;
-rerun it (by hand or under a supervisor) when the device is back. A reconnect inside the
-run would bridge a gap of unknown length with one observer state and one tare, and the
-replugged firmware restarts its ``seq``, so the counters could no longer add up."""
+Decision for a vanished device: without ``--reconnect``, ``rtlift observe`` ends with exit
+status 1 and one line, the summary and the log complete up to the last byte read. With
+``--reconnect`` it reopens the device with backoff and goes on (same log and summary); the gap
+is counted from ``seq`` only when the host and device clocks agree with it, else reported as
+not knowable with a host-clock estimate."""
 
 from __future__ import annotations
 
@@ -128,3 +128,165 @@ def test_full_disk_for_the_log(tmp_path, kind, record_property):
     assert len(read_estimates(out)) == s["received"] + s["samples_filled"] == s["estimates"]
     record_property("measured", f"exit {code}: '{err[-1].replace(str(tmp_path) + '/', '')}'; summary: received "
                                 f"{s['received']}, all stepped, {s['estimates']} estimate rows")
+
+
+def outside_emulator_stream(seed: int = 16) -> tuple[list[bytes], dict[str, int]]:
+    """The stream of issue 16's outside DAQ emulator: 3 200 frames (seq 0..3199), no leading
+    0x00 (the first packet starts the stream), 20 corrupted, 15 never sent, 5 garbage chunks
+    (each one delimited junk run), 10 duplicated; then the device is unplugged."""
+    import numpy as np
+
+    from hil_sim.devices.serial_daq import cobs_data_positions
+    from tests.test_faults_support import serial_frame, wire
+
+    rng = np.random.default_rng(seed)
+    n = 3200
+    ws = wire(n, seed=seed)
+    picks = rng.choice(np.arange(1, n - 1), 20 + 15 + 10, replace=False)
+    corrupt, drop, dup = set(picks[:20].tolist()), set(picks[20:35].tolist()), set(picks[35:].tolist())
+    garbage = set(rng.choice(np.arange(1, n), 5, replace=False).tolist())
+    out: list[bytes] = []
+    for seq in range(n):
+        if seq in garbage:
+            out.append(bytes(rng.integers(1, 256, int(rng.integers(1, 33))).tolist()) + b"\x00")
+        frame = serial_frame(seq, ws[seq])
+        if seq in drop:
+            continue
+        if seq in corrupt:
+            pos = int(rng.choice(cobs_data_positions(frame)))
+            frame = frame[:pos] + bytes((frame[pos] % 255 + 1,)) + frame[pos + 1:]
+        out.append(frame)
+        if seq in dup:
+            out.append(frame)
+    return out, {"received": 3165, "crc_errors": 25, "lost": 35, "duplicates": 10}
+
+
+def test_outside_emulator_counts_exactly_from_the_first_packet(tmp_path, record_property):
+    """Issue 16: a DAQ emulator written outside the team streams into ``rtlift observe
+    --serial`` over a pty without a leading delimiter; every valid sample counts, the first
+    one included: received 3 165, crc_errors 25, lost 35, duplicates 10."""
+    import threading
+    import time
+    import tty
+
+    chunks, expect = outside_emulator_stream()
+    master, slave = os.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+
+    class Emulator:
+        def start(self) -> None:
+            threading.Thread(target=self.run, daemon=True).start()
+
+        def run(self) -> None:
+            t = time.perf_counter()
+            for i, chunk in enumerate(chunks):
+                os.write(master, chunk)
+                if i % 4 == 3:  # 1 600 frames/s: 4x the DAQ rate, in 4-frame bursts
+                    t += 4 / 1600
+                    time.sleep(max(0.0, t - time.perf_counter()))
+            time.sleep(0.3)
+            os.close(master)  # unplugged
+            os.close(slave)
+
+    summary = tmp_path / "summary.json"
+    code, err = observe(Emulator(), ["--serial", path], tmp_path, "--json", str(summary))
+    s = json.loads(summary.read_text())
+    assert code == 1 and s["end"] == "disconnected", err
+    got = {k: s[k] for k in expect}
+    assert got == expect
+    record_property("measured", f"outside emulator, 3 200 frames then unplug: {got}")
+
+
+def test_reconnect_after_a_two_second_unplug(tmp_path, record_property):
+    """Issue 16: with ``--reconnect`` an unplug (the pty closed) and a replug 2 s later at the
+    same by-id path (re-pointed to the new pty) do not end the run: ``reconnects`` 1, the gap
+    counted from ``seq`` (the DAQ kept counting), predicted through and flagged, and the log
+    holds every sample received before and after."""
+    import time
+
+    from rtlift.live import FLAG_LINK_GAP
+
+    port = tmp_path / "ttyDAQ"
+    dev = SerialDaq(synthetic_stream(1), faults=FaultPlan(disconnect_after_s=1.0))
+    model = write_model(tmp_path / "model.json")
+    cal = write_calibration(tmp_path / "cal.toml")
+    log, summary, out = tmp_path / "run.bin", tmp_path / "summary.json", tmp_path / "estimates.csv"
+    total = 1400  # 400 samples, 2 s (800) unplugged, 200 after
+    with dev:
+        port.symlink_to(dev.path)
+        cmd = [sys.executable, "-m", "rtlift", "observe", "--serial", str(port), "--model", str(model),
+               "--calibration", str(cal), "--reconnect", "--seconds", str(total / FS), "--log", str(log),
+               "--json", str(summary), "--out", str(out)]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, "PYTHONPATH": str(REPO)})
+        try:
+            assert "link open" in proc.stderr.readline()
+            dev.start()
+            assert dev.wait(10.0)
+            gone = time.perf_counter()
+            n1 = dev.stats.samples
+            back = SerialDaq(synthetic_stream(2), max_samples=total - n1 - 2 * FS, first_seq=n1 + 2 * FS,
+                             first_t_us=(n1 + 2 * FS) * 2500)
+            with back:
+                time.sleep(max(0.0, gone + 2.0 - time.perf_counter()))
+                port.unlink()
+                port.symlink_to(back.path)
+                back.start()
+                _, rest = proc.communicate(timeout=30)
+        finally:
+            proc.kill()
+    err = [line for line in rest.splitlines() if line.strip()]
+    s = json.loads(summary.read_text())
+    rows = read_estimates(out)
+    logged = read_log(log)
+    seqs = [x.seq for x in logged]
+    assert proc.returncode == 0 and s["end"] == "completed", err
+    assert s["reconnects"] == 1 and s["gaps_unknown"] == 0 and 2 * FS <= s["gap_lost"] <= 2 * FS + 1.5 * FS
+    assert s["received"] + s["lost"] == total and s["crc_errors"] == 0 and s["duplicates"] == 0
+    bridged = [r for r in rows if int(r["flags"]) & FLAG_LINK_GAP]
+    assert len(bridged) == s["samples_bridged"] == s["gap_lost"] and len(rows) == total
+    assert len(seqs) == s["received"] and seqs == [int(r["seq"]) for r in rows if r["t_us"]]
+    assert seqs[0] == 0 and seqs[-1] == total - 1 and logged.counters.lost == s["lost"]
+    record_property("measured", f"unplugged 2 s after 1 s: exit 0, reconnects {s['reconnects']}, gap_lost "
+                                f"{s['gap_lost']} (from seq), received {s['received']} + lost {s['lost']} = {total}; "
+                                f"{len(bridged)} rows predicted through the gap, flagged; log holds all "
+                                f"{len(seqs)} samples")
+
+
+def test_reconnect_to_a_new_path_on_can_when_the_gap_is_not_knowable(record_property):
+    """The SLCAN adapter vanishes; another one (a restarted DAQ: ``seq`` and clock from 0)
+    comes up at a new path given in the link config (``reconnect.also``). The link goes on
+    through python-can's slcan driver: ``reconnects`` 1, and since ``seq`` cannot tell the gap
+    (restarted), it is reported as not knowable with a host-clock estimate, not added to
+    ``lost``."""
+    import time
+
+    from firmware_io import open_link
+
+    dev = SlcanAdapter(synthetic_stream(1), faults=FaultPlan(disconnect_after_s=0.5))
+    back = SlcanAdapter(synthetic_stream(2), max_samples=FS // 2)
+    gaps = []
+    with dev, back:
+        cfg = {"kind": "can", "interface": "slcan", "channel": dev.path,
+               "reconnect": {"also": [back.path], "give_up_s": 5.0}}
+        with open_link(cfg) as link:
+            link.on_gap = lambda missed, known: gaps.append((missed, known))
+            dev.start()
+            back.start()
+            got = []
+            t_end = time.perf_counter() + 10.0
+            for sample in link.samples(0.25):
+                if sample is not None:
+                    got.append(sample.seq)
+                if back.finished.is_set() and sample is None or time.perf_counter() > t_end:
+                    break
+            c = link.counters
+    n1 = dev.stats.samples
+    assert c.reconnects == 1 and c.gaps_unknown == 1 and c.gap_lost == 0 and c.lost == 0
+    assert len(got) == c.received == n1 + FS // 2 and got[n1] == 0
+    assert len(gaps) == 1 and not gaps[0][1] and gaps[0][0] == c.gap_lost_estimated < FS
+    record_property("measured", f"slcan adapter gone after {n1} samples, a restarted one at a new path: "
+                                f"reconnects {c.reconnects}, received {c.received} (all sent), gap not "
+                                f"knowable from seq, estimated {c.gap_lost_estimated} samples")

@@ -134,3 +134,16 @@ def test_counters_are_exact_for_any_frame_order_drops_duplicates_and_bad_frames(
     lost = (delivered[-1] - delivered[0] + 1 - len(delivered)) if delivered else 0
     c = asm.counters
     assert (c.received, c.lost, c.duplicates, c.crc_errors) == (len(delivered), lost, expect_dup, expect_bad)
+
+
+def test_the_first_sample_is_judged_like_any_other():
+    """Joined mid-sample: the complete first sample is delivered; the incomplete one before
+    it is one resync, not a loss."""
+    frames = [encode_sample_frames(s, s * 250, 100, 50, 0, (1, 2, 3), (4, 5, 6)) for s in range(4)]
+    asm = CanAssembler()
+    got = [asm.feed(*f) for f in frames[0][1:] + frames[1] + frames[2]]
+    assert [s.seq for s in got if s is not None] == [1, 2]
+    assert (asm.counters.received, asm.counters.resyncs, asm.counters.lost) == (2, 1, 0)
+    asm = CanAssembler()
+    got = [asm.feed(*f) for f in frames[0][::-1] + frames[1]]  # complete, any order
+    assert [s.seq for s in got if s is not None] == [0, 1] and asm.counters.resyncs == 0

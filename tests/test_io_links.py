@@ -14,6 +14,9 @@ from firmware_io.links import link_config, parse_can_spec
 from firmware_io.serial_codec import encode_sample
 from rtlift.errors import UserError
 
+NO_GAPS = {k: 0 for k in ("reconnects", "gap_lost", "gaps_unknown", "gap_lost_estimated")}
+"""The reconnect counters of a link that never lost its device."""
+
 
 def test_a_missing_serial_port_is_a_one_line_user_error(tmp_path):
     with pytest.raises(LinkError) as info:
@@ -77,7 +80,7 @@ def test_can_link_assembles_samples_from_any_python_can_interface():
         assert [s.volt_cv for s in got] == [0, 10, 20]
         assert link.recv(0.05) is None
         assert link.counters.as_dict() == {"received": 3, "crc_errors": 1, "lost": 0, "duplicates": 0,
-                                           "events": 0, "resyncs": 0}
+                                           "events": 0, "resyncs": 0, **NO_GAPS}
 
 
 def test_samples_yields_none_on_silence_and_ends_when_the_link_is_closed():
@@ -86,3 +89,18 @@ def test_samples_yields_none_on_silence_and_ends_when_the_link_is_closed():
     assert next(it) is None
     link.close()
     assert list(it) == []
+
+
+@pytest.mark.parametrize("value", ["yes", {"retry": 1}, {"give_up_s": -1}, {"first_delay_s": 0}, -3])
+def test_bad_reconnect_options_are_one_line_user_errors(value):
+    with pytest.raises(LinkError) as info:
+        open_link({"kind": "serial", "port": "loop://", "reconnect": value})
+    assert "\n" not in str(info.value) and str(info.value).startswith("reconnect:")
+
+
+def test_reconnect_options_parse():
+    from firmware_io.links import Reconnect
+
+    assert Reconnect.from_config(None) is None and Reconnect.from_config(False) is None
+    assert Reconnect.from_config(True) == Reconnect() and Reconnect.from_config(30).give_up_s == 30
+    assert Reconnect.from_config({"also": ["/dev/ttyACM1"]}).also == ("/dev/ttyACM1",)

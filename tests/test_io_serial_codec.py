@@ -62,6 +62,21 @@ def test_bytes_before_the_first_delimiter_are_one_resync_not_a_crc_error():
     assert dec.counters.crc_errors == 0 and dec.counters.resyncs == 1 and dec.counters.lost == 0
 
 
+def test_a_complete_first_packet_without_a_leading_delimiter_is_a_sample():
+    dec, out = decode(frame(1) + frame(2))
+    assert [s.seq for s in out] == [1, 2]
+    assert (dec.counters.received, dec.counters.resyncs, dec.counters.crc_errors) == (2, 0, 0)
+    dec, out = decode(frame(1)[1:] + frame(2))  # one byte short: fails its CRC, a resync
+    assert [s.seq for s in out] == [2] and (dec.counters.resyncs, dec.counters.crc_errors) == (1, 0)
+
+
+def test_restart_forgets_the_stream_but_keeps_the_counters():
+    dec, out = decode(frame(1) + frame(2) + frame(3)[:7])
+    dec.restart()
+    dec.feed(frame(500) + frame(501))
+    assert [s.seq for s in out] == [1, 2, 500, 501] and dec.counters.lost == 0 and dec.counters.received == 4
+
+
 def test_lost_counts_the_seq_gap_across_the_u16_wrap():
     dec, out = decode(b"\x00" + frame(65534) + frame(65535) + frame(2))
     assert [s.seq for s in out] == [65534, 65535, 2]

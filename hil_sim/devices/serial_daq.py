@@ -39,10 +39,11 @@ class SerialDaq(PtyDevice):
 
     def __init__(self, chunks: Iterable[object], *, fs_hz: float = FS_HZ, faults: FaultPlan | None = None,
                  seed: int = 0, max_samples: int | None = None, keep_sent: bool = False,
-                 first_seq: int = 0, period_us: int | None = None) -> None:
+                 first_seq: int = 0, period_us: int | None = None, first_t_us: int = 0) -> None:
         super().__init__(wire_samples(chunks, serial_wire), fs_hz=fs_hz, faults=faults, seed=seed,
                          max_samples=max_samples, keep_sent=keep_sent)
         self.first_seq = first_seq
+        self.first_t_us = first_t_us
         self.period_us = period_us if period_us is not None else int(round(1e6 / fs_hz))
         self._started = False
         self._in_error = False
@@ -70,7 +71,7 @@ class SerialDaq(PtyDevice):
             st.events_sent += 1
         volt_cv, envelope_cv, status, counts = sample
         seq = (self.first_seq + index) & 0xFFFF
-        t_us = (index * self.period_us) & 0xFFFFFFFF
+        t_us = (self.first_t_us + index * self.period_us) & 0xFFFFFFFF
         frame = encode_sample(seq, t_us, volt_cv, counts, status, envelope_cv)
         fault, garbage = self._fault(index)
         if garbage:

@@ -4,7 +4,8 @@ Driven by frame arrival (the device's ``seq`` is the clock; the host clock only 
 receive → estimate latency). ``--log`` keeps the raw frames (``.bin``/``.raw`` serial
 capture, ``.asc``/``.blf`` CAN log) for ``rtlift replay``; ``--out`` the estimates (CSV).
 Ctrl-C, SIGTERM and a vanished device end the loop with every file flushed, and
-``--json`` is written on every exit path.
+``--json`` is written on every exit path; with ``--reconnect`` a vanished device is reopened
+with backoff instead, and the observer predicts through the gap (rows flagged 16).
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
     p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of device time")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters and latency percentiles")
+    p.add_argument("--reconnect", nargs="?", const=-1.0, type=float, metavar="GIVE_UP_S",
+                   help="when the device vanishes, reopen it with backoff (for ever, or give up after "
+                        "GIVE_UP_S seconds) and go on with the same log and summary")
     p.set_defaults(func=run)
 
 
@@ -42,10 +46,15 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seconds is not None and not args.seconds > 0:
         raise UserError(f"--seconds must be positive, got {args.seconds}")
+    reconnect = None
+    if args.reconnect is not None:
+        if args.reconnect != -1.0 and not args.reconnect >= 0:
+            raise UserError(f"--reconnect: give-up time must be >= 0 seconds, got {args.reconnect}")
+        reconnect = True if args.reconnect == -1.0 else {"give_up_s": args.reconnect}
     model = load_model(args.model)
     observer = Observer.from_model(model)
     calibration = Calibration.load(args.calibration)
-    link = open_link(link_config_from_args(args, log=args.log, calibration=calibration))
+    link = open_link(link_config_from_args(args, log=args.log, calibration=calibration, reconnect=reconnect))
     where = args.serial or args.can
     print(f"rtlift observe: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
     writer = None
@@ -58,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
         loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), link.seq_modulus, writer=writer,
                             fs_hz=model.fs_hz,
                             max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))
+        link.on_gap = loop.bridge
         with graceful_exit():
             try:
                 end = loop.run(link.samples(0.25),
@@ -77,6 +87,9 @@ def run(args: argparse.Namespace) -> int:
                     code = 1
                     message = (f"rtlift observe: the device disappeared after {loop.stats.samples} "
                                "samples; summary written")
+                elif end == "timeout" and link.down:
+                    code = 1
+                    message = "rtlift observe: the device was still gone when --seconds were done; summary written"
                 elif end == "timeout":
                     code = 1
                     message = "rtlift observe: the device fell silent before --seconds were done"
@@ -87,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
         if loop is not None:
             data = summary(link.counters.as_dict(), loop.stats, observer, model=str(args.model),
                            link=link.kind, host_seconds=time.perf_counter() - t0,
-                           device_seconds=(loop.stats.samples + loop.stats.filled) / model.fs_hz,
+                           device_seconds=(loop.stats.samples + loop.stats.filled + loop.stats.bridged)
+                           / model.fs_hz,
                            tare_cl=loop.converter.tare_cl)
             if args.json:
                 write_summary(args.json, data)
@@ -102,6 +116,12 @@ def _print(d: dict) -> None:
     lat = f"latency p50 {p50:.3f} ms p99 {p99:.3f} ms" if p50 is not None else "no samples"
     o = d["observer"]
     nis = f"NIS mean {o['nis_mean']:.3g}, {o['nis_band_fraction']:.1%} in band" if o["nis_mean"] is not None else ""
+    gaps = ""
+    if d.get("reconnects"):
+        gaps = f" reconnects {d['reconnects']} (lost across them {d['gap_lost']}"
+        if d["gaps_unknown"]:
+            gaps += f"; {d['gaps_unknown']} gap(s) not knowable from seq, about {d['gap_lost_estimated']} samples"
+        gaps += ")"
     print(f"rtlift observe: {d['end']}: received {d['received']} lost {d['lost']} crc_errors {d['crc_errors']} "
-          f"resyncs {d['resyncs']} duplicates {d['duplicates']} events {d['events']}; "
+          f"resyncs {d['resyncs']} duplicates {d['duplicates']} events {d['events']}{gaps}; "
           f"{d['estimates']} estimates; {lat}; {nis}", flush=True)
