@@ -16,8 +16,9 @@ name                      stage      what it does (SI units; ΔCL-valued amplitu
                                      sampled, e.g. 420 Hz mains aliased to 20 Hz)
 ========================  =========  =====================================================
 
-``EFFECTS[name]`` holds defaults, documented ranges ``ranges[param] = (lo, hi)`` and
-``draw(rng)``; ``parse_effect(spec)`` raises :class:`~rtlift.errors.UserError` on a bad spec.
+``EFFECTS[name]`` holds the bench stage and the shared schema of :mod:`rtlift.effects` (defaults,
+documented ranges ``ranges[param] = (lo, hi)``, ``draw(rng)``); ``parse_effect(spec)`` raises
+:class:`~rtlift.errors.UserError` on a bad spec.
 """
 
 from __future__ import annotations
@@ -30,62 +31,33 @@ from types import MappingProxyType
 import numpy as np
 from scipy import signal
 
+from rtlift.effects import SCHEMAS, EffectSchema
 from rtlift.errors import UserError
 
 
 @dataclass(frozen=True)
 class EffectInfo:
-    """One effect kind: its stage, default parameters and documented ranges."""
+    """One effect kind on the bench: where it acts here, and its shared parameter schema
+    (:data:`rtlift.effects.SCHEMAS`: meaning, defaults, documented ranges)."""
 
-    name: str
     stage: str
-    defaults: Mapping[str, float]
-    ranges: Mapping[str, tuple[float, float]]
-    meaning: str
-    alternatives: tuple[tuple[str, ...], ...] = ()
-    """Parameter sets that may be given instead of the defaults' set (zero_drift)."""
+    schema: EffectSchema
+
+    name = property(lambda self: self.schema.name)
+    defaults = property(lambda self: self.schema.defaults)
+    ranges = property(lambda self: self.schema.ranges)
+    meaning = property(lambda self: self.schema.meaning)
+    alternatives = property(lambda self: self.schema.alternatives)
 
     def draw(self, rng: np.random.Generator) -> Effect:
         """Parameters drawn uniformly from ``ranges`` (one parameter set for zero_drift)."""
-        sets = (tuple(self.defaults), *self.alternatives)
-        chosen = sets[int(rng.integers(len(sets)))]
-        params = {k: float(rng.uniform(*self.ranges[k])) for k in chosen}
-        return Effect(self.name, params)
+        return Effect(self.name, self.schema.draw(rng))
 
 
-def _info(name: str, stage: str, defaults: dict[str, float],
-          ranges: dict[str, tuple[float, float]], meaning: str,
-          alternatives: tuple[tuple[str, ...], ...] = ()) -> EffectInfo:
-    return EffectInfo(name, stage, MappingProxyType(defaults), MappingProxyType(ranges),
-                      meaning, alternatives)
-
-
-EFFECTS: Mapping[str, EffectInfo] = MappingProxyType({
-    "delay": _info(
-        "delay", "force", {"seconds": 0.025}, {"seconds": (0.005, 0.1)},
-        "measured lift lags the actuation record (DAQ or convective latency)"),
-    "sensor_resonance": _info(
-        "sensor_resonance", "force", {"frequency_hz": 30.0, "damping_ratio": 0.05},
-        {"frequency_hz": (12.0, 80.0), "damping_ratio": (0.02, 0.3)},
-        "force balance / wing structural mode filtering the measured lift"),
-    "actuator_fade": _info(
-        "actuator_fade", "actuator", {"final_fraction": 0.6, "time_constant_s": 3.0},
-        {"final_fraction": (0.4, 0.9), "time_constant_s": (1.0, 10.0)},
-        "actuators deliver less Cμ as they heat up over accumulated burst on-time"),
-    "zero_drift": _info(
-        "zero_drift", "offset", {"rate_per_s": 4.0e-4},
-        {"rate_per_s": (2.0e-4, 1.5e-3), "amplitude": (0.01, 0.05),
-         "time_constant_s": (5.0, 60.0)},
-        "thermal drift of the sensor zero (ΔCL units)",
-        alternatives=(("amplitude", "time_constant_s"),)),
-    "periodic_disturbance": _info(
-        "periodic_disturbance", "offset", {"frequency_hz": 20.0, "amplitude": 0.006},
-        {"frequency_hz": (1.0, 190.0), "amplitude": (0.002, 0.02)},
-        "narrow-band pickup (mains, fan blade passing) as sampled (ΔCL units)"),
-    "hysteresis": _info(
-        "hysteresis", "plant", {"magnitude": 0.15}, {"magnitude": (0.05, 0.3)},
-        "static gain differs between rising and falling Cμ"),
-})
+STAGE_ON_BENCH = {"delay": "force", "sensor_resonance": "force", "actuator_fade": "actuator",
+                  "zero_drift": "offset", "periodic_disturbance": "offset", "hysteresis": "plant"}
+EFFECTS: Mapping[str, EffectInfo] = MappingProxyType({name: EffectInfo(stage, SCHEMAS[name])
+                                                      for name, stage in STAGE_ON_BENCH.items()})
 
 
 @dataclass(frozen=True)

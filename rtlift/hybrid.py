@@ -40,6 +40,8 @@ class HybridModel:
     provenance: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
     observer_config: dict[str, Any] = field(default_factory=dict)
+    fingerprint: dict[str, Any] = field(default_factory=dict)
+    """The residual on the identification campaign (:mod:`rtlift.diagnose.fingerprint`)."""
     stable: bool = True
 
     def __post_init__(self) -> None:

@@ -2,7 +2,8 @@
 
 Holds every parameter of a :class:`~rtlift.hybrid.HybridModel` (kernel, φ, HPF
 coefficients and design, A B C, the nonlinearity table, augmentation stages), the sample
-rate and units, the observer's noise settings, provenance and fit metrics. Loading checks
+rate and units, the observer's noise settings, provenance, fit metrics and the residual
+fingerprint of the identification campaign (what the diagnosis compares later records with). Loading checks
 dimensions, finiteness and stability — the spectral radius of A must be < 1 — and fails
 with one line naming the problem (:class:`~rtlift.errors.ModelFileError`).
 """
@@ -46,6 +47,7 @@ def model_to_dict(model: HybridModel) -> dict[str, Any]:
         "observer": model.observer_config,
         "provenance": model.provenance,
         "metrics": model.metrics,
+        "fingerprint": model.fingerprint,
     }
 
 
@@ -116,6 +118,7 @@ def model_from_dict(d: dict[str, Any], allow_unstable: bool = False, source: str
             provenance=dict(d.get("provenance") or {}),
             metrics=dict(d.get("metrics") or {}),
             observer_config=dict(d.get("observer") or {}),
+            fingerprint=dict(d.get("fingerprint") or {}),
             stable=rho < 1.0,
         )
     except (ValueError, KeyError, TypeError) as exc:
@@ -123,18 +126,32 @@ def model_from_dict(d: dict[str, Any], allow_unstable: bool = False, source: str
     return model
 
 
-def load_model(path: str | os.PathLike, allow_unstable: bool = False) -> HybridModel:
-    """Read and validate a model file; :class:`ModelFileError` (one line) on any problem."""
+def _read_json(path: str | os.PathLike) -> Any:
     try:
         with open(path, encoding="utf-8") as f:
-            d = json.load(f)
+            return json.load(f)
     except FileNotFoundError:
         raise ModelFileError(f"{path}: no such model file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ModelFileError(f"{path}: cannot read model file ({exc})") from None
     except json.JSONDecodeError as exc:
         raise ModelFileError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
-    return model_from_dict(d, allow_unstable=allow_unstable, source=str(path))
+
+
+def load_model(path: str | os.PathLike, allow_unstable: bool = False) -> HybridModel:
+    """Read and validate a model file; :class:`ModelFileError` (one line) on any problem."""
+    return model_from_dict(_read_json(path), allow_unstable=allow_unstable, source=str(path))
+
+
+def load_any_model(path: str | os.PathLike):
+    """A lift model (:class:`HybridModel`) or a generic single-input one
+    (:class:`rtlift.sysid.model.SisoModel`, ``"kind": "siso"``), by what the file holds."""
+    from rtlift.sysid.model import model_from_dict as siso_from_dict
+
+    d = _read_json(path)
+    if isinstance(d, dict) and d.get("kind") == "siso":
+        return siso_from_dict(d, source=str(path))
+    return model_from_dict(d, source=str(path))
 
 
 def save_model(model: HybridModel, path: str | os.PathLike, *, provenance: dict[str, Any] | None = None,

@@ -87,6 +87,7 @@ from filterpy.kalman import KalmanFilter
 from scipy.linalg import solve_discrete_lyapunov
 from scipy.special import ndtri
 
+from rtlift.blocks.stages import PeriodicDisturbance
 from rtlift.errors import UserError
 from rtlift.hybrid import HybridModel
 from rtlift.records import Record
@@ -160,13 +161,13 @@ class StateBlock:
         return int(self.h.size)
 
 
-def _oscillator(params: dict[str, float], fs_hz: float) -> StateBlock:
-    """A periodic disturbance ``A sin(2π f t + φ₀)`` as a rotating 2-state oscillator."""
-    w = 2.0 * math.pi * float(params["frequency_hz"]) / fs_hz
-    amp = float(params.get("amplitude", 0.01))
-    c, s = math.cos(w), math.sin(w)
-    return StateBlock("periodic_disturbance", np.array([[c, s], [-s, c]]),
-                      np.eye(2) * (1e-3 * amp) ** 2, np.array([1.0, 0.0]), np.eye(2) * amp**2)
+def _oscillator(params: dict[str, Any], fs_hz: float) -> StateBlock:
+    """A periodic disturbance Σ A_i sin(ω_i k + φ_i) as rotating 2-state oscillators, one per
+    line (the stage's own state space); the phases are the observer's to track."""
+    stage = PeriodicDisturbance.from_params(params, fs_hz)
+    F, _, h, _ = stage.statespace()
+    amp = np.repeat(np.maximum(np.abs(stage.amplitudes), 1e-6), 2)
+    return StateBlock("periodic_disturbance", F, np.diag((1e-3 * amp) ** 2), h, np.diag(amp**2))
 
 
 OBSERVER_FORMS: dict[str, Callable[[dict[str, float], float], StateBlock | None]] = {
@@ -319,10 +320,10 @@ class BurstPhase:
 
 def _gain_function(nl: Any) -> Callable[[float], float]:
     """The Wiener gain N in force after the open-loop step of the sample: N(Cμ_env) for the
-    paper's table, times (1 + m h) for :class:`~rtlift.blocks.wiener.HysteresisGain` (its
+    paper's table, times g (1 + m h) for :class:`~rtlift.blocks.wiener.HysteresisGain` (its
     ``h`` is the one the open-loop step just updated)."""
-    if hasattr(nl, "magnitude") and hasattr(nl, "h"):
-        return lambda env: nl.gain_at(env) * (1.0 + nl.magnitude * nl.h)
+    if hasattr(nl, "factor"):
+        return lambda env: nl.gain_at(env) * nl.factor()
     return nl.gain_at
 
 
@@ -665,7 +666,7 @@ class Observer:
         else:
             y = ddot(self._C, self._xw)
             g = self._nl.slope_at(y)
-            c = self._nl.step(env, y) - g * y
+            c = self._nl.output_at(env, y) - g * y
         for i, ci in enumerate(self._Cl):
             H[i] = g * ci
         ig = self._ig
@@ -724,7 +725,7 @@ class Observer:
         est.flags = flags | bad_input
         xw = self._xw
         est.bias = float(x[self.structure.n])
-        wiener = g * ddot(self._C, xw) if self._input_gain else self._nl.step(env, ddot(self._C, xw))
+        wiener = g * ddot(self._C, xw) if self._input_gain else self._nl.output_at(env, ddot(self._C, xw))
         est.dcl = known + wiener + ddot(self._he, x) + (ddot(self._Hr, self._xr) if self._ripple_on else 0.0)
         if ig >= 0:
             est.dcl += high * x[ig]

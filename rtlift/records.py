@@ -1,5 +1,8 @@
 """Record files: one experiment per CSV, sampled uniformly (INTERFACES.md, "Record files").
 
+Lift records (:class:`Record`: ``t, cmu, cmu_envelope, dcl``) and generic single-input records
+(:class:`SisoRecord`: ``t, u, y``, any system) share one parser and its one-line errors.
+
 ``# key: value`` lines before the header are metadata; the header names the columns; the
 required columns are ``t`` (s), ``cmu``, ``cmu_envelope`` and ``dcl``; any other column is
 kept in :attr:`Record.extra`. Reading validates everything and raises :class:`RecordError`
@@ -20,6 +23,7 @@ import numpy as np
 from rtlift.errors import RecordError
 
 REQUIRED = ("t", "cmu", "cmu_envelope", "dcl")
+SISO_REQUIRED = ("t", "u", "y")
 
 
 @dataclass
@@ -66,8 +70,10 @@ def _fail(path: str | os.PathLike, line: int, message: str) -> RecordError:
     return RecordError(f"{path}:{line}: {message}")
 
 
-def read_record(path: str | os.PathLike, min_samples: int = 2) -> Record:
-    """Read and validate a record CSV; raise :class:`RecordError` (one line) on any problem."""
+def _read_table(path: str | os.PathLike, required: tuple[str, ...], min_samples: int
+                ) -> tuple[dict[str, str], dict[str, np.ndarray]]:
+    """Metadata and columns of a record CSV with the ``required`` columns, validated
+    (finite, ``t`` strictly increasing); :class:`RecordError` (one line) on any problem."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
@@ -90,10 +96,10 @@ def read_record(path: str | os.PathLike, min_samples: int = 2) -> Record:
             meta[key.strip()] = value.strip()
         i += 1
     if i >= len(lines):
-        raise _fail(path, i, "no header line (expected columns t,cmu,cmu_envelope,dcl)")
+        raise _fail(path, i, f"no header line (expected columns {','.join(required)})")
     header_line = i + 1
     header = [h.strip() for h in next(csv.reader([lines[i]]))]
-    for col in REQUIRED:
+    for col in required:
         if col not in header:
             raise _fail(path, header_line, f"column '{col}' is missing from the header")
     ncol = len(header)
@@ -111,7 +117,7 @@ def read_record(path: str | os.PathLike, min_samples: int = 2) -> Record:
                 v = float(cell)
             except ValueError:
                 raise _fail(path, lineno, f"column '{header[c]}': not a number: {cell.strip()!r}") from None
-            if header[c] in REQUIRED and not math.isfinite(v):
+            if header[c] in required and not math.isfinite(v):
                 raise _fail(path, lineno, f"column '{header[c]}': {cell.strip()} is not a finite number")
             data[n, c] = v
         n += 1
@@ -124,8 +130,64 @@ def read_record(path: str | os.PathLike, min_samples: int = 2) -> Record:
     if bad.size:
         k = int(bad[0]) + 1
         raise _fail(path, _data_line(rows, header_line, k), "column 't': not strictly increasing")
+    return meta, cols
+
+
+def read_record(path: str | os.PathLike, min_samples: int = 2) -> Record:
+    """Read and validate a record CSV; raise :class:`RecordError` (one line) on any problem."""
+    meta, cols = _read_table(path, REQUIRED, min_samples)
     extra = {h: v for h, v in cols.items() if h not in REQUIRED}
-    return Record(cols["t"], cols["cmu"], cols["cmu_envelope"], cols["dcl"], meta, extra, p.stem)
+    return Record(cols["t"], cols["cmu"], cols["cmu_envelope"], cols["dcl"], meta, extra, Path(path).stem)
+
+
+@dataclass
+class SisoRecord:
+    """A generic single-input record (any system): input ``u`` and output ``y`` in any units."""
+
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    meta: dict[str, str] = field(default_factory=dict)
+    name: str = "record"
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def fs_hz(self) -> float:
+        if "fs_hz" in self.meta:
+            return float(self.meta["fs_hz"])
+        return float(1.0 / np.median(np.diff(self.t)))
+
+
+def read_siso_record(path: str | os.PathLike, min_samples: int = 2) -> SisoRecord:
+    """Read and validate a generic record CSV (columns ``t``, ``u``, ``y``)."""
+    meta, cols = _read_table(path, SISO_REQUIRED, min_samples)
+    return SisoRecord(cols["t"], cols["u"], cols["y"], meta, Path(path).stem)
+
+
+def record_kind(path: str | os.PathLike) -> str:
+    """``"lift"`` or ``"siso"`` from the header of a record file (``"lift"`` when unsure: its
+    reader then says what is missing)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("#") or not line.strip():
+                    continue
+                cols = {c.strip() for c in line.split(",")}
+                return "siso" if set(SISO_REQUIRED) <= cols and "cmu" not in cols else "lift"
+    except (OSError, UnicodeDecodeError):
+        pass
+    return "lift"
+
+
+def write_siso_record(path: str | os.PathLike, record: SisoRecord) -> None:
+    """Write a generic record CSV (metadata, header ``t,u,y``, full float precision)."""
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        for key, value in record.meta.items():
+            f.write(f"# {key}: {value}\n")
+        f.write("t,u,y\n")
+        np.savetxt(f, np.column_stack([record.t, record.u, record.y]), delimiter=",", fmt="%.17g")
 
 
 def _data_line(rows: list[list[str]], header_line: int, k: int) -> int:

@@ -3,7 +3,10 @@
 Per record the model is run open loop from rest over the whole record (the same
 ``HybridModel.simulate`` a controller's prediction uses) and scored against the measured
 ΔCL with ρ (the paper's correlation coefficient), NRMSE = RMSE/σ(ΔCL) and RMSE
-(:func:`rtlift.metrics.scores`). The JSON layout is INTERFACES.md's:
+(:func:`rtlift.metrics.scores`). :func:`predict_record` is the one prediction every score in
+rtlift comes from (``rtlift validate`` and ``rtlift diagnose`` alike): a pickup's phases are
+a property of the record, not of the pickup, and it estimates them on the record itself.
+The JSON layout is INTERFACES.md's:
 ``{"version": 1, "model": path, "records": {stem: {"corr", "nrmse", "rmse"}}}``.
 """
 
@@ -12,6 +15,9 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+import numpy as np
+
+from rtlift.blocks.stages import PeriodicDisturbance
 from rtlift.hybrid import HybridModel, HybridOutput
 from rtlift.metrics import scores
 from rtlift.records import Record
@@ -36,10 +42,55 @@ def simulate_record(model: HybridModel, record: Record) -> HybridOutput:
     return out
 
 
-def validate_record(model: HybridModel, record: Record) -> RecordValidation:
-    """ρ, NRMSE and RMSE of the model's ΔCL against the record's measured ΔCL."""
+def pickup_phases(model: HybridModel, record: Record, total: np.ndarray) -> list[np.ndarray]:
+    """Per ``periodic_disturbance`` stage, the phases φ_i of its lines on this record: with
+    r = ΔCL − (ŷ − d), d the pickup the model adds, the least-squares fit
+    r ≈ Σ_i a_i sin ω_i k + b_i cos ω_i k over the whole record (all lines of all stages at
+    once) gives φ_i = atan2(b_i, a_i); amplitudes and frequencies stay the model's."""
+    stages = [s for s in model.output_stages if isinstance(s, PeriodicDisturbance)]
+    if not stages:
+        return []
+    n = total.size
+    k = np.arange(n)
+    d = np.zeros(n)
+    for s in stages:
+        s.reset()
+        d += s.disturbance(n)
+        s.reset()
+    omegas = np.concatenate([s.omegas for s in stages])
+    X = np.empty((n, 2 * omegas.size))
+    for i, w in enumerate(omegas):
+        X[:, 2 * i], X[:, 2 * i + 1] = np.sin(w * k), np.cos(w * k)
+    coef, *_ = np.linalg.lstsq(X, record.dcl - (total - d), rcond=None)
+    phases = np.arctan2(coef[1::2], coef[0::2])
+    sizes = np.cumsum([0] + [s.omegas.size for s in stages])
+    return [phases[a:b] for a, b in zip(sizes[:-1], sizes[1:], strict=True)]
+
+
+def predict_record(model: HybridModel, record: Record) -> HybridOutput:
+    """The open-loop prediction every score uses: :func:`simulate_record`, with each pickup's
+    line phases set to the record's own (:func:`pickup_phases`; nothing else is taken from
+    the measured ΔCL)."""
     out = simulate_record(model, record)
-    return RecordValidation(record.name, scores(record.dcl, out.total), out)
+    stages = [s for s in model.output_stages if isinstance(s, PeriodicDisturbance)]
+    if not stages:
+        return out
+    total = out.total.copy()
+    n = total.size
+    for s, phases in zip(stages, pickup_phases(model, record, out.total), strict=True):
+        s.reset()
+        total -= s.disturbance(n)
+        own = s.with_phases(phases)
+        total += own.disturbance(n)
+        s.reset()
+    return HybridOutput(total, out.high, out.low)
+
+
+def validate_record(model: HybridModel, record: Record, skip: int = 0) -> RecordValidation:
+    """ρ, NRMSE and RMSE of the model's ΔCL (:func:`predict_record`) against the record's, from
+    sample ``skip`` on (the model runs from rest over the whole record)."""
+    out = predict_record(model, record)
+    return RecordValidation(record.name, scores(record.dcl[skip:], out.total[skip:]), out)
 
 
 def validation_json(model_path: str, results: list[RecordValidation]) -> dict:

@@ -30,7 +30,8 @@ def test_hybrid_step_equals_simulate(seed, n, kernel_len, order, hp_order, outpu
     state_after_steps = m.get_state()
     m.reset()
     out = m.simulate(cmu, env)
-    np.testing.assert_allclose(np.vstack([out.total, out.high, out.low]), streamed, atol=TOL, rtol=0)
+    scale = max(1.0, float(np.max(np.abs(streamed))))      # 1e-12 of the signal's size (a draw may reach 1e2)
+    np.testing.assert_allclose(np.vstack([out.total, out.high, out.low]), streamed, atol=TOL * scale, rtol=0)
     # Internal states (canonical-form x, TDF-II z) are larger and more ill-conditioned than ΔCL and
     # compiled lfilter may fuse multiply-adds: compare them relatively; the outputs above are the contract.
     np.testing.assert_allclose(m.get_state(), state_after_steps, atol=TOL, rtol=1e-9)

@@ -30,20 +30,26 @@ def test_diagnose_writes_the_report_the_figures_and_a_loadable_augmented_model(f
                "--validate", str(files / "val.csv"), str(files / "valr.csv"), "--out", str(out)])
     assert rc == 0
     rep = json.loads((out / "report.json").read_text())
-    assert set(rep) == {"version", "baseline", "augmented", "effects", "unexplained"}
+    assert {"version", "baseline", "augmented", "effects", "unexplained"} <= set(rep)
     assert rep["version"] == 1 and set(rep["baseline"]["records"]) == {"train", "val", "valr"}
     for scores in (*rep["baseline"]["records"].values(), *rep["augmented"]["records"].values()):
         assert set(scores) == {"corr", "nrmse", "rmse"}
     for e in rep["effects"]:
-        assert set(e) == {"name", "accepted", "params", "evidence", "validation_rmse_before",
+        assert set(e) == {"name", "kind", "accepted", "params", "evidence", "validation_rmse_before",
                           "validation_rmse_after"}
+        assert e["kind"] in ("effect", "structure")
         assert "\n" not in e["evidence"]
     acc = [e for e in rep["effects"] if e["accepted"]]
-    assert [e["name"] for e in acc] == ["periodic_disturbance"]
+    assert [(e["name"], e["kind"]) for e in acc] == [("periodic_disturbance", "effect")]
     assert acc[0]["params"]["frequency_hz"] == pytest.approx(20.0, abs=0.01)
     model = load_model(out / "model_augmented.json")
     assert [s.name for s in model.output_stages] == ["periodic_disturbance"]
-    assert main(["validate", "--model", str(out / "model_augmented.json"), str(files / "val.csv")]) == 0
+    scored = files / "validate.json"
+    assert main(["validate", "--model", str(out / "model_augmented.json"), str(files / "val.csv"),
+                 str(files / "valr.csv"), "--json", str(scored)]) == 0
+    for name, s in json.loads(scored.read_text())["records"].items():    # one scoring: validate = diagnose
+        for key in ("corr", "nrmse", "rmse"):
+            assert s[key] == pytest.approx(rep["augmented"]["records"][name][key], rel=1e-12, abs=1e-15)
     md = (out / "report.md").read_text()
     for fig in ("residual_time", "residual_spectrum", "residual_autocorr"):
         assert (out / "figures" / f"{fig}.png").stat().st_size > 1000

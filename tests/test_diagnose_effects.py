@@ -21,7 +21,6 @@ from rtlift.diagnose.catalog import augment, predict
 from rtlift.identify import identify_hybrid
 
 FS = 400.0
-START = 800                        # scores from 2 s on, as the diagnosis
 EXPERIMENT = "sine_k0125"
 
 
@@ -42,13 +41,14 @@ def validation(effects):
 
 
 def rmse(model, recs) -> float:
-    errs = [(r.dcl - predict(model, r, START).total)[START:] for r in recs]
+    """Pooled RMSE over whole records, as rtlift validate and the diagnosis score them."""
+    errs = [r.dcl - predict(model, r).total for r in recs]
     return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
 
 
 def pooled(diag, which: str, recs) -> float:
     scores = diag.report[which]["records"]
-    n = [len(r.t) - START for r in recs]
+    n = [len(r.t) for r in recs]
     return float(np.sqrt(sum(k * scores[r.name]["rmse"] ** 2 for k, r in zip(n, recs, strict=True)) / sum(n)))
 
 
@@ -63,7 +63,8 @@ def run_case(model, effects):
 
 
 def accepted(diag):
-    return {e["name"]: e for e in diag.report["effects"] if e["accepted"]}
+    """Accepted entries of kind effect (what changed since identification)."""
+    return {e["name"]: e for e in diag.report["effects"] if e["accepted"] and e["kind"] == "effect"}
 
 
 def assert_recovers(diag, val, clean_rmse):
@@ -97,8 +98,13 @@ def test_actuator_fade_is_found_with_its_fraction_and_time_constant(clean_model,
     found = accepted(diag)
     assert set(found) == {"actuator_fade"}
     p = found["actuator_fade"]["params"]
+    assert p["clock"] == "on_time"                          # the bench fades with burst on-time
     assert p["final_fraction"] == pytest.approx(eff.params["final_fraction"], abs=0.05)
-    assert p["time_constant_s"] == pytest.approx(eff.params["time_constant_s"], rel=0.25)
+    # the training record holds ~1.3 s of burst on-time, a fifth of tau: what it determines is
+    # the initial fade rate (1 - f)/tau, not f and tau apart
+    rate = (1 - p["final_fraction"]) / p["time_constant_s"]
+    true_rate = (1 - eff.params["final_fraction"]) / eff.params["time_constant_s"]
+    assert rate == pytest.approx(true_rate, rel=0.25)
     assert_recovers(diag, val, clean_val_rmse)
 
 
@@ -174,6 +180,7 @@ def test_a_clean_record_accepts_nothing(clean_model):
     for e in diag.report["effects"]:
         assert not e["accepted"]
     assert diag.report["augmented"] == diag.report["baseline"]
+    assert diag.report["selection"]["chosen"] == []
 
 
 def test_two_effects_at_once_are_both_found(clean_model, clean_val_rmse):
@@ -194,4 +201,4 @@ def test_accepted_effects_lower_the_error_on_the_records_they_were_not_fitted_on
             assert e["validation_rmse_after"] < 0.99 * e["validation_rmse_before"]
     rep = diag.report
     for name in ("val", "valr"):
-        assert rep["augmented"]["records"][name]["corr"] >= rep["baseline"]["records"][name]["corr"] - 0.002
+        assert rep["augmented"]["records"][name]["corr"] >= rep["baseline"]["records"][name]["corr"] - 0.005

@@ -50,4 +50,4 @@ def test_lag_search_finds_a_shift_and_trend_test_a_drift():
     assert lag_search(meas, x, FS).data["lag"] == 7
     t = np.arange(N) / FS
     drift, _ = slow_trend(1e-3 * t + 0.01 * rng.normal(size=N), x, FS)
-    assert drift.significant and abs(drift.data["rate"] - 1e-3) < 1e-4
+    assert drift.significant and abs(drift.data["coef"] - 1e-3) < 1e-4

@@ -39,7 +39,13 @@ def test_identify_writes_a_model_that_loads_and_is_stable(model_file):
     m = load_model(model_file)
     assert m.fs_hz == 400.0
     assert m.stable
-    assert m.wiener.nonlinearity.form == "input_gain"
+    structure = json.loads(model_file.read_text())["provenance"]["structure"]
+    assert {"input_gain": "input_gain", "output_map": "output"}[structure["form"]] == m.wiener.nonlinearity.form
+    assert len(structure["candidates"]) == 2 * 9            # both forms x dead times 0..8, by held-out RMSE
+    chosen = [c for c in structure["candidates"] if c["form"] == structure["form"]
+              and c["dead_time_samples"] == structure["dead_time_samples"]]
+    assert chosen[0]["holdout_rmse"] <= 1.01 * min(c["holdout_rmse"] for c in structure["candidates"])
+    assert [s.name for s in m.input_stages] == (["delay"] if structure["dead_time_samples"] else [])
 
 
 def test_model_file_records_hpf_phi_orders_uncertainty_and_observer_hints(model_file):

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from rtlift.blocks.stages import STAGES, OutputStage
+from rtlift.blocks.stages import STAGES, Delay, OutputStage, PeriodicDisturbance
+from rtlift.blocks.wiener import OutputHysteresis
+from rtlift.diagnose.catalog import augment
 from rtlift.observer import (
     FLAG_GATE_RELEASED,
     FLAG_MISSING,
@@ -358,3 +360,36 @@ def test_an_accepted_periodic_disturbance_adds_oscillator_states_that_remove_the
     rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
     assert rms(e_aug) < 0.5 * rms(e_plain)
     assert rms(e_aug) < 0.003
+
+
+def test_a_pickup_with_harmonics_adds_two_oscillator_states_per_line_that_remove_it(rng):
+    """What the diagnosis now accepts for mains: the fundamental and its harmonics as sampled."""
+    model = make_model(rng)
+    cmu, env = burst_input(rng, 6000)
+    truth, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    t = np.arange(1, z.size + 1) / 400.0
+    z = z + 0.01 * np.sin(2 * np.pi * 60.02 * t + 1.3) + 0.004 * np.sin(2 * np.pi * 99.9 * t - 0.4)
+    pickup = PeriodicDisturbance(60.02, 0.01, 0.0, 400.0, [{"n": 5, "amplitude": 0.004}])   # 300.1 -> 99.9 Hz
+    augmented = model.with_stages(output_stages=(pickup,))
+    cfg = ObserverConfig(R=0.004**2, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4)
+    plain, with_states = Observer(model, cfg), Observer(augmented, cfg)
+    assert with_states.structure.d == plain.structure.d + 4
+    rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
+    e_plain = plain.run(cmu, env, z)["dcl"][2000:] - truth[2000:]
+    e_aug = with_states.run(cmu, env, z)["dcl"][2000:] - truth[2000:]
+    assert rms(e_aug) < 0.5 * rms(e_plain)
+
+
+def test_the_observer_runs_the_identified_structures_open_loop_exactly(rng):
+    """Dead time (a delay input stage) and hysteresis on the textbook form: with no measurement the
+    observer's model output is the model's own, sample for sample."""
+    base = make_model(rng, output_form=True)
+    nl = base.wiener.nonlinearity
+    model = augment(base, input_stage=Delay(3 / 400.0, 400.0),
+                    nonlinearity=OutputHysteresis(nl.y, nl.f, 0.2, 0.1, 400.0, 0.002, 0.9))
+    cmu, env = burst_input(rng, 2000)
+    cfg = ObserverConfig(R=0.004**2, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4)
+    out = Observer(model, cfg).run(cmu, env, np.full(cmu.size, np.nan))
+    model.reset()
+    np.testing.assert_allclose(out["model_dcl"], model.simulate(cmu, env).total, atol=1e-12)
+    assert np.all(np.isfinite(out["dcl"]))

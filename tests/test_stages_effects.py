@@ -20,8 +20,9 @@ from rtlift.blocks.stages import (
     PeriodicDisturbance,
     SensorResonance,
     ZeroDrift,
+    alias_hz,
 )
-from rtlift.blocks.wiener import NONLINEARITIES, HysteresisGain
+from rtlift.blocks.wiener import NONLINEARITIES, HysteresisGain, OutputHysteresis
 from rtlift.modelfile import model_from_dict, model_to_dict
 from tests.conftest import burst_input, make_model
 
@@ -32,7 +33,8 @@ def make_stage(name: str, rng: np.random.Generator):
     if name == "delay":
         return Delay(rng.integers(0, 30) / FS, FS)
     if name == "actuator_fade":
-        return ActuatorFade(rng.uniform(0.3, 1.0), rng.uniform(0.05, 5.0), FS)
+        return ActuatorFade(rng.uniform(0.3, 1.0), rng.uniform(0.05, 5.0), FS,
+                            str(rng.choice(ActuatorFade.CLOCKS)))
     if name == "sensor_resonance":
         return SensorResonance(rng.uniform(5.0, 190.0), rng.uniform(0.02, 0.7), FS)
     if name == "zero_drift_linear":
@@ -40,8 +42,10 @@ def make_stage(name: str, rng: np.random.Generator):
     if name == "zero_drift_exp":
         return ZeroDrift(FS, amplitude=rng.uniform(-0.05, 0.05), time_constant_s=rng.uniform(0.01, 60),
                          offset=rng.uniform(-0.01, 0.01))
+    harmonics = [{"n": int(n), "amplitude": rng.uniform(0.0005, 0.006), "phase_rad": rng.uniform(-4, 4)}
+                 for n in rng.choice([2, 3, 5, 7], size=int(rng.integers(0, 4)), replace=False)]
     return PeriodicDisturbance(rng.uniform(0.5, 200.0), rng.uniform(0.001, 0.02),
-                               rng.uniform(-4, 4), FS)
+                               rng.uniform(-4, 4), FS, harmonics)
 
 
 KINDS = ["delay", "actuator_fade", "sensor_resonance", "zero_drift_linear", "zero_drift_exp",
@@ -83,15 +87,19 @@ def test_every_stage_steps_and_chunks_agree_to_1e12(kind, seed, cuts):
     np.testing.assert_allclose(s1.get_state(), s2.get_state(), rtol=1e-9, atol=1e-12)
 
 
-@settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4))
-def test_hysteresis_gain_steps_and_chunks_agree_to_1e12(seed, cuts):
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4), st.booleans())
+def test_hysteresis_gain_steps_and_chunks_agree_to_1e12(seed, cuts, output_form):
     rng = np.random.default_rng(seed)
     n = sum(cuts)
     env = np.round(np.clip(0.011 + 0.01 * np.sin(np.arange(n) / rng.uniform(5, 50)), 0, 0.022), 5)
+    env = np.clip(env + rng.normal(0, 0.001, n) * rng.integers(0, 2), 0, None)     # small reversals too
     y = env * rng.uniform(0.8, 1.2)
-    nl1 = HysteresisGain(np.linspace(0, 0.022, 6), 10 + rng.uniform(0, 3, 6), rng.uniform(-0.3, 0.3),
-                         rng.choice([0.0, rng.uniform(0.001, 1.0)]), FS)
+    args = (rng.uniform(-0.3, 0.3), rng.choice([0.0, rng.uniform(0.001, 1.0)]), FS,
+            rng.choice([0.0, rng.uniform(0.0005, 0.01)]), rng.uniform(0.7, 1.2))
+    grid = np.linspace(0, 0.022, 6)
+    nl1 = OutputHysteresis(grid, 10 * grid + rng.uniform(0, 0.01, 6), *args) if output_form else \
+        HysteresisGain(grid, 10 + rng.uniform(0, 3, 6), *args)
     nl2 = NONLINEARITIES[nl1.form].from_dict(nl1.to_dict())
     stepped = np.array([nl1.step(c, v) for c, v in zip(env, y, strict=True)])
     parts, i = [], 0
@@ -108,6 +116,37 @@ def test_hysteresis_gain_is_one_plus_m_on_a_falling_envelope():
     out = nl.simulate(env, env)
     np.testing.assert_allclose(out[1:50], 10 * env[1:50], rtol=1e-12)
     np.testing.assert_allclose(out[51:], 1.2 * 10 * env[51:], rtol=1e-12)
+
+
+def test_hysteresis_play_operator_keeps_its_branch_through_reversals_narrower_than_its_width():
+    """Rising to 0.02, a dip of 0.001 (< w = 0.004) stays on the rising branch; falling by more
+    than w moves to the falling one, with the gain ratio 1 + m and the rising branch at g."""
+    nl = OutputHysteresis([0.0, 1.0], [0.0, 1.0], 0.3, 0.0, FS, width=0.004, rising_gain=0.9)
+    env = np.concatenate([np.linspace(0, 0.02, 200), np.linspace(0.02, 0.019, 10),
+                          np.linspace(0.019, 0.02, 10), np.linspace(0.02, 0.01, 200)])
+    factor = nl.simulate(env, np.ones_like(env))
+    assert factor[199] == pytest.approx(0.9, abs=1e-12)                      # rising branch: g
+    assert np.max(factor[200:220]) < 0.9 * (1 + 0.3 * 0.3)                   # a 0.001 dip: barely moves
+    assert factor[-1] == pytest.approx(0.9 * 1.3, abs=1e-12)                 # fell by > w: g (1 + m)
+
+
+def test_pickup_lines_are_the_fundamental_and_its_harmonics_as_sampled():
+    stage = PeriodicDisturbance(60.02, 0.02, 0.4, FS, [{"n": 3, "amplitude": 0.006, "phase_rad": 1.0},
+                                                        {"n": 7, "amplitude": 0.002, "phase_rad": -0.5}])
+    assert stage.line_hz == pytest.approx([60.02, 180.06, 20.14])            # 420.14 Hz folds to 20.14
+    assert alias_hz(300.1, FS) == pytest.approx(99.9)
+    t = np.arange(8000) / FS
+    expected = (0.02 * np.sin(2 * math.pi * 60.02 * t + 0.4) + 0.006 * np.sin(2 * math.pi * 180.06 * t + 1.0)
+                + 0.002 * np.sin(2 * math.pi * 20.14 * t - 0.5))
+    np.testing.assert_allclose(stage.simulate(np.zeros(t.size)), expected, atol=1e-12)
+
+
+def test_fade_on_the_wall_clock_fades_while_the_actuator_rests():
+    on, wall = ActuatorFade(0.5, 1.0, FS, "on_time"), ActuatorFade(0.5, 1.0, FS, "time")
+    cmu = np.zeros(400)                                   # one second with no burst
+    env = np.ones(400)
+    assert on.simulate(cmu, env)[1][-1] == 1.0
+    assert wall.simulate(cmu, env)[1][-1] == pytest.approx(0.5 + 0.5 * math.exp(-399 / 400), rel=1e-12)
 
 
 def test_resonance_equals_the_bench_mode_and_has_unity_dc_gain():

@@ -11,12 +11,14 @@ Catalog (``name``: equation; k = 0 is the first sample after ``reset()``, t_k = 
 
 - ``delay`` (input): Cμ′(k) = Cμ(k − D), D = round(seconds · fs).
 - ``actuator_fade`` (input): g(k) = f + (1 − f) exp(−E(k)/τ), Cμ′ = g Cμ, Cμ_env′ = g Cμ_env,
-  E(k) the burst on-time (s) accumulated *before* sample k (E += 1/fs while Cμ(k) > 0).
+  E(k) the burst on-time (s) accumulated *before* sample k (E += 1/fs while Cμ(k) > 0), or
+  the wall time (``clock`` "time").
 - ``sensor_resonance`` (output, kind "filter"): the unity-DC-gain mode
   ω²/(s² + 2ζωs + ω²), bilinear with pre-warping at ω (as on the bench).
 - ``zero_drift`` (output, kind "additive"): d(k) = offset + rate · t_k, or
   d(k) = offset + amplitude (1 − exp(−t_k/τ)); ``offset`` is the tare's share of the drift.
-- ``periodic_disturbance`` (output, kind "additive"): d(k) = A sin(2π f t_k + φ).
+- ``periodic_disturbance`` (output, kind "additive"): d(k) = Σ_i A_i sin(2π f_i t_k + φ_i), a
+  fundamental and its harmonics as sampled (aliased).
 
 The static-gain effects live in the Wiener nonlinearity instead (they need Cμ(k) and y(k)
 together): ``hysteresis`` is :class:`rtlift.blocks.wiener.HysteresisGain`,
@@ -164,46 +166,57 @@ def _finite(value: float, what: str) -> float:
 
 
 class ActuatorFade(InputStage):
-    """Actuators deliver less Cμ as they heat up over accumulated burst on-time:
+    """Actuators deliver less Cμ as they heat up:
 
         g(k) = f + (1 − f) exp(−E(k)/τ),   Cμ′(k) = g(k) Cμ(k),   Cμ_env′(k) = g(k) Cμ_env(k),
-        E(k + 1) = E(k) + 1/fs if Cμ(k) > 0 else E(k)          (E in s, E(0) = 0)
+        E(k + 1) = E(k) + 1/fs if Cμ(k) > 0 else E(k)        (``clock`` "on_time", E(0) = 0)
+        E(k + 1) = E(k) + 1/fs                                (``clock`` "time")
 
-    ``final_fraction`` = f ∈ [0, 1], ``time_constant_s`` = τ > 0 (seconds of on-time).
-    State: [E], the on-time accumulated before the next sample.
+    with ``clock`` "on_time" the fade follows the burst on-time accumulated *before* sample k
+    (heating by actuation), with "time" the wall time since the record started.
+    ``final_fraction`` = f ∈ [0, 1], ``time_constant_s`` = τ > 0 (seconds of the clock).
+    State: [E], the clock before the next sample.
     """
 
     name = "actuator_fade"
     state_size = 1
+    CLOCKS = ("on_time", "time")
 
-    def __init__(self, final_fraction: float, time_constant_s: float, fs_hz: float) -> None:
+    def __init__(self, final_fraction: float, time_constant_s: float, fs_hz: float,
+                 clock: str = "on_time") -> None:
         f = _finite(final_fraction, "actuator_fade final_fraction")
         if not 0.0 <= f <= 1.0:
             raise ValueError(f"actuator_fade final_fraction must be in [0, 1], got {f}")
+        if clock not in self.CLOCKS:
+            raise ValueError(f"actuator_fade clock must be one of {', '.join(self.CLOCKS)}, got {clock!r}")
         self.final_fraction = f
         self.time_constant_s = _positive(time_constant_s, "actuator_fade time_constant_s")
         self.fs_hz = _positive(fs_hz, "fs_hz")
+        self.clock = clock
+        self._always = clock == "time"
         self.dt = 1.0 / self.fs_hz
         self.on_time = 0.0
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> ActuatorFade:
-        return cls(float(params["final_fraction"]), float(params["time_constant_s"]), fs_hz)
+        return cls(float(params["final_fraction"]), float(params["time_constant_s"]), fs_hz,
+                   str(params.get("clock", "on_time")))
 
-    def params(self) -> dict[str, float]:
-        return {"final_fraction": self.final_fraction, "time_constant_s": self.time_constant_s}
+    def params(self) -> dict[str, Any]:
+        return {"final_fraction": self.final_fraction, "time_constant_s": self.time_constant_s,
+                "clock": self.clock}
 
     def step(self, cmu: float, env: float) -> tuple[float, float]:
         f = self.final_fraction
         g = f + (1.0 - f) * math.exp(-self.on_time / self.time_constant_s)
-        if cmu > 0.0:
+        if cmu > 0.0 or self._always:
             self.on_time += self.dt
         return cmu * g, env * g
 
     def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cmu = np.asarray(cmu, dtype=float)
         env = np.asarray(env, dtype=float)
-        inc = np.where(cmu > 0.0, self.dt, 0.0)
+        inc = np.full(cmu.size, self.dt) if self._always else np.where(cmu > 0.0, self.dt, 0.0)
         elapsed = np.cumsum(np.concatenate([[self.on_time], inc]))   # sequential sums, as step
         before = elapsed[:-1]
         self.on_time = float(elapsed[-1])
@@ -401,21 +414,34 @@ class ZeroDrift(_Additive):
         return u + (x0 + self._x1)
 
 
-class PeriodicDisturbance(_Additive):
-    """Narrow-band pickup as sampled, added to ΔCL (t_k = k/fs, k = 0 after reset):
+def alias_hz(frequency_hz: float, fs_hz: float) -> float:
+    """The frequency a sampler at ``fs_hz`` sees for a tone at ``frequency_hz`` (folded into
+    [0, fs/2]): 420 Hz mains harmonic at 400 Hz → 20 Hz."""
+    f = math.fmod(abs(frequency_hz), fs_hz)
+    return fs_hz - f if f > 0.5 * fs_hz else f
 
-        d(k) = A sin(2π f t_k + φ);   x(k) = [d(k), A cos(2π f t_k + φ)],
-        x(k) = R(ω) x(k−1), R = [[cos ω, sin ω], [−sin ω, cos ω]], ω = 2π f/fs, C = [1, 0].
 
-    ``phase_rad`` = φ is the phase at the first sample after reset; it is a property of a
-    record, not of the pickup: an observer tracks it in x, the diagnosis re-estimates it per
-    record. The batch twin evaluates the rotation in closed form from the current state;
-    the recursion and the closed form differ by rounding only (≈ k·1e-16·A).
+class PeriodicDisturbance(OutputStage):
+    """Narrow-band pickup as sampled: a set of lines added to ΔCL (t_k = k/fs, k = 0 after reset),
+
+        d(k) = Σ_i A_i sin(ω_i k + φ_i),   ω_i = 2π f_i / fs,
+
+    the fundamental f₀ (``frequency_hz``, ``amplitude``, ``phase_rad``) and optional harmonics
+    n f₀ *as sampled* (``harmonics``: [{"n", "amplitude", "phase_rad"}], frequency
+    :func:`alias_hz` (n f₀)): mains pickup with its odd harmonics, some folded by the sampler.
+    State per line x_i(k) = [A_i sin(ω_i k + φ_i), A_i cos(ω_i k + φ_i)], rotated by R(ω_i);
+    d(k) = Σ x_i,0(k) (kind "additive": B = 0, D = 1). The phases are a property of a record,
+    not of the pickup: an observer tracks them in x, the diagnosis and ``rtlift validate``
+    re-estimate them per record (:func:`rtlift.validation.predict_record`). The batch twin
+    evaluates the rotation in closed form from the current state; the recursion and the
+    closed form differ by rounding only (≈ k·1e-16·A).
     """
 
     name = "periodic_disturbance"
+    kind = "additive"
 
-    def __init__(self, frequency_hz: float, amplitude: float, phase_rad: float, fs_hz: float) -> None:
+    def __init__(self, frequency_hz: float, amplitude: float, phase_rad: float, fs_hz: float,
+                 harmonics: list[dict[str, float]] | tuple = ()) -> None:
         self.fs_hz = _positive(fs_hz, "fs_hz")
         self.frequency_hz = _positive(frequency_hz, "periodic_disturbance frequency_hz")
         if self.frequency_hz > 0.5 * self.fs_hz:
@@ -423,43 +449,102 @@ class PeriodicDisturbance(_Additive):
                              f"Nyquist ({0.5 * self.fs_hz:g} Hz): give the aliased frequency")
         self.amplitude = _finite(amplitude, "periodic_disturbance amplitude")
         self.phase_rad = _finite(phase_rad, "periodic_disturbance phase_rad")
-        self.omega = 2.0 * math.pi * self.frequency_hz / self.fs_hz
-        self._cos, self._sin = math.cos(self.omega), math.sin(self.omega)
+        self.harmonics = []
+        for h in harmonics:
+            n = int(h["n"])
+            if n < 2:
+                raise ValueError(f"periodic_disturbance harmonic n must be >= 2, got {h['n']}")
+            self.harmonics.append({"n": n, "amplitude": _finite(h["amplitude"], "harmonic amplitude"),
+                                   "phase_rad": _finite(h.get("phase_rad", 0.0), "harmonic phase_rad")})
+        freqs = [self.frequency_hz] + [alias_hz(h["n"] * self.frequency_hz, self.fs_hz) for h in self.harmonics]
+        self.line_hz = np.array(freqs)
+        self.omegas = 2.0 * math.pi * self.line_hz / self.fs_hz
+        self.omega = float(self.omegas[0])
+        self.state_size = 2 * self.omegas.size
+        self._cos = [math.cos(w) for w in self.omegas]
+        self._sin = [math.sin(w) for w in self.omegas]
+        self._x = [0.0] * self.state_size
         self.reset()
+
+    @property
+    def amplitudes(self) -> np.ndarray:
+        return np.array([self.amplitude] + [h["amplitude"] for h in self.harmonics])
+
+    @property
+    def phases(self) -> np.ndarray:
+        return np.array([self.phase_rad] + [h["phase_rad"] for h in self.harmonics])
+
+    def with_phases(self, phases: np.ndarray) -> PeriodicDisturbance:
+        """The same lines with other phases (a record's own)."""
+        harm = [{**h, "phase_rad": float(p)} for h, p in zip(self.harmonics, phases[1:], strict=True)]
+        return PeriodicDisturbance(self.frequency_hz, self.amplitude, float(phases[0]), self.fs_hz, harm)
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> PeriodicDisturbance:
         return cls(float(params["frequency_hz"]), float(params["amplitude"]),
-                   float(params.get("phase_rad", 0.0)), fs_hz)
+                   float(params.get("phase_rad", 0.0)), fs_hz, params.get("harmonics", ()))
 
-    def params(self) -> dict[str, float]:
-        return {"frequency_hz": self.frequency_hz, "amplitude": self.amplitude,
-                "phase_rad": self.phase_rad}
+    def params(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"frequency_hz": self.frequency_hz, "amplitude": self.amplitude,
+                               "phase_rad": self.phase_rad}
+        if self.harmonics:
+            out["harmonics"] = [{**h, "frequency_hz": float(f)} for h, f in
+                                zip(self.harmonics, self.line_hz[1:], strict=True)]
+        return out
 
-    def _initial(self) -> tuple[float, float]:
-        p = self.phase_rad - self.omega
-        return self.amplitude * math.sin(p), self.amplitude * math.cos(p)
+    def reset(self) -> None:
+        for i, (a, p, w) in enumerate(zip(self.amplitudes, self.phases, self.omegas, strict=True)):
+            self._x[2 * i] = float(a * math.sin(p - w))
+            self._x[2 * i + 1] = float(a * math.cos(p - w))
+
+    def get_state(self) -> np.ndarray:
+        return np.array(self._x)
+
+    def set_state(self, state: np.ndarray) -> None:
+        st = np.asarray(state, dtype=float)
+        if st.shape != (self.state_size,):
+            raise ValueError(f"{self.name} state must have shape ({self.state_size},), got {st.shape}")
+        self._x[:] = [float(v) for v in st]
 
     def statespace(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        c, s = self._cos, self._sin
-        return np.array([[c, s], [-s, c]]), np.zeros(2), np.array([1.0, 0.0]), np.array(1.0)
+        L = self.omegas.size
+        A = np.zeros((2 * L, 2 * L))
+        for i, (c, s) in enumerate(zip(self._cos, self._sin, strict=True)):
+            A[2 * i:2 * i + 2, 2 * i:2 * i + 2] = [[c, s], [-s, c]]
+        C = np.zeros(2 * L)
+        C[0::2] = 1.0
+        return A, np.zeros(2 * L), C, np.array(1.0)
 
     def step(self, dcl: float) -> float:
-        x0, x1 = self._x0, self._x1
-        self._x0 = self._cos * x0 + self._sin * x1
-        self._x1 = self._cos * x1 - self._sin * x0
-        return dcl + self._x0
+        x = self._x
+        d = 0.0
+        for i in range(len(self._cos)):
+            c, s = self._cos[i], self._sin[i]
+            x0, x1 = x[2 * i], x[2 * i + 1]
+            x[2 * i] = c * x0 + s * x1
+            x[2 * i + 1] = c * x1 - s * x0
+            d += x[2 * i]
+        return dcl + d
 
     def simulate(self, dcl: np.ndarray) -> np.ndarray:
         u = np.asarray(dcl, dtype=float)
         n = u.size
         if n == 0:
             return u.copy()
-        amp = math.hypot(self._x0, self._x1)
-        theta = math.atan2(self._x0, self._x1) + self.omega * np.arange(1, n + 1)
-        self._x0 = float(amp * math.sin(theta[-1]))
-        self._x1 = float(amp * math.cos(theta[-1]))
-        return u + amp * np.sin(theta)
+        out = u.copy()
+        k = np.arange(1, n + 1)
+        for i, w in enumerate(self.omegas):
+            x0, x1 = self._x[2 * i], self._x[2 * i + 1]
+            amp = math.hypot(x0, x1)
+            theta = math.atan2(x0, x1) + w * k
+            self._x[2 * i] = float(amp * math.sin(theta[-1]))
+            self._x[2 * i + 1] = float(amp * math.cos(theta[-1]))
+            out += amp * np.sin(theta)
+        return out
+
+    def disturbance(self, n: int) -> np.ndarray:
+        """d(k) for the next n samples (advances the state)."""
+        return self.simulate(np.zeros(n))
 
 
 STAGES: dict[str, Any] = {c.name: c for c in (Delay, ActuatorFade, SensorResonance, ZeroDrift,

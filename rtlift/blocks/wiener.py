@@ -118,54 +118,78 @@ class InputGain(_Stateless):
         return cls(d["cmu"], d["gain"])
 
 
-class HysteresisGain(InputGain):
-    """N(Cμ)·y·(1 + m h) — the paper's gain with a direction-dependent factor (``hysteresis``):
+class _DirectionMemory:
+    """The direction-dependent factor of the ``hysteresis`` effect, a play operator of width w
+    (the Prandtl–Ishlinskii / Preisach element) followed by a first-order relaxation:
 
-        s(k) = 1 if Cμ(k) < Cμ(k−1),  0 if Cμ(k) > Cμ(k−1),  s(k−1) otherwise (held)
+        p(k) = min(max(p(k−1), Cμ(k) − w/2), Cμ(k) + w/2),   s(k) = (p(k) − Cμ(k))/w + 1/2
+        (w = 0:  s(k) = 1 if Cμ(k) < Cμ(k−1), 0 if Cμ(k) > Cμ(k−1), s(k−1) otherwise)
         h(k) = λ h(k−1) + (1 − λ) s(k),   λ = exp(−1/(τ fs))  (λ = 0 for τ = 0)
-        ΔCL_L(k) = N(Cμ(k)) · y(k) · (1 + m h(k))
+        factor(k) = g (1 + m h(k))
 
-    so the static gain on falling Cμ is (1 + m) times that on rising Cμ, the switch relaxing in
-    τ. ``magnitude`` = m, ``time_constant_s`` = τ. State: [h, s, Cμ(k−1)].
+    s is 0 on the rising branch, 1 on the falling one, and crosses between them while Cμ
+    reverses by less than w (small reversals do not switch branch). The static gain on falling
+    Cμ is (1 + m) times that on rising Cμ; the rising branch is g times the identified map (a
+    map swept up and down is the mean of the two branches: g < 1 < g (1 + m)).
+    ``magnitude`` = m, ``rising_gain`` = g, ``width`` = w (Cμ), ``time_constant_s`` = τ.
+    State: [h, s, p] (w > 0) or [h, s, Cμ(k−1)] (w = 0); at rest
+    p = −w/2 (the rising branch).
     """
-
-    form = "input_gain_hysteresis"
-
-    def __init__(self, cmu: np.ndarray, gain: np.ndarray, magnitude: float,
-                 time_constant_s: float, fs_hz: float) -> None:
-        super().__init__(cmu, gain)
-        m, tau, fs = float(magnitude), float(time_constant_s), float(fs_hz)
-        if not (np.isfinite(m) and np.isfinite(tau) and np.isfinite(fs)) or tau < 0 or fs <= 0:
-            raise ValueError("hysteresis needs a finite magnitude, time_constant_s >= 0, fs_hz > 0")
-        self.magnitude, self.time_constant_s, self.fs_hz = m, tau, fs
-        self._lam = float(np.exp(-1.0 / (tau * fs))) if tau > 0 else 0.0
-        self.h = self.s = self.last = 0.0
 
     state_size = 3
 
-    def step(self, cmu: float, y: float) -> float:
-        if cmu < self.last:
-            self.s = 1.0
-        elif cmu > self.last:
-            self.s = 0.0
-        self.last = cmu
-        self.h = (1.0 - self._lam) * self.s + self._lam * self.h
-        return self._n(cmu) * y * (1.0 + self.magnitude * self.h)
+    def _init_memory(self, magnitude: float, time_constant_s: float, fs_hz: float, width: float = 0.0,
+                     rising_gain: float = 1.0) -> None:
+        m, tau, fs, w, g = (float(v) for v in (magnitude, time_constant_s, fs_hz, width, rising_gain))
+        if not all(np.isfinite(v) for v in (m, tau, fs, w, g)) or tau < 0 or fs <= 0 or w < 0 or g <= 0:
+            raise ValueError("hysteresis needs a finite magnitude, rising_gain > 0, width >= 0, "
+                             "time_constant_s >= 0, fs_hz > 0")
+        self.magnitude, self.time_constant_s, self.fs_hz, self.width = m, tau, fs, w
+        self.rising_gain = g
+        self._lam = float(np.exp(-1.0 / (tau * fs))) if tau > 0 else 0.0
+        self.reset()
 
-    def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
-        cmu = np.asarray(cmu, dtype=float)
-        if cmu.size == 0:
-            return cmu.copy()
-        step = np.diff(cmu, prepend=self.last)
-        idx = np.where(step != 0.0, np.arange(cmu.size), -1)
-        last_change = np.maximum.accumulate(idx)
-        s = np.where(last_change >= 0, (step[np.maximum(last_change, 0)] < 0.0).astype(float), self.s)
+    def _factor_step(self, cmu: float) -> float:
+        if self.width > 0.0:
+            half = 0.5 * self.width
+            p = min(max(self.last, cmu - half), cmu + half)
+            self.last = p
+            self.s = (p - cmu) / self.width + 0.5
+        else:
+            if cmu < self.last:
+                self.s = 1.0
+            elif cmu > self.last:
+                self.s = 0.0
+            self.last = cmu
+        self.h = (1.0 - self._lam) * self.s + self._lam * self.h
+        return self.rising_gain * (1.0 + self.magnitude * self.h)
+
+    def factor(self) -> float:
+        """g (1 + m h) in force (after this sample's step; for the observer's gain)."""
+        return self.rising_gain * (1.0 + self.magnitude * self.h)
+
+    def _factor_batch(self, cmu: np.ndarray) -> np.ndarray:
+        if self.width > 0.0:                 # the play operator is a recursion: one pass
+            half, inv = 0.5 * self.width, 1.0 / self.width
+            s = np.empty(cmu.size)
+            p = self.last
+            for k, c in enumerate(cmu.tolist()):
+                p = min(max(p, c - half), c + half)
+                s[k] = (p - c) * inv + 0.5
+            self.last = p
+        else:
+            step = np.diff(cmu, prepend=self.last)
+            idx = np.where(step != 0.0, np.arange(cmu.size), -1)
+            last_change = np.maximum.accumulate(idx)
+            s = np.where(last_change >= 0, (step[np.maximum(last_change, 0)] < 0.0).astype(float), self.s)
+            self.last = float(cmu[-1])
         h, _ = signal.lfilter([1.0 - self._lam], [1.0, -self._lam], s, zi=[self._lam * self.h])
-        self.h, self.s, self.last = float(h[-1]), float(s[-1]), float(cmu[-1])
-        return self._n.batch(cmu) * np.asarray(y, dtype=float) * (1.0 + self.magnitude * h)
+        self.h, self.s = float(h[-1]), float(s[-1])
+        return self.rising_gain * (1.0 + self.magnitude * h)
 
     def reset(self) -> None:
-        self.h = self.s = self.last = 0.0
+        self.h = self.s = 0.0
+        self.last = -0.5 * self.width
 
     def get_state(self) -> np.ndarray:
         return np.array([self.h, self.s, self.last])
@@ -176,13 +200,38 @@ class HysteresisGain(InputGain):
             raise ValueError(f"hysteresis state must have shape (3,), got {st.shape}")
         self.h, self.s, self.last = (float(v) for v in st)
 
-    def to_dict(self) -> dict[str, Any]:
-        return {**super().to_dict(), "magnitude": self.magnitude,
+    def _memory_dict(self) -> dict[str, Any]:
+        return {"magnitude": self.magnitude, "rising_gain": self.rising_gain, "width": self.width,
                 "time_constant_s": self.time_constant_s, "fs_hz": self.fs_hz}
+
+
+class HysteresisGain(_DirectionMemory, InputGain):
+    """N(Cμ)·y·(1 + m h) — the paper's gain with the direction-dependent factor of
+    :class:`_DirectionMemory` (``hysteresis`` on the paper's form)."""
+
+    form = "input_gain_hysteresis"
+
+    def __init__(self, cmu: np.ndarray, gain: np.ndarray, magnitude: float,
+                 time_constant_s: float, fs_hz: float, width: float = 0.0, rising_gain: float = 1.0) -> None:
+        InputGain.__init__(self, cmu, gain)
+        self._init_memory(magnitude, time_constant_s, fs_hz, width, rising_gain)
+
+    def step(self, cmu: float, y: float) -> float:
+        return self._n(cmu) * y * self._factor_step(cmu)
+
+    def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
+        cmu = np.asarray(cmu, dtype=float)
+        if cmu.size == 0:
+            return cmu.copy()
+        return self._n.batch(cmu) * np.asarray(y, dtype=float) * self._factor_batch(cmu)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**InputGain.to_dict(self), **self._memory_dict()}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> HysteresisGain:
-        return cls(d["cmu"], d["gain"], d["magnitude"], d["time_constant_s"], d["fs_hz"])
+        return cls(d["cmu"], d["gain"], d["magnitude"], d["time_constant_s"], d["fs_hz"], d.get("width", 0.0),
+                   d.get("rising_gain", 1.0))
 
 
 class OutputNonlinearity(_Stateless):
@@ -200,6 +249,10 @@ class OutputNonlinearity(_Stateless):
     def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
         return self._f.batch(y)
 
+    def output_at(self, cmu: float, y: float) -> float:
+        """f(y) without advancing any state (the observer's evaluation at its estimate)."""
+        return self._f(y)
+
     def slope_at(self, y: float) -> float:
         """df/dy at y (for an extended Kalman observer)."""
         j = min(max(bisect_right(self._f._x, y) - 1, 0), self._f._last - 1)
@@ -213,8 +266,44 @@ class OutputNonlinearity(_Stateless):
         return cls(d["y"], d["f"])
 
 
-NONLINEARITIES: dict[str, Any] = {InputGain.form: InputGain, OutputNonlinearity.form: OutputNonlinearity,
-                                  HysteresisGain.form: HysteresisGain}
+class OutputHysteresis(_DirectionMemory, OutputNonlinearity):
+    """f(y)·(1 + m h) — the textbook form with the direction-dependent factor of
+    :class:`_DirectionMemory` (``hysteresis`` on the textbook form). :meth:`output_at` and
+    :meth:`slope_at` use the factor in force (after this sample's :meth:`step`)."""
+
+    form = "output_hysteresis"
+
+    def __init__(self, y: np.ndarray, f: np.ndarray, magnitude: float, time_constant_s: float,
+                 fs_hz: float, width: float = 0.0, rising_gain: float = 1.0) -> None:
+        OutputNonlinearity.__init__(self, y, f)
+        self._init_memory(magnitude, time_constant_s, fs_hz, width, rising_gain)
+
+    def step(self, cmu: float, y: float) -> float:
+        return self._f(y) * self._factor_step(cmu)
+
+    def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
+        cmu = np.asarray(cmu, dtype=float)
+        if cmu.size == 0:
+            return cmu.copy()
+        return self._f.batch(y) * self._factor_batch(cmu)
+
+    def output_at(self, cmu: float, y: float) -> float:
+        return self._f(y) * self.factor()
+
+    def slope_at(self, y: float) -> float:
+        return OutputNonlinearity.slope_at(self, y) * self.factor()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**OutputNonlinearity.to_dict(self), **self._memory_dict()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> OutputHysteresis:
+        return cls(d["y"], d["f"], d["magnitude"], d["time_constant_s"], d["fs_hz"], d.get("width", 0.0),
+                   d.get("rising_gain", 1.0))
+
+
+NONLINEARITIES: dict[str, Any] = {c.form: c for c in (InputGain, OutputNonlinearity, HysteresisGain,
+                                                        OutputHysteresis)}
 
 
 class WienerBlock:

@@ -14,15 +14,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Static map -> N(Cmu); single-burst kernel and phi; high-pass filter and "
                     "Wiener LTI (output-error PEM) chosen by held-out error on the training "
                     "record. Writes a model file.")
-    p.add_argument("--static", required=True, metavar="F", help="slow static sweep record")
-    p.add_argument("--single-burst", required=True, metavar="F", help="isolated single bursts record")
-    p.add_argument("--train", required=True, metavar="F",
-                   help="training record (the paper: sine_k0125)")
+    p.add_argument("--static", metavar="F", help="slow static sweep record")
+    p.add_argument("--single-burst", metavar="F", help="isolated single bursts record")
+    p.add_argument("--train", metavar="F", help="training record (the paper: sine_k0125)")
+    p.add_argument("--record", metavar="F",
+                   help="a generic single-input record (columns t,u,y) instead of the lift campaign")
+    p.add_argument("--structure", choices=("wiener", "wiener_hammerstein", "nonlinear_feedback"),
+                   default="wiener",
+                   help="with --record: the W block in textbook form (LTI then static map, default), "
+                        "Wiener-Hammerstein (a second LTI after the map) or nonlinear feedback (the "
+                        "output fed back through a cubic map into the LTI's input)")
     p.add_argument("--order", type=int, metavar="N",
                    help="Wiener LTI order (default: chosen from 1..4 by held-out error)")
-    p.add_argument("--form", choices=("input_gain", "output_map"), default="input_gain",
-                   help="Wiener nonlinearity: N(Cmu)*y as in the paper (default) or f(y) with f "
-                        "the static map (textbook Wiener)")
+    p.add_argument("--form", choices=("auto", "input_gain", "output_map"), default="auto",
+                   help="Wiener nonlinearity: N(Cmu)*y as in the paper, f(y) with f the static map "
+                        "(textbook Wiener), or whichever has the lower held-out error (default)")
+    p.add_argument("--dead-time", type=int, metavar="SAMPLES",
+                   help="samples the measured lift lags the actuation record (default: chosen from "
+                        "0..8 by held-out error)")
     p.add_argument("--phi", choices=("auto", "single_burst", "train"), default="auto",
                    help="phi from the single burst (paper), re-estimated on the training "
                         "record, or whichever has the lower held-out error (default)")
@@ -31,6 +40,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.record:
+        if args.static or args.single_burst or args.train:
+            raise UserError("--record identifies a generic record; give it alone, not with --static, "
+                            "--single-burst or --train")
+        return run_generic(args)
+    missing = [f"--{k.replace('_', '-')}" for k in ("static", "single_burst", "train") if not getattr(args, k)]
+    if missing:
+        raise UserError(f"{', '.join(missing)} missing: give --static, --single-burst and --train (a lift "
+                        "campaign) or --record (a generic t,u,y record)")
     from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
     from rtlift.modelfile import save_model
     from rtlift.observer import tune_observer
@@ -41,7 +59,9 @@ def run(args: argparse.Namespace) -> int:
     static = read_record(args.static, min_samples=50)
     burst = read_record(args.single_burst, min_samples=50)
     train = read_record(args.train, min_samples=200)
-    options = IdentifyOptions(order=args.order, form=args.form, phi=args.phi)
+    if args.dead_time is not None and not 0 <= args.dead_time <= 80:
+        raise UserError(f"--dead-time {args.dead_time}: must be between 0 and 80 samples")
+    options = IdentifyOptions(order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time)
     t0 = time.perf_counter()
     try:
         idf = identify_hybrid(static, burst, train, options)
@@ -81,9 +101,38 @@ def summary(idf, out_path: str, seconds: float) -> str:
         f"  high-pass: Butterworth order {hp['order']}, cutoff {hp['cutoff_hz']:g} Hz "
         f"(held-out RMSE {hp['holdout_rmse']:.4g}; zero-phase offline reference "
         f"{hp['zero_phase_holdout_rmse_offline_reference']:.4g})",
+        f"  structure by held-out error: {w['form']} form, dead time "
+        f"{p['structure']['dead_time_samples']} samples",
         f"  Wiener LTI ({w['form']}): order {w['order']}, poles {poles}, "
         f"DC gain {w['dc_gain']:.4g} +/- {w['uncertainty']['dc_gain_std']:.2g}",
         f"  training record {tr['record']}: corr {tr['corr']:.4f}, NRMSE {tr['nrmse']:.4f}, "
         f"RMSE {tr['rmse']:.4g}",
     ]
     return "\n".join(lines)
+
+
+def run_generic(args: argparse.Namespace) -> int:
+    """``rtlift identify --record F --structure S``: a generic single-input record."""
+    from rtlift.records import read_siso_record
+    from rtlift.sysid.identify import identify_siso
+    from rtlift.sysid.model import save_siso_model
+
+    if args.order is not None and not 1 <= args.order <= 8:
+        raise UserError(f"--order {args.order}: must be between 1 and 8")
+    rec = read_siso_record(args.record, min_samples=500)
+    try:
+        model = identify_siso(rec, args.structure, args.order)
+    except ValueError as exc:
+        raise UserError(f"cannot identify from {args.record}: {exc}") from None
+    try:
+        save_siso_model(model, args.out)
+    except OSError as exc:
+        raise UserError(f"{args.out}: cannot write model file ({exc.strerror})") from None
+    p = model.provenance
+    lines = [f"identified {model.structure} model in {p['identify_seconds']:.1f} s -> {args.out}"]
+    if "bla_order" in p:
+        lines.append(f"  best linear approximation: order {p['bla_order']}, held-out RMSE {p['bla_holdout_rmse']:.5g}")
+    lines.append(f"  held-out RMSE {model.metrics['holdout_rmse']:.5g} (last {100 * p['holdout_fraction']:.0f} % "
+                 f"of the record), training RMSE {model.metrics['train_rmse']:.5g}")
+    print("\n".join(lines))
+    return 0

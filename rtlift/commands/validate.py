@@ -17,17 +17,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--model", required=True, metavar="MODEL.json", help="model file")
     p.add_argument("records", nargs="+", metavar="RECORD.csv", help="record files")
     p.add_argument("--json", metavar="OUT.json", help="write the scores as JSON")
+    p.add_argument("--skip", type=int, default=0, metavar="N",
+                   help="leave each record's first N samples out of the scores (a benchmark's "
+                        "state-initialisation window); the model runs from rest over them")
     p.add_argument("--figures", metavar="DIR", help="write one figure per record into DIR")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from rtlift.modelfile import load_model
-    from rtlift.records import read_record
-    from rtlift.validation import plot_validation, validate_record, validation_json
+    from rtlift.modelfile import load_any_model
+    from rtlift.records import read_record, read_siso_record, record_kind
+    from rtlift.sysid.model import SISO_MODELS
+    from rtlift.validation import RecordValidation, plot_validation, validate_record, validation_json
 
-    model = load_model(args.model)
-    records = [read_record(path) for path in args.records]
+    model = load_any_model(args.model)
+    generic = isinstance(model, SISO_MODELS)
+    if args.skip < 0:
+        raise UserError(f"--skip {args.skip}: must be 0 or more")
+    for path in args.records:
+        if (record_kind(path) == "siso") != generic:
+            raise UserError(f"{path}: a {'generic t,u,y' if record_kind(path) == 'siso' else 'lift'} record, "
+                            f"but {args.model} is a {'generic' if generic else 'lift'} model")
+    records = [(read_siso_record if generic else read_record)(path, min_samples=args.skip + 2)
+               for path in args.records]
     stems = [r.name for r in records]
     dup = {s for s in stems if stems.count(s) > 1}
     if dup:
@@ -35,7 +47,15 @@ def run(args: argparse.Namespace) -> int:
     for r in records:
         if abs(r.fs_hz - model.fs_hz) > 1e-6 * model.fs_hz:
             raise UserError(f"{r.name}: sampled at {r.fs_hz:g} Hz, the model at {model.fs_hz:g} Hz")
-    results = [validate_record(model, r) for r in records]
+    if generic:
+        from rtlift.sysid.diagnose import predict, record_scores
+
+        results = [RecordValidation(r.name, record_scores(model, r, args.skip), predict(model, r)) for r in records]
+    else:
+        results = [validate_record(model, r, args.skip) for r in records]
+    if args.figures and generic:
+        raise UserError("--figures draws lift records (measured against the hybrid's parts); "
+                        "not a generic model's")
     if args.figures:
         try:
             os.makedirs(args.figures, exist_ok=True)

@@ -2,8 +2,10 @@
 
 - :mod:`.residual` — residual tests (whiteness, input and higher-order correlations, spectrum
   peaks, level/direction dependence, slow trend, lag search);
-- :mod:`.catalog` — one augmentation per effect of INTERFACES.md, each with its own fit;
-- :mod:`.selection` — greedy forward selection judged on held-out records;
+- :mod:`.fingerprint` — the model's own residual at identification, and how far a new
+  record's residual departs from it (an effect) or not (structure);
+- :mod:`.catalog` — one :class:`~.catalog.Effect` record per INTERFACES.md effect;
+- :mod:`.selection` — combinations compared on held-out records, every member earning its place;
 - :mod:`.report` — report.json, report.md, figures and the augmented model file.
 """
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from rtlift.diagnose.residual import welch_psd
 from rtlift.diagnose.selection import Diagnosis
+from rtlift.effects import SCHEMAS
 from rtlift.modelfile import save_model
 
 
@@ -77,14 +78,15 @@ def plot(diag: Diagnosis, out_dir: str, fs: float) -> dict[str, str]:
 def tests_json(diag: Diagnosis) -> dict[str, Any]:
     def one(tests: dict) -> dict:
         return {rec: {k: t.to_dict() for k, t in d.items()} for rec, d in tests.items()}
-    return {"version": 1, "scored_from_sample": diag.start, "before": one(diag.tests_before),
-            "after": one(diag.tests_after), "rounds": diag.rounds}
+    return {"version": 2, "tests_from_sample": diag.start, "before": one(diag.tests_before),
+            "after": one(diag.tests_after), "combinations": diag.rounds}
 
 
 def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
     r = diag.report
     lines = ["# Diagnosis report", "",
-             f"Scores from sample {diag.start} on (the first seconds estimate a pickup's phase).", "",
+             f"Scores: {r['scoring']}. Residual tests from sample {diag.start} on.", "",
+             f"Fingerprint: {r['fingerprint']}.", "",
              "## Error before and after", "",
              "| record | ρ before | ρ after | NRMSE before | NRMSE after | RMSE before | RMSE after |",
              "|---|---|---|---|---|---|---|"]
@@ -92,13 +94,22 @@ def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
         a = r["augmented"]["records"][name]
         lines.append(f"| {name} | {b['corr']:.4f} | {a['corr']:.4f} | {b['nrmse']:.4f} | {a['nrmse']:.4f} "
                      f"| {b['rmse']:.5f} | {a['rmse']:.5f} |")
-    lines += ["", "## Effects tried", "", "| effect | accepted | parameters | validation RMSE before → after |",
-              "|---|---|---|---|"]
+    lines += ["", "## Effects tried", "",
+              "| effect | kind | accepted | parameters | validation RMSE before → after |",
+              "|---|---|---|---|---|"]
     for e in r["effects"]:
         params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in e["params"].items())
-        lines.append(f"| {e['name']} | {'**yes**' if e['accepted'] else 'no'} | {params or '–'} | "
+        lines.append(f"| {e['name']} | {e['kind']} | {'**yes**' if e['accepted'] else 'no'} | {params or '–'} | "
                      f"{e['validation_rmse_before']:.5f} → {e['validation_rmse_after']:.5f} |")
-    lines += ["", "Evidence:", ""] + [f"- **{e['name']}**: {e['evidence']}" for e in r["effects"]]
+    sel = r["selection"]
+    lines += ["", "## Competing explanations", "", f"Rule: {sel['rule']}. Pool: {', '.join(sel['pool']) or '–'}; "
+              f"chosen: {', '.join(sel['chosen']) or 'nothing'}.", "",
+              "| combination | parameters | validation RMSE | admissible | why |", "|---|---|---|---|---|"]
+    for c in sorted(sel["combinations"], key=lambda c: c["validation_rmse"]):
+        lines.append(f"| {' + '.join(c['members'])} | {c['parameters']} | {c['validation_rmse']:.5f} | "
+                     f"{'yes' if c['admissible'] else 'no'} | {c['why']} |")
+    lines += ["", "Evidence:", ""] + [f"- **{e['name']}** ({SCHEMAS[e['name']].meaning}): {e['evidence']}"
+                                      for e in r["effects"]]
     lines += ["", "## Unexplained", ""] + ([f"- {u}" for u in r["unexplained"]] or ["- nothing"])
     first = next(iter(diag.tests_before))
     lines += ["", f"## Residual tests on `{first}` (before → after)", "", "| test | before | after |",
@@ -125,7 +136,8 @@ def write(diag: Diagnosis, out_dir: str, provenance: dict[str, Any] | None = Non
     with open(os.path.join(out_dir, "report.md"), "w", encoding="utf-8") as f:
         f.write(markdown(diag, figures))
     prov = dict(diag.augmented.provenance)
-    prov["diagnose"] = {"accepted": [e["name"] for e in diag.report["effects"] if e["accepted"]],
+    prov["diagnose"] = {"accepted": [{"name": e["name"], "kind": e["kind"]} for e in diag.report["effects"]
+                                     if e["accepted"]],
                         **(provenance or {})}
     metrics = dict(diag.augmented.metrics)
     metrics["diagnose"] = diag.report["augmented"]["records"]

@@ -15,7 +15,7 @@ standard errors over contiguous one-second blocks, because a bench residual is c
   *resonance-like* peaks (a mode ringing with the noise) or broad *bumps* (buffeting);
 - :func:`level_dependence`, :func:`direction_dependence` — ε against Cμ level, and a gain
   that differs between rising and falling Cμ (ε ≈ m ŷ_L·[falling]);
-- :func:`slow_trend` — ε against time (offset drift) and ε against ŷ·t (a gain that drifts);
+- :func:`slow_trend` — ε = a + b t + c ŷ + d ŷ t: an offset (b) and a gain (d) that drift;
 - :func:`lag_search` — the shift of the model output that best matches the measurement.
 """
 
@@ -129,6 +129,12 @@ def welch_psd(e: np.ndarray, fs: float, seconds: float = 5.12) -> tuple[np.ndarr
     return signal.welch(e - e.mean(), fs=fs, nperseg=nper, window="hann", detrend="constant")
 
 
+def welch_segments(n: int, fs: float, seconds: float = 5.12) -> int:
+    """Number of half-overlapping segments :func:`welch_psd` averages for n samples."""
+    nper = int(min(n, round(seconds * fs), max(256, n // 8)))
+    return max(1, (n - nper) // (nper // 2) + 1)
+
+
 def _half_width(p: np.ndarray, k: int, level: float, df: float) -> float:
     """Width (Hz) of the peak at bin k where p falls below ``level``, linearly interpolated."""
     def side(step: int) -> float:
@@ -237,10 +243,11 @@ def spectrum(e: np.ndarray, fs: float, exclude_hz: tuple[float, ...] = (), min_h
     res = [q for q in peaks if q.kind == "resonance"]
     detail = "; ".join(q.describe() for q in peaks[:4]) or "no peak 6 dB over the background"
     return TestResult("spectrum", float(max((q.prominence_db for q in lines + res), default=0.0)), 10.0,
-                      bool(lines or res), detail, {"f": f, "psd": p, "background": bg, "peaks": peaks})
+                      bool(lines or res), detail, {"f": f, "psd": p, "background": bg, "peaks": peaks,
+                                                   "segments": welch_segments(e.size, fs)})
 
 
-def _cluster_ols(X: np.ndarray, e: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+def cluster_ols(X: np.ndarray, e: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
     """OLS β of e on X and cluster-robust standard errors over contiguous blocks."""
     beta, *_ = np.linalg.lstsq(X, e, rcond=None)
     u = e - X @ beta
@@ -255,22 +262,27 @@ def _cluster_ols(X: np.ndarray, e: np.ndarray, block: int) -> tuple[np.ndarray, 
     return beta, np.sqrt(np.maximum(np.diag(cov), 1e-300))
 
 
-def slow_trend(e: np.ndarray, yhat: np.ndarray, fs: float) -> list[TestResult]:
-    """ε = β₀ + β₁ t (offset drift) and ε = γ ŷ + δ ŷ t (a gain that changes over time)."""
+def slow_trend(e: np.ndarray, yhat: np.ndarray, fs: float, periodic_hz: tuple[float, ...] = ()) -> list[TestResult]:
+    """One regression ε = a + b t + c ŷ + d ŷ t (+ nuisance; t in s, cluster-robust over 1 s
+    blocks): b is an offset that drifts (``slow_trend``), d a gain that drifts (``gain_trend``;
+    a fade moves the mean lift too, so the two must be told apart in one fit). With a periodic
+    input the model's own misfit is periodic too: sines and cosines at ``periodic_hz`` (the
+    envelope's harmonics) take it out as nuisance, which a trend (or a trend times ŷ) is not."""
     t = np.arange(e.size) / fs
-    block = int(fs)
-    beta, se = _cluster_ols(np.column_stack([np.ones_like(t), t]), e, block)
-    tz = beta[1] / se[1]
+    tc = t - t.mean()              # ŷ is not centred: a fade scales ŷ itself, mean lift included
+    cols = [np.ones_like(t), tc, yhat, yhat * tc]
+    for f in periodic_hz:
+        w = 2.0 * np.pi * f * t
+        cols += [np.sin(w), np.cos(w)]
+    beta, se = cluster_ols(np.column_stack(cols), e, int(fs))
+    tz, gz = beta[1] / se[1], beta[3] / se[3]
     drift = TestResult("slow_trend", abs(tz), 4.0, abs(tz) > 4.0,
-                       f"e = {beta[0]:.2e} + {beta[1]:.2e}*t (t-stat {tz:.1f}, 1 s clusters)",
-                       {"rate": float(beta[1]), "t": tz})
-    ym = yhat - yhat.mean()
-    gb, gse = _cluster_ols(np.column_stack([np.ones_like(t), ym, ym * t]), e, block)
-    gz = gb[2] / gse[2]
+                       f"offset drifts {beta[1]:+.2e}/s (t-stat {tz:.1f}, 1 s clusters, gain drift fitted beside it)",
+                       {"coef": float(beta[1]), "se": float(se[1]), "t": tz})
     gain = TestResult("gain_trend", abs(gz), 4.0, abs(gz) > 4.0,
-                      f"e ~ {gb[1]:.3f}*yhat {gb[2]:+.2e}*yhat*t: the model's gain drifts by "
-                      f"{100 * gb[2] * t[-1]:+.1f} % over the record (t-stat {gz:.1f})",
-                      {"per_s": float(gb[2]), "t": gz})
+                      f"the model's gain error drifts by {100 * beta[3] * t[-1]:+.1f} % over the record "
+                      f"({beta[3]:+.2e}/s, t-stat {gz:.1f}; offset drift fitted beside it)",
+                      {"coef": float(beta[3]), "se": float(se[3]), "t": gz})
     return [drift, gain]
 
 
@@ -286,11 +298,12 @@ def direction_dependence(e: np.ndarray, low: np.ndarray, env: np.ndarray, fs: fl
     """ε ≈ γ ŷ_L + m ŷ_L·[falling]: m is the relative extra gain while Cμ falls."""
     fall = falling_indicator(env)
     X = np.column_stack([np.ones_like(e), low, low * fall])
-    beta, se = _cluster_ols(X, e, int(fs))
+    beta, se = cluster_ols(X, e, int(fs))
     z = beta[2] / se[2]
     return TestResult("direction", abs(z), 4.0, abs(z) > 4.0,
                       f"gain on falling Cmu differs from rising by {100 * beta[2]:+.1f} % of the "
-                      f"low-frequency lift (t-stat {z:.1f})", {"m": float(beta[2]), "t": z})
+                      f"low-frequency lift (t-stat {z:.1f})",
+                      {"coef": float(beta[2]), "se": float(se[2]), "t": z})
 
 
 def level_dependence(e: np.ndarray, env: np.ndarray, fs: float, bins: int = 6) -> TestResult:
@@ -299,7 +312,7 @@ def level_dependence(e: np.ndarray, env: np.ndarray, fs: float, bins: int = 6) -
     idx = np.clip(np.searchsorted(edges, env, side="right") - 1, 0, bins - 1)
     X = np.eye(bins)[idx]
     keep = X.sum(axis=0) > 0
-    beta, se = _cluster_ols(X[:, keep], e, int(fs))
+    beta, se = cluster_ols(X[:, keep], e, int(fs))
     z = np.abs(beta - np.mean(beta)) / se
     k = int(np.argmax(z))
     centres = 0.5 * (edges[:-1] + edges[1:])[keep]
@@ -309,7 +322,7 @@ def level_dependence(e: np.ndarray, env: np.ndarray, fs: float, bins: int = 6) -
                       {"cmu": centres, "mean": beta, "se": se})
 
 
-def lag_search(measured: np.ndarray, model: np.ndarray, fs: float, max_lag: int = 60) -> TestResult:
+def lag_search(measured: np.ndarray, model: np.ndarray, fs: float, max_lag: int = 100) -> TestResult:
     """RMSE of measured(k) − model(k − D) for D = 0 … max_lag samples; the best D."""
     n = measured.size
     r = np.array([np.sqrt(np.mean((measured[d:] - model[:n - d]) ** 2)) for d in range(max_lag + 1)])
@@ -322,8 +335,9 @@ def lag_search(measured: np.ndarray, model: np.ndarray, fs: float, max_lag: int 
 
 def run_all(measured: np.ndarray, e: np.ndarray, yhat: np.ndarray, low: np.ndarray,
             env: np.ndarray, cmu: np.ndarray, fs: float,
-            exclude_hz: tuple[float, ...] = ()) -> dict[str, TestResult]:
-    """Every test on one record's residual (ε = measured − yhat)."""
+            exclude_hz: tuple[float, ...] = (), envelope_hz: float = 0.0) -> dict[str, TestResult]:
+    """Every test on one record's residual (ε = measured − yhat); ``exclude_hz`` the input's
+    lines, ``envelope_hz`` a periodic envelope's fundamental (0: not periodic)."""
     out: dict[str, TestResult] = {"whiteness": whiteness(e)}
     out["input_crosscorr"] = input_crosscorr(e, env)
     for r in higher_order(e, env, yhat):
@@ -331,7 +345,8 @@ def run_all(measured: np.ndarray, e: np.ndarray, yhat: np.ndarray, low: np.ndarr
     out["spectrum"] = spectrum(e, fs, exclude_hz)
     out["level"] = level_dependence(e, env, fs)
     out["direction"] = direction_dependence(e, low, env, fs)
-    for r in slow_trend(e, yhat, fs):
+    nuisance = tuple(envelope_hz * k for k in range(1, 9)) if envelope_hz > 0 else ()
+    for r in slow_trend(e, yhat, fs, nuisance):
         out[r.name] = r
     out["lag"] = lag_search(measured, yhat, fs)
     return out

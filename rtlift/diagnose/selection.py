@@ -1,58 +1,96 @@
-"""Closing the loop: residual tests → candidate effects → greedy forward selection.
+"""Closing the loop: residual tests → candidate effects → model selection on held-out records.
 
-Every candidate of the catalog is fitted on the training record and judged on validation
-records it never saw. A candidate is **accepted** only if, on the pooled validation records
-(scored from ``start`` on; the first seconds are where a pickup's phase is estimated):
+1. **Candidates.** Every effect of the catalog is fitted alone on the training record.
+2. **Pool.** A candidate enters the pool when its fit is interior (no parameter on a bound of
+   its range: a fade to 0, a "mode" damped like a lag) and it either lowers the validation
+   error or its evidence departs from the fingerprint; then each other candidate fitted beside
+   the best of them that lowers the validation error further (a strong effect can hide a weak
+   one from a fit on the baseline); at most ``pool_size``, best first.
+3. **Combinations** of up to ``max_effects`` pool members (exclusive pairs left out) are built
+   in the catalog's order, each member fitted on the model with the ones before it, and scored
+   on the validation records, which no fit ever sees.
+4. **Every member earns its place.** A combination is admissible only if removing any one
+   member makes the validation error significantly worse (:meth:`_Judge.verdict`: relative
+   RMSE gain ≥ ``min_gain``, a Diebold–Mariano t ≥ ``min_t`` over 1 s blocks, no record worse
+   by more than 1 %, ρ not lower by more than 0.005). Among the admissible combinations (the
+   empty one included) within ``parsimony`` of the lowest validation RMSE, the one the others
+   cannot replace wins (an encompassing test on the held-out records,
+   :meth:`_Judge.encompassing`), then the one ranked first by step 5, then the one with fewer
+   parameters.
+5. **Effect or structure.** Each chosen member's evidence is recomputed on the residual of the
+   combination without it and compared with the fingerprint (:mod:`.fingerprint`). It is an
+   ``effect`` (something changed since identification) when its own evidence departs, or when
+   the model's error level on the training record departs from the one it had on that record
+   type at identification and this member lowers it by as much again (a z of the excess that
+   falls by ``Z_DEPART`` or more); otherwise the model already
+   lacked it on its own campaign, and it is ``structure``. Between near-equal combinations
+   (step 4) the one with more effects wins, then the one whose members' own evidence is
+   stronger (Σ|z|): two explanations that fit alike are told apart by what points at them.
 
-1. RMSE falls by at least ``min_gain`` (relative),
-2. the fall is significant: the per-second squared-error differences have a mean at least
-   ``min_t`` standard errors above zero (a Diebold–Mariano test over 1 s blocks),
-3. no validation record gets worse by more than 1 % RMSE, and
-4. the correlation coefficient ρ does not drop by more than 0.002 (an effect that shrinks
-   the signal can lower RMSE while the fit gets worse).
+6. **Re-estimation.** With the chosen effects in, φ and the Wiener part's scale are
+   re-estimated jointly on the training record (:func:`.catalog.reestimate`), kept only if
+   the validation error is lower and no record worse by more than 1 %.
 
-The best accepted candidate is added, the residual re-tested, and the search repeated
-(greedy forward selection) until nothing more is accepted. What the final residual still
-shows is listed in plain words. Nothing is accepted to look useful.
+Scores everywhere are :func:`rtlift.validation.predict_record` over whole records: the
+report's numbers are the ones ``rtlift validate`` prints for the same model file.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from itertools import combinations
 from typing import Any
 
 import numpy as np
 
-from rtlift.diagnose.catalog import EFFECT_NAMES, EXCLUSIVE, FITS, N_PARAMS, Context, Fitted, predict
-from rtlift.diagnose.residual import TestResult, run_all
+from rtlift.diagnose.catalog import CATALOG, EFFECT_NAMES, EFFECTS, Context, Fitted, predict, reestimate
+from rtlift.diagnose.fingerprint import (
+    FINGERPRINT_START_S,
+    Z_DEPART,
+    Departure,
+    coef_departure,
+    error_departure,
+    input_lines_hz,
+    level_departure,
+    print_for,
+    psd_departure,
+    record_tests,
+)
+from rtlift.diagnose.residual import TestResult, cluster_ols
 from rtlift.hybrid import HybridModel
 from rtlift.metrics import scores
 from rtlift.records import Record
 
+REPORT_VERSION = 1
+
 
 @dataclass(frozen=True)
 class DiagnoseOptions:
-    start_s: float = 2.0          # scored from here; the first seconds estimate a pickup's phase
-    min_gain: float = 0.015       # relative validation RMSE decrease
-    min_t: float = 3.0            # significance of the decrease (1 s blocks)
-    max_effects: int = 4
+    min_gain: float = 0.015       # relative validation RMSE decrease a member must bring
+    min_t: float = 3.0            # significance of that decrease (1 s blocks)
+    max_effects: int = 3          # largest combination compared
+    pool_size: int = 5            # candidates that enter the combinations
+    parsimony: float = 0.02       # combinations this close to the best compete on evidence, then size
 
 
 @dataclass
 class Trial:
+    """One catalog entry's outcome, as reported."""
+
     name: str
     accepted: bool
     params: dict[str, Any]
     evidence: str
     rmse_before: float
     rmse_after: float
+    kind: str = "effect"
     detail: str = ""
-    model: HybridModel | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "accepted": self.accepted, "params": _plain(self.params),
-                "evidence": self.evidence, "validation_rmse_before": self.rmse_before,
-                "validation_rmse_after": self.rmse_after}
+        return {"name": self.name, "kind": self.kind, "accepted": self.accepted,
+                "params": _plain(self.params), "evidence": self.evidence,
+                "validation_rmse_before": self.rmse_before, "validation_rmse_after": self.rmse_after}
 
 
 @dataclass
@@ -69,230 +107,331 @@ class Diagnosis:
     rounds: list[dict[str, Any]] = field(default_factory=list)
 
 
-def _plain(d: dict[str, Any]) -> dict[str, Any]:
-    return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in d.items()}
-
-
-def burst_rate_hz(rec: Record) -> float:
-    """Repetition frequency of the bursts (0 if there are fewer than two)."""
-    on = np.flatnonzero((rec.cmu[1:] > 0) & (rec.cmu[:-1] <= 0)) + 1
-    if on.size < 2:
-        return 0.0
-    return float(rec.fs_hz / np.median(np.diff(on)))
-
-
-def envelope_line_hz(rec: Record) -> float:
-    """Fundamental of a periodic envelope (0 if the envelope is not periodic): its low harmonics
-    are input-locked model error, not pickup."""
-    env = rec.cmu_envelope - rec.cmu_envelope.mean()
-    n = env.size
-    spec = np.abs(np.fft.rfft(env * np.hanning(n))) ** 2
-    f = np.fft.rfftfreq(n, 1.0 / rec.fs_hz)
-    k = int(np.argmax(spec[1:])) + 1
-    return float(f[k]) if spec[k] > 0.5 * spec[1:].sum() else 0.0
-
-
-def _tests(model: HybridModel, rec: Record, ctx: Context) -> tuple[dict[str, TestResult], np.ndarray]:
-    out = predict(model, rec, ctx.start)
-    s = ctx.start
-    e = rec.dcl - out.total
-    harmonics = tuple(ctx.burst_hz * k for k in range(1, int(0.5 * ctx.fs / ctx.burst_hz) + 1)) \
-        if ctx.burst_hz > 0 else ()
-    harmonics += tuple(ctx.envelope_hz * k for k in range(1, 7)) if ctx.envelope_hz > 0 else ()
-    tests = run_all(rec.dcl[s:], e[s:], out.total[s:], out.low[s:], rec.cmu_envelope[s:], rec.cmu[s:],
-                    ctx.fs, harmonics)
-    return tests, e
+def _plain(d: Any) -> Any:
+    if isinstance(d, dict):
+        return {k: _plain(v) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [_plain(v) for v in d]
+    if isinstance(d, (float, np.floating)):
+        return float(d)
+    if isinstance(d, np.integer):
+        return int(d)
+    return d
 
 
 class _Judge:
-    """Scores a model on the validation records against a reference model's errors."""
+    """Scores models on the validation records (whole records, :func:`predict`)."""
 
-    def __init__(self, records: list[Record], start: int, fs: float) -> None:
-        self.records, self.start, self.block = records, start, int(fs)
+    def __init__(self, records: list[Record], fs: float) -> None:
+        self.records, self.block = records, int(fs)
+        self._meas = np.concatenate([r.dcl for r in records])
 
     def errors(self, model: HybridModel) -> list[np.ndarray]:
-        return [r.dcl[self.start:] - predict(model, r, self.start).total[self.start:] for r in self.records]
+        return [r.dcl - predict(model, r).total for r in self.records]
 
-    def pooled(self, errs: list[np.ndarray]) -> float:
+    @staticmethod
+    def pooled(errs: list[np.ndarray]) -> float:
         return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
 
-    def corr(self, errs: list[np.ndarray]) -> float:
-        meas = np.concatenate([r.dcl[self.start:] for r in self.records])
-        return scores(meas, meas - np.concatenate(errs))["corr"]
+    def encompassing(self, node: _Node, rivals: list[_Node], search: _Search) -> float:
+        """How well ``node`` holds against each rival that is not nested in it or around it
+        (Davidson & MacKinnon's J test, 1981, on the held-out records): with c_A, c_B the two
+        combinations' corrections to what they share, z − ŷ_shared ≈ α c_A + β c_B by least
+        squares (cluster-robust over 1 s blocks); the t of α. Returns the smallest over the
+        rivals (inf without one): two explanations that fit alike are told apart by which of
+        them the other cannot replace."""
+        worst = math.inf
+        mine = set(node.members)
+        for other in rivals:
+            theirs = set(other.members)
+            if mine <= theirs or theirs <= mine:
+                continue
+            shared = search.node(_ordered(mine & theirs))
+            e = np.concatenate(shared.errors)            # z − ŷ_shared
+            c_a = e - np.concatenate(node.errors)         # ŷ_A − ŷ_shared
+            c_b = e - np.concatenate(other.errors)
+            beta, se = cluster_ols(np.column_stack([c_a, c_b]), e, self.block)
+            worst = min(worst, float(beta[0] / se[0]))
+        return worst
 
     def verdict(self, before: list[np.ndarray], after: list[np.ndarray], opt: DiagnoseOptions) -> tuple[bool, str]:
-        rb, ra = self.pooled(before), self.pooled(after)
-        gain = 1.0 - ra / rb if rb > 0 else 0.0
-        diffs = []
-        for b, a in zip(before, after, strict=True):
-            d = b**2 - a**2
-            nb = max(1, d.size // self.block)
-            diffs += [float(np.mean(x)) for x in np.array_split(d, nb)]
-        diffs_a = np.asarray(diffs)
-        t = float(diffs_a.mean() / (diffs_a.std(ddof=1) / np.sqrt(diffs_a.size))) if diffs_a.size > 1 and \
-            diffs_a.std() > 0 else 0.0
-        worst = max(float(np.sqrt(np.mean(a**2)) / np.sqrt(np.mean(b**2))) for b, a in
-                    zip(before, after, strict=True))
-        dcorr = self.corr(after) - self.corr(before)
-        ok = gain >= opt.min_gain and t >= opt.min_t and worst <= 1.01 and dcorr >= -0.002
-        why = (f"validation RMSE {rb:.5f} -> {ra:.5f} ({100 * gain:+.1f} %), t = {t:.1f} over "
-               f"{diffs_a.size} one-second blocks, worst record x{worst:.3f}, rho {dcorr:+.4f}")
-        return ok, why
+        """Is ``after`` significantly better than ``before`` on every count (module doc, 4)?"""
+        return significant_gain(before, after, self._meas, self.block, opt)
 
 
-EVIDENCE_TESTS = {
-    "delay": ("lag", "input_crosscorr"),
-    "sensor_resonance": ("spectrum",),
-    "actuator_fade": ("gain_trend",),
-    "zero_drift": ("slow_trend",),
-    "periodic_disturbance": ("spectrum",),
-    "hysteresis": ("direction",),
-    "output_nonlinearity": ("bv_y2_e", "bv_u2_e", "level"),
-}
+def significant_gain(before: list[np.ndarray], after: list[np.ndarray], measured: np.ndarray, block: int,
+                     opt: DiagnoseOptions) -> tuple[bool, str]:
+    """Errors ``after`` against ``before`` per record (``measured`` the records' outputs, pooled):
+    relative RMSE gain ≥ ``opt.min_gain``, a Diebold–Mariano t ≥ ``opt.min_t`` over ``block``-sample
+    blocks of the squared-error differences, no record worse by more than 1 %, and ρ not lower by
+    more than 0.005 (a change that shrinks the signal can lower RMSE while the fit gets worse)."""
+    pooled = lambda errs: float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))   # noqa: E731
+    rb, ra = pooled(before), pooled(after)
+    gain = 1.0 - ra / rb if rb > 0 else 0.0
+    diffs = []
+    for b, a in zip(before, after, strict=True):
+        d = b**2 - a**2
+        nb = max(1, d.size // block)
+        diffs += [float(np.mean(x)) for x in np.array_split(d, nb)]
+    da = np.asarray(diffs)
+    t = float(da.mean() / (da.std(ddof=1) / np.sqrt(da.size))) if da.size > 1 and da.std() > 0 else 0.0
+    worst = max(float(np.sqrt(np.mean(a**2)) / np.sqrt(np.mean(b**2))) for b, a in zip(before, after, strict=True))
+    dcorr = (scores(measured, measured - np.concatenate(after))["corr"]
+             - scores(measured, measured - np.concatenate(before))["corr"])
+    ok = gain >= opt.min_gain and t >= opt.min_t and worst <= 1.01 and dcorr >= -0.005
+    why = (f"validation RMSE {rb:.5g} -> {ra:.5g} ({100 * gain:+.1f} %), t = {t:.1f} over "
+           f"{da.size} blocks of {block} samples, worst record x{worst:.3f}, rho {dcorr:+.4f}")
+    return ok, why
 
 
-def _evidence(name: str, tests: dict[str, TestResult]) -> str:
-    parts = []
-    for key in EVIDENCE_TESTS[name]:
-        t = tests[key]
-        if name == "sensor_resonance":
-            peaks = [p for p in t.data["peaks"] if p.kind == "resonance"]
-            parts.append(("residual spectrum: " + peaks[0].describe()) if peaks else
-                         "residual spectrum: no sharp resonance-like peak")
-        elif name == "periodic_disturbance":
-            lines = [p for p in t.data["peaks"] if p.kind == "line"]
-            parts.append(("residual spectrum: " + lines[0].describe()) if lines else
-                         "residual spectrum: no narrow line off the burst harmonics")
+@dataclass
+class _Node:
+    """A combination: its members in catalog order, their fits, the model and its errors."""
+
+    members: tuple[str, ...]
+    fits: dict[str, Fitted]
+    model: HybridModel
+    errors: list[np.ndarray]
+    failed: str = ""                     # why a member could not be fitted here
+
+    @property
+    def n_params(self) -> int:
+        return sum(EFFECTS[n].n_params(self.fits[n].params) for n in self.members)
+
+    @property
+    def on_bound(self) -> str:
+        return "; ".join(f"{n}: {self.fits[n].on_bound}" for n in self.members if self.fits[n].on_bound)
+
+
+@dataclass(frozen=True)
+class _Kind:
+    is_effect: bool
+    specific: Departure
+    text: str
+
+
+class _Search:
+    """Fits combinations by extending their prefixes (each fitted once, cached)."""
+
+    def __init__(self, base: HybridModel, train: Record, judge: _Judge, start: int,
+                 fp: dict[str, Any] | None) -> None:
+        self.train, self.judge, self.start, self.fp = train, judge, start, fp
+        self.lines = input_lines_hz(train)
+        self.nodes: dict[tuple[str, ...], _Node] = {(): _Node((), {}, base, judge.errors(base))}
+        self._tests: dict[tuple[str, ...], dict[str, TestResult]] = {}
+
+    def tests(self, members: tuple[str, ...]) -> dict[str, TestResult]:
+        if members not in self._tests:
+            self._tests[members] = record_tests(self.node(members).model, self.train, self.start)[0]
+        return self._tests[members]
+
+    def context(self, members: tuple[str, ...]) -> Context:
+        return Context(self.train.fs_hz, self.start, self.tests(members), self.fp, self.lines)
+
+    def node(self, members: tuple[str, ...]) -> _Node:
+        if members in self.nodes:
+            return self.nodes[members]
+        parent = self.node(members[:-1])
+        name = members[-1]
+        if parent.failed:
+            node = _Node(members, parent.fits, parent.model, parent.errors, parent.failed)
         else:
-            parts.append(f"{key} ({t.verdict}): {t.detail}")
-    return "; ".join(parts)
+            fitted = EFFECTS[name].fit(parent.model, self.train, self.context(members[:-1]))
+            if isinstance(fitted, Fitted):
+                node = _Node(members, {**parent.fits, name: fitted}, fitted.model,
+                             self.judge.errors(fitted.model))
+            else:
+                node = _Node(members, parent.fits, parent.model, parent.errors, f"{name}: {fitted}")
+        self.nodes[members] = node
+        return node
+
+    def without(self, members: tuple[str, ...], name: str) -> _Node:
+        return self.node(tuple(m for m in members if m != name))
+
+    def level(self, members: tuple[str, ...]) -> Departure | None:
+        """The training residual's error level against the print (None without a print)."""
+        if self.fp is None:
+            return None
+        e = self.train.dcl - predict(self.node(members).model, self.train).total
+        return error_departure(e[self.start:], self.fp, self.train.fs_hz)
+
+    def classify(self, node: _Node, name: str) -> _Kind:
+        """Effect or structure for member ``name`` of ``node`` (module docstring, 5)."""
+        rest = self.without(node.members, name)
+        specific = EFFECTS[name].evidence(self.tests(rest.members), self.fp, node.fits[name])
+        before, after = self.level(rest.members), self.level(node.members)
+        restores = before is not None and before.departs and before.z - after.z >= Z_DEPART
+        if specific.departs:
+            text = f"{specific.text}: departs from the fingerprint"
+        elif restores:
+            text = (f"{specific.text}; the model's error on this record type grew since identification "
+                    f"({before.text}) and this takes a significant part of the growth away ({after.text})")
+        else:
+            text = f"{specific.text}: within the fingerprint" + (f"; {after.text}" if after else "")
+        return _Kind(specific.departs or restores, specific, text)
+
+
+def _ordered(names) -> tuple[str, ...]:
+    return tuple(n for n in EFFECT_NAMES if n in set(names))
+
+
+def _compatible(names: tuple[str, ...]) -> bool:
+    return not any(x in EFFECTS[n].excludes for n in names for x in names)
 
 
 def diagnose(model: HybridModel, train: Record, validate: list[Record],
              options: DiagnoseOptions | None = None) -> Diagnosis:
-    """Residual tests, candidate effects, greedy selection on held-out records (module doc)."""
+    """Candidates, combinations, selection and classification (module docstring)."""
     opt = options or DiagnoseOptions()
     fs = model.fs_hz
-    start = int(round(opt.start_s * fs))
-    ctx = Context(fs=fs, start=start, burst_hz=burst_rate_hz(train), envelope_hz=envelope_line_hz(train))
-    judge = _Judge(validate, start, fs)
-    current = model
-    accepted: list[Trial] = []
-    last: dict[str, Trial] = {}
-    rounds = []
-    records = [train, *validate]
-    tests_before = {r.name: _tests(model, r, ctx)[0] for r in records}
-    resid_before = {r.name: r.dcl - predict(model, r, start).total for r in records}
-    for _ in range(opt.max_effects):
-        ctx.tests = _tests(current, train, ctx)[0]
-        before = judge.errors(current)
-        rb = judge.pooled(before)
-        taken = {t.name for t in accepted}
-        blocked = {EXCLUSIVE[n] for n in taken if n in EXCLUSIVE}
-        round_trials: list[Trial] = []
-        for name in EFFECT_NAMES:
-            if name in taken or name in blocked:
-                continue
-            evidence = _evidence(name, ctx.tests)
-            fitted = FITS[name](current, train, ctx)
-            if not isinstance(fitted, Fitted):
-                trial = Trial(name, False, {}, f"{evidence}; not fitted: {fitted}", rb, rb,
-                              f"not fitted: {fitted}")
-            else:
-                after = judge.errors(fitted.model)
-                ok, why = judge.verdict(before, after, opt)
-                trial = Trial(name, ok, fitted.params, f"{evidence}; {why}", rb, judge.pooled(after),
-                              why, fitted.model)
-            round_trials.append(trial)
-            last[name] = trial
-        rounds.append({t.name: t.to_dict() for t in round_trials})
-        winners = [t for t in round_trials if t.accepted]
-        if not winners:
-            break
-        best = min(winners, key=lambda t: t.rmse_after)
-        # parsimony: a simpler effect within 3 % of the best one's error is preferred
-        best = min((t for t in winners if t.rmse_after <= 1.03 * best.rmse_after),
-                   key=lambda t: (N_PARAMS[t.name], t.rmse_after))
-        accepted.append(best)
-        current = best.model
-        for t in round_trials:
-            if t is not best:
-                last.pop(t.name, None)
-    trials = [*accepted, *[last[n] for n in EFFECT_NAMES if n in last and n not in {t.name for t in accepted}]]
-    tests_after = {r.name: _tests(current, r, ctx)[0] for r in records}
-    _name_resonance_by_spectrum(trials, tests_after[train.name])
-    resid_after = {r.name: r.dcl - predict(current, r, start).total for r in records}
-    report = {
-        "version": 1,
-        "baseline": {"records": {r.name: _scores(r, model, start) for r in records}},
-        "augmented": {"records": {r.name: _scores(r, current, start) for r in records}},
-        "effects": [t.to_dict() for t in trials],
-        "unexplained": unexplained(tests_after[train.name], trials, accepted),
-    }
-    return Diagnosis(report, model, current, trials, tests_before, tests_after, resid_before,
-                     resid_after, start, rounds)
+    start = int(round(float(model.fingerprint.get("start", FINGERPRINT_START_S * fs))))
+    fp, fp_note = print_for(model.fingerprint, train)
+    judge = _Judge(validate, fs)
+    search = _Search(model, train, judge, start, fp)
+    base = search.node(())
+    rb = judge.pooled(base.errors)
+    tests_base = search.tests(())
 
-
-def _name_resonance_by_spectrum(trials: list[Trial], tests: dict[str, TestResult]) -> None:
-    """A mode the open-loop fit could not use is still named, with the spectrum's estimate."""
-    peaks = [p for p in tests["spectrum"].data["peaks"] if p.kind == "resonance"]
-    for t in trials:
-        if t.name == "sensor_resonance" and not t.accepted and peaks:
-            p = peaks[0]
-            t.params = {"frequency_hz": p.frequency_hz, "damping_ratio": p.damping_ratio}
-            t.evidence = (f"named by the residual spectrum only ({p.describe()}); the open-loop fit "
-                          f"was not accepted: {t.detail}")
-
-
-def _scores(rec: Record, model: HybridModel, start: int) -> dict[str, float]:
-    out = predict(model, rec, start)
-    return scores(rec.dcl[start:], out.total[start:])
-
-
-def unexplained(tests: dict[str, TestResult], trials: list[Trial], accepted: list[Trial]) -> list[str]:
-    """One plain line per residual feature that no accepted effect explains."""
-    names = {t.name for t in accepted}
-    rejected = {t.name: t for t in trials if not t.accepted}
-    lines: list[str] = []
-    spec = tests["spectrum"]
-    locked = [p for p in spec.data["peaks"] if p.kind == "input_line"]
-    if locked:
-        freqs = ", ".join(f"{p.frequency_hz:.1f}" for p in sorted(locked, key=lambda q: q.frequency_hz))
-        lines.append(f"narrow lines at burst harmonics ({freqs} Hz, up to +{max(p.prominence_db for p in locked):.0f} "
-                     f"dB): input-locked ripple error of the convolution part, not a pickup")
-    for p in spec.data["peaks"]:
-        if p.kind == "line":
-            lines.append(f"{p.describe()}: a pickup the model does not explain")
-        elif p.kind == "resonance":
-            tr = rejected.get("sensor_resonance")
-            tail = (f"; sensor_resonance fitted to the deterministic part did not help on validation "
-                    f"({tr.rmse_before:.5f} -> {tr.rmse_after:.5f}): the mode rings with noise an "
-                    f"open-loop model cannot predict (an observer with this filter stage can)"
-                    if tr else "")
-            lines.append(f"{p.describe()}: looks like sensor_resonance at {p.frequency_hz:.1f} Hz, "
-                         f"damping ratio {p.damping_ratio:.3f}{tail}")
-        elif p.kind == "bump":
-            lines.append(f"{p.describe()}: coloured aerodynamic noise (separated-flow buffeting near "
-                         f"7 Hz is one), not a periodic disturbance")
-    w = tests["whiteness"]
-    if w.significant:
-        lines.append(f"residual is not white ({w.detail})")
-    labels = {
-        "input_crosscorr": ("residual correlates with past Cmu_env", "delay"),
-        "bv_u2_e": ("residual correlates with the squared input (Billings-Voon)", "output_nonlinearity"),
-        "bv_u2_e2": ("squared residual correlates with the squared input (Billings-Voon)", None),
-        "bv_y2_e": ("residual correlates with the squared model output (Billings-Voon)", "output_nonlinearity"),
-        "level": ("residual depends on the Cmu level", "output_nonlinearity"),
-        "direction": ("residual depends on the direction of change of Cmu", "hysteresis"),
-        "slow_trend": ("slow trend in the residual", "zero_drift"),
-        "gain_trend": ("the model's gain error drifts over the record", "actuator_fade"),
-    }
-    for key, (text, effect) in labels.items():
-        t = tests[key]
-        if not t.significant:
+    # 1-2: candidates alone, and the pool
+    singles: dict[str, tuple[_Node, Departure | None, bool, str]] = {}
+    for eff in CATALOG:
+        node = search.node((eff.name,))
+        if node.failed:
+            singles[eff.name] = (node, None, False, node.failed.split(": ", 1)[1])
             continue
-        hint = ""
-        if effect and effect not in names and effect in rejected:
-            hint = f" ({effect} was tried and not accepted: {rejected[effect].detail})"
-        lines.append(f"{text}: {t.detail}{hint}")
+        dep = eff.evidence(tests_base, fp, node.fits[eff.name])
+        ok, why = judge.verdict(base.errors, node.errors, opt)
+        singles[eff.name] = (node, dep, ok, why)
+    pool = [n for n, (node, dep, ok, _) in singles.items()
+            if dep is not None and not node.on_bound and (ok or dep.departs)
+            and judge.pooled(node.errors) < rb]
+    pool = sorted(pool, key=lambda n: judge.pooled(singles[n][0].errors))[:opt.pool_size]
+    if pool:     # forward screening: a strong effect can hide a weak one from a fit on the baseline
+        lead = pool[0]
+        for eff in CATALOG:
+            if eff.name in pool or not _compatible((lead, eff.name)) or len(pool) >= opt.pool_size:
+                continue
+            pair = search.node(_ordered((lead, eff.name)))
+            if pair.failed or pair.on_bound:
+                continue
+            ok, _ = judge.verdict(singles[lead][0].errors, pair.errors, opt)
+            if ok:
+                pool.append(eff.name)
+
+    # 3-4: combinations, admissibility, choice
+    table = []
+    best: _Node = base
+    admissible_nodes = [base]
+    for size in range(1, min(opt.max_effects, len(pool)) + 1):
+        for combo in combinations(_ordered(pool), size):
+            if not _compatible(combo):
+                continue
+            node = search.node(combo)
+            row = {"members": list(combo), "validation_rmse": judge.pooled(node.errors),
+                   "parameters": node.n_params if not node.failed else None}
+            if node.failed:
+                row.update(admissible=False, why=f"not fitted: {node.failed}")
+            elif node.on_bound:
+                row.update(admissible=False, why=f"on a bound: {node.on_bound}")
+            else:
+                weak = [(m, judge.verdict(search.without(combo, m).errors, node.errors, opt))
+                        for m in combo]
+                lacking = [f"{m} ({why})" for m, (ok, why) in weak if not ok]
+                row.update(admissible=not lacking,
+                           why="every member lowers the error significantly" if not lacking else
+                           "does not earn its place: " + "; ".join(lacking))
+                if not lacking:
+                    admissible_nodes.append(node)
+            table.append(row)
+    lowest = min(judge.pooled(n.errors) for n in admissible_nodes)
+    near = [n for n in admissible_nodes if judge.pooled(n.errors) <= lowest * (1 + opt.parsimony)]
+
+    def rank(node: _Node) -> tuple:
+        kinds = [search.classify(node, m) for m in node.members]
+        return (-judge.encompassing(node, near, search), -sum(k.is_effect for k in kinds),
+                -sum(min(abs(k.specific.z), 50.0) for k in kinds), node.n_params, judge.pooled(node.errors))
+    best = min(near, key=rank)
+
+    # 5: effect or structure, and the trials as reported
+    trials: list[Trial] = []
+    for eff in CATALOG:
+        node, dep, ok, why = singles[eff.name]
+        if eff.name in best.members:
+            rest = search.without(best.members, eff.name)
+            fitted = best.fits[eff.name]
+            verdict = search.classify(best, eff.name)
+            _, why_in = judge.verdict(rest.errors, best.errors, opt)
+            kind = "effect" if verdict.is_effect else "structure"
+            text = f"{verdict.text}; {why_in}" + (f"; {fitted.note}" if fitted.note else "")
+            trials.append(Trial(eff.name, True, fitted.params, text, judge.pooled(rest.errors),
+                                judge.pooled(best.errors), kind, why_in))
+            continue
+        if dep is None:
+            trials.append(Trial(eff.name, False, {}, f"not fitted: {why}", rb, rb, "effect", why))
+            continue
+        fitted = node.fits[eff.name]
+        kind = "effect" if dep.departs else "structure"
+        reason = (f"ended on a bound: {node.on_bound}" if node.on_bound else
+                  "not in the chosen combination" if eff.name in pool else
+                  "neither lowers the validation error significantly nor departs from the fingerprint"
+                  if not dep.departs else "does not lower the validation error significantly")
+        trials.append(Trial(eff.name, False, fitted.params, f"{dep.text}; {why}; {reason}", rb,
+                            judge.pooled(node.errors), kind, why))
+
+    records = [train, *validate]
+    augmented = best.model
+    refit = {"tried": bool(best.members)}
+    if best.members:          # 6: what the effects interact with, re-estimated with them in
+        again, scales = reestimate(best.model, train, start)
+        after = judge.errors(again)
+        ok, why = judge.verdict(best.errors, after, DiagnoseOptions(min_gain=0.0, min_t=0.0))
+        better = ok and judge.pooled(after) < judge.pooled(best.errors)
+        refit.update(scales, kept=better, why=why)
+        if better:
+            augmented = again
+    tests_before = {r.name: record_tests(model, r, start)[0] for r in records}
+    tests_after = {r.name: record_tests(augmented, r, start)[0] for r in records}
+    resid_before = {r.name: r.dcl - predict(model, r).total for r in records}
+    resid_after = {r.name: r.dcl - predict(augmented, r).total for r in records}
+    report = {
+        "version": REPORT_VERSION,
+        "baseline": {"records": {r.name: scores(r.dcl, r.dcl - resid_before[r.name]) for r in records}},
+        "augmented": {"records": {r.name: scores(r.dcl, r.dcl - resid_after[r.name]) for r in records}},
+        "effects": [t.to_dict() for t in trials],
+        "unexplained": unexplained(search.tests(best.members), fp, trials),
+        "fingerprint": fp_note,
+        "reestimation": refit,
+        "selection": {"pool": pool, "chosen": list(best.members), "combinations": table,
+                      "rule": "every member lowers the validation error significantly; within "
+                              f"{100 * opt.parsimony:g} % of the lowest validation RMSE, the most members "
+                              "whose evidence departs from the fingerprint, then the fewest parameters"},
+        "scoring": "whole records from rest (rtlift validate's numbers); a periodic_disturbance's "
+                   "line phases are estimated on each record itself, as rtlift validate does",
+    }
+    return Diagnosis(report, model, augmented, trials, tests_before, tests_after, resid_before,
+                     resid_after, start, table)
+
+
+def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials: list[Trial]) -> list[str]:
+    """One plain line per feature of the final training residual that still departs from the
+    fingerprint, and per candidate whose evidence departs but whose fit the validation records
+    did not support."""
+    if fp is None:
+        return [f"{k}: {tests[k].detail}" for k in ("slow_trend", "gain_trend", "direction", "level")
+                if tests[k].significant]
+    deps = [coef_departure(tests[key], fp, what) for key, what in
+            (("slow_trend", "offset drift"), ("gain_trend", "gain drift"),
+             ("direction", "falling-Cmu gain difference"))]
+    deps.append(level_departure(tests["level"], fp))
+    lines = [f"{d.text}: no accepted entry explains it" for d in deps if d.departs]
+    spec = tests["spectrum"].data
+    f = np.asarray(spec["f"])
+    df = float(f[1])
+    excess = np.log(np.maximum(spec["psd"], 1e-300)) - np.interp(f, fp["psd"]["f_hz"], fp["psd"]["log10"]) * np.log(10)
+    for k in np.argsort(excess)[::-1][:3]:
+        dep = psd_departure(tests["spectrum"], fp, [(f[k] - 0.5 * df, f[k] + 0.5 * df)], f"{f[k]:.1f} Hz")
+        if dep.departs:
+            lines.append(f"residual power at {dep.text}: stands above the model's own residual")
+    lines += [f"{t.name} is pointed at by the evidence but not accepted: {t.evidence}"
+              for t in trials if not t.accepted and t.params and t.kind == "effect"]
     return lines

@@ -8,11 +8,22 @@
    held-out tail: the HPF (:mod:`.highpass`) and then the Wiener order n = 1 … 4 are chosen
    by held-out RMSE of the whole hybrid; finally A, B, C are re-estimated by output-error PEM
    (:mod:`.pem`) on the whole training record with the chosen structure.
-4. φ: the paper's φ makes the convolution reproduce the single-burst response. On a plant
+4. structure by held-out error (Ljung §16.4): the Wiener form (the paper's N(Cμ)·y or the
+   textbook f(y) with f the static map) and a dead time D of the whole model (samples the
+   measured lift lags the actuation record: DAQ and convective latency), 0 … ``max_dead_time``.
+   HPF and order are searched per form with D = 0, every D is then scored with one PEM fit,
+   and the chosen (form, D) is identified in full. The smallest D and the paper's form win
+   ties within ``structure_tolerance``. D is stored as a ``delay`` input stage of kind
+   structure (``provenance.structure``): a diagnosis reports a later delay on top of it.
+5. φ: the paper's φ makes the convolution reproduce the single-burst response. On a plant
    whose burst response weakens as the flow attaches, that φ over-predicts the ripple at high
    Cμ; the hybrid's output error is linear in φ, so PEM can re-estimate it jointly with C
    (φ_train = β φ_single). ``phi="auto"`` keeps whichever of the two has the lower held-out
-   RMSE; both are recorded.
+   RMSE; both are recorded. The Wiener PEM's cost also holds the static sweep (simulated
+   from rest before the training record, thinned to weigh alike): the sine alone leaves
+   the DC gain loose, the sweep pins it.
+6. the residual fingerprint of the final model on the three records
+   (:mod:`rtlift.diagnose.fingerprint`), stored in the model file for later diagnoses.
 
 Pure: takes :class:`~rtlift.records.Record` objects, returns an :class:`Identification`
 holding the :class:`~rtlift.hybrid.HybridModel` and plain dicts for the model file.
@@ -27,7 +38,9 @@ from scipy import signal
 
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
+from rtlift.blocks.stages import Delay
 from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
+from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
 from rtlift.hybrid import HybridModel
 from rtlift.identify.highpass import HighPassChoice, choose_highpass, wiener_fit_for_highpass
 from rtlift.identify.kernel import SingleBurstKernel, burst_onsets, fit_kernel
@@ -41,11 +54,16 @@ WIENER_FORMS = ("input_gain", "output_map")
 
 @dataclass(frozen=True)
 class IdentifyOptions:
-    """Choices of the identification (defaults: the paper's structure, data-driven sizes)."""
+    """Choices of the identification (defaults: structure and sizes chosen by held-out error)."""
 
     order: int | None = None                  # Wiener LTI order; None: choose 1 … max_order
     max_order: int = 4
-    form: str = "input_gain"                  # or "output_map" (textbook Wiener, f = static map)
+    form: str = "auto"                        # "input_gain" (paper), "output_map" (textbook) or "auto"
+    dead_time: int | None = None              # samples; None: choose 0 … max_dead_time
+    max_dead_time: int = 8
+    structure_tolerance: float = 0.01         # ties (relative held-out RMSE) go to the simpler
+    static_in_cost: bool = True               # the static sweep shares the Wiener PEM's cost
+    rest_s: float = 10.0                      # rest between the sweep and the training record
     holdout_fraction: float = 0.3
     skip_s: float = 0.5                       # initial transient left out of every cost
     hpf_orders: tuple[int, ...] = (1, 2, 3, 4)
@@ -90,60 +108,177 @@ def convolution_output(kernel: SingleBurstKernel, cmu: np.ndarray) -> np.ndarray
     return kernel.phi * signal.lfilter(kernel.kernel, [1.0], cmu)
 
 
+def delayed(rec: Record, samples: int) -> Record:
+    """The record with its actuation (Cμ, Cμ_env) arriving ``samples`` later (zeros before)."""
+    if samples == 0:
+        return rec
+    out = rec.slice(0, len(rec))
+    out.cmu = np.concatenate([np.zeros(samples), rec.cmu[:-samples]])
+    out.cmu_envelope = np.concatenate([np.zeros(samples), rec.cmu_envelope[:-samples]])
+    return out
+
+
+@dataclass(frozen=True)
+class _Joint:
+    """The records the Wiener part is fitted on, laid end to end: [static sweep | rest |
+    training record] (or the training record alone), every array delayed by the dead time.
+    ``cost`` holds the fitted samples: the sweep's thinned so that it weighs like the training
+    record's estimation part (its DC gain, which the sine alone leaves loose, is what it adds);
+    the training record's last part (from ``n_est``) is the held-out part."""
+
+    cmu: np.ndarray
+    env: np.ndarray
+    dcl: np.ndarray
+    offset: int            # first sample of the training record
+    n_est: int             # end of the estimation part (absolute index)
+    cost: np.ndarray
+
+    @property
+    def holdout(self) -> slice:
+        return slice(self.n_est, self.dcl.size)
+
+    @property
+    def train(self) -> slice:
+        return slice(self.offset, self.dcl.size)
+
+
+def _joint(static: Record | None, train: Record, dead_time: int, n_est: int, skip: int,
+           rest: int) -> _Joint:
+    parts = [delayed(train, dead_time)]
+    if static is not None:
+        pause = np.zeros(rest)
+        st = delayed(static, dead_time)
+        parts = [st, Record(pause, pause, pause, pause), parts[0]]
+    cat = {k: np.concatenate([getattr(r, k) for r in parts]) for k in ("cmu", "cmu_envelope", "dcl")}
+    offset = cat["dcl"].size - len(train)
+    own = np.arange(offset + skip, offset + n_est)
+    if static is None:
+        cost = own
+    else:
+        stride = max(1, int(round((len(static) - skip) / max(own.size, 1))))
+        cost = np.concatenate([np.arange(skip, len(static), stride), own])
+    return _Joint(cat["cmu"], cat["cmu_envelope"], cat["dcl"], offset, offset + n_est, cost)
+
+
+@dataclass
+class _StructureFit:
+    """One (form, dead time) identified on the training record's estimation part."""
+
+    form: str
+    dead_time: int
+    hp: HighPassChoice
+    refine: bool
+    searches: dict
+    candidates: dict
+    choice: OrderChoice
+    holdout_rmse: float
+
+
+def _fit_structure(static: StaticMap, kernel: SingleBurstKernel, data: _Joint, opt: IdentifyOptions,
+                   form: str, dead_time: int, skip: int, fs: float,
+                   fixed: _StructureFit | None = None) -> _StructureFit:
+    """HPF, φ choice and Wiener order by held-out RMSE for one structure; with ``fixed``, only
+    the Wiener part is refitted with the HPF, φ choice and order of ``fixed`` (a cheap score)."""
+    env, dcl = data.env, data.dcl
+    gain = static.gain_at(env) if form == "input_gain" else None
+    table = (static.cmu, static.dcl) if form == "output_map" else None
+    conv = convolution_output(kernel, data.cmu)
+    val, n_est = data.holdout, data.n_est
+    if fixed is not None:
+        hpf = HighPassFilter.design(fixed.hp.order, fixed.hp.cutoff_hz, fs)
+        k = fixed.choice.order
+        res, dhat = wiener_fit_for_highpass(hpf.simulate(conv), dcl, env, n_est, k, fs, gain, table, form,
+                                            skip, refine_phi=fixed.refine, cost=data.cost)
+        err = float(np.sqrt(np.mean((dcl[val] - dhat[val]) ** 2)))
+        return _StructureFit(form, dead_time, fixed.hp, fixed.refine, fixed.searches,
+                             {k: (res, err)}, fixed.choice, err)
+    modes = {"auto": (False, True), "single_burst": (False,), "train": (True,)}[opt.phi]
+    tr = data.train          # the HPF concerns the burst part: searched on the training record alone
+    searches = {refine: choose_highpass(conv[tr], dcl[tr], env[tr], fs, n_est=n_est - data.offset,
+                                        wiener_order=opt.order or opt.hpf_search_order,
+                                        gain=None if gain is None else gain[tr], table=table, form=form,
+                                        skip=skip, orders=opt.hpf_orders, cutoffs_hz=opt.hpf_cutoffs_hz,
+                                        refine_phi=refine, control_band_hz=opt.control_band_hz)
+                for refine in modes}
+    refine = min(searches, key=lambda r: searches[r].holdout_rmse)
+    hp = searches[refine]
+    high = HighPassFilter.design(hp.order, hp.cutoff_hz, fs).simulate(conv)
+    orders = [opt.order] if opt.order else list(range(1, opt.max_order + 1))
+    candidates = {}
+    for k in orders:
+        res, dhat = wiener_fit_for_highpass(high, dcl, env, n_est, k, fs, gain, table, form,
+                                            skip, refine_phi=refine, cost=data.cost)
+        candidates[k] = (res, float(np.sqrt(np.mean((dcl[val] - dhat[val]) ** 2))))
+    choice = choose_order(candidates)
+    return _StructureFit(form, dead_time, hp, refine, searches, candidates, choice,
+                         candidates[choice.order][1])
+
+
+def choose_structure(fits: list[_StructureFit], tolerance: float) -> _StructureFit:
+    """The simplest structure within ``tolerance`` of the best held-out RMSE: the paper's form
+    before the textbook one, then the smallest dead time (parsimony, Ljung §16.4)."""
+    best = min(f.holdout_rmse for f in fits)
+    near = [f for f in fits if f.holdout_rmse <= best * (1 + tolerance)]
+    return min(near, key=lambda f: (WIENER_FORMS.index(f.form), f.dead_time))
+
+
 def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
                     options: IdentifyOptions | None = None) -> Identification:
     """Identify the hybrid model (module docstring). Raises ``ValueError`` on unusable data."""
     opt = options or IdentifyOptions()
-    if opt.form not in WIENER_FORMS:
-        raise ValueError(f"unknown Wiener form {opt.form!r}; expected one of {WIENER_FORMS}")
+    if opt.form not in (*WIENER_FORMS, "auto"):
+        raise ValueError(f"unknown Wiener form {opt.form!r}; expected one of {(*WIENER_FORMS, 'auto')}")
+    if opt.dead_time is not None and not 0 <= opt.dead_time <= 10 * opt.max_dead_time:
+        raise ValueError(f"dead time {opt.dead_time} samples is out of range")
     fs = _check_rate([static_rec, burst_rec, train_rec])
     static = fit_static_map(static_rec.cmu_envelope, static_rec.dcl, fs)
     kernel = fit_kernel(burst_rec.cmu, burst_rec.dcl, fs)
 
-    env, dcl = train_rec.cmu_envelope, train_rec.dcl
-    n = dcl.size
+    n = train_rec.dcl.size
     n_est = int(round((1.0 - opt.holdout_fraction) * n))
     skip = int(round(opt.skip_s * fs))
     if n_est - skip < 20 * (opt.max_order + 2) or n - n_est < 10:
         raise ValueError(f"training record too short ({n} samples)")
     if opt.phi not in ("auto", "single_burst", "train"):
         raise ValueError(f"unknown phi choice {opt.phi!r}")
-    gain = static.gain_at(env) if opt.form == "input_gain" else None
-    table = (static.cmu, static.dcl) if opt.form == "output_map" else None
-    conv = convolution_output(kernel, train_rec.cmu)
+    forms = WIENER_FORMS if opt.form == "auto" else (opt.form,)
+    dead_times = range(opt.max_dead_time + 1) if opt.dead_time is None else (opt.dead_time,)
+    sweep = static_rec if opt.static_in_cost else None
+    rest = int(round(opt.rest_s * fs))
 
-    modes = {"auto": (False, True), "single_burst": (False,), "train": (True,)}[opt.phi]
-    searches = {refine: choose_highpass(conv, dcl, env, fs, n_est=n_est,
-                                        wiener_order=opt.order or opt.hpf_search_order,
-                                        gain=gain, table=table, form=opt.form, skip=skip,
-                                        orders=opt.hpf_orders, cutoffs_hz=opt.hpf_cutoffs_hz,
-                                        refine_phi=refine,
-                                        control_band_hz=opt.control_band_hz)
-                for refine in modes}
-    refine = min(searches, key=lambda r: searches[r].holdout_rmse)
-    hp = searches[refine]
+    def data(d: int) -> _Joint:
+        return _joint(sweep, train_rec, d, n_est, skip, rest)
+
+    first = {form: _fit_structure(static, kernel, data(dead_times[0]), opt, form, dead_times[0], skip, fs)
+             for form in forms}
+    scored = [first[form] if d == dead_times[0] else
+              _fit_structure(static, kernel, data(d), opt, form, d, skip, fs, fixed=first[form])
+              for form in forms for d in dead_times]
+    pick = choose_structure(scored, opt.structure_tolerance)
+    fit = first[pick.form] if pick.dead_time == dead_times[0] else \
+        _fit_structure(static, kernel, data(pick.dead_time), opt, pick.form, pick.dead_time, skip, fs)
+    form, dead_time, hp, refine, choice = fit.form, fit.dead_time, fit.hp, fit.refine, fit.choice
+
+    joint = data(dead_time)
+    full = np.concatenate([joint.cost[joint.cost < joint.offset], np.arange(joint.offset + skip, joint.dcl.size)])
+    env, dcl = joint.env, joint.dcl
+    gain = static.gain_at(env) if form == "input_gain" else None
+    table = (static.cmu, static.dcl) if form == "output_map" else None
     hpf = HighPassFilter.design(hp.order, hp.cutoff_hz, fs)
-    high = hpf.simulate(conv)
+    high = hpf.simulate(convolution_output(kernel, joint.cmu))
     hpf.reset()
-
-    orders = [opt.order] if opt.order else list(range(1, opt.max_order + 1))
-    candidates = {}
-    val = slice(n_est, n)
-    for k in orders:
-        res, dhat = wiener_fit_for_highpass(high, dcl, env, n_est, k, fs, gain, table, opt.form,
-                                            skip, refine_phi=refine)
-        candidates[k] = (res, float(np.sqrt(np.mean((dcl[val] - dhat[val]) ** 2))))
-    choice = choose_order(candidates)
-    pem = fit_wiener(env, dcl if refine else dcl - high, choice.order, form=opt.form, fs_hz=fs,
-                     gain=gain, table=table, skip=skip, theta0=candidates[choice.order][0].theta,
-                     extra=high if refine else None)
+    pem = fit_wiener(env, dcl if refine else dcl - high, choice.order, form=form, fs_hz=fs,
+                     gain=gain, table=table, skip=skip, theta0=fit.candidates[choice.order][0].theta,
+                     extra=high if refine else None, cost=full)
     phi = kernel.phi * (float(pem.extra_coef[0]) if refine else 1.0)
 
     lti = pem.lti
-    wiener = WienerBlock(lti.A, lti.B, lti.C, nonlinearity_for(static, opt.form))
-    model = HybridModel(RingConvolution(kernel.kernel, phi), hpf, wiener, fs)
+    wiener = WienerBlock(lti.A, lti.B, lti.C, nonlinearity_for(static, form))
+    stages = (Delay(dead_time / fs, fs),) if dead_time else ()
+    model = HybridModel(RingConvolution(kernel.kernel, phi), hpf, wiener, fs, input_stages=stages)
     out = model.simulate(train_rec.cmu, train_rec.cmu_envelope)
     model.reset()
+    dcl = train_rec.dcl
     resid = dcl - out.total
     noise_std = _quiet_noise_std(burst_rec, fs)
 
@@ -151,7 +286,7 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     metrics = {
         "train": {"record": train_rec.name, **train_scores},
         "holdout": {"fraction": opt.holdout_fraction,
-                    "rmse": candidates[choice.order][1]},
+                    "rmse": fit.candidates[choice.order][1]},
         "residual_std_train": float(np.std(resid[skip:])),
         "residual_mean_train": float(np.mean(resid[skip:])),
         "measurement_noise_std": noise_std,
@@ -175,12 +310,22 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
             "used": "train" if refine else "single_burst",
             "phi_single_burst": kernel.phi,
             "phi_train": phi if refine else None,
-            "holdout_rmse": {("train" if r else "single_burst"): searches[r].holdout_rmse
-                             for r in searches},
+            "holdout_rmse": {("train" if r else "single_burst"): fit.searches[r].holdout_rmse
+                             for r in fit.searches},
         },
         "highpass": hp.to_dict(),
+        "structure": {
+            "form": form,
+            "dead_time_samples": dead_time,
+            "static_in_cost": opt.static_in_cost,
+            "rule": f"by held-out RMSE of the training record's last {100 * opt.holdout_fraction:.0f} %; "
+                    f"the paper's form and the smaller dead time within "
+                    f"{100 * opt.structure_tolerance:.0f} % of the best",
+            "candidates": [{"form": f.form, "dead_time_samples": f.dead_time, "holdout_rmse": f.holdout_rmse}
+                           for f in scored],
+        },
         "wiener": {
-            "form": opt.form,
+            "form": form,
             "order": choice.order,
             "order_selection": {"rule": choice.rule, "candidates": choice.table},
             "estimation": "output-error PEM, Levenberg-Marquardt (scipy least_squares), "
@@ -197,6 +342,8 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
         provenance["static_map"]["warning"] = (
             f"training envelope reaches {env.max():.4g}, beyond the static sweep's "
             f"{static.cmu_max:.4g}")
+    model.fingerprint = fingerprint(model, [train_rec, static_rec, burst_rec],
+                                    int(round(FINGERPRINT_START_S * fs)))
     observer = {"measurement_noise_std": noise_std,
                 "model_residual_std": metrics["residual_std_train"]}
     return Identification(model, static, kernel, hp, choice, pem, provenance, metrics, observer)

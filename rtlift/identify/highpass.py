@@ -77,8 +77,8 @@ def butter_highpass(order: int, cutoff_hz: float, fs_hz: float) -> np.ndarray:
 
 def wiener_fit_for_highpass(high: np.ndarray, dcl: np.ndarray, env: np.ndarray, n_est: int,
                             order: int, fs_hz: float, gain: np.ndarray | None,
-                            table, form: str, skip: int, theta0=None, refine_phi: bool = False
-                            ) -> tuple[PEMResult, np.ndarray]:
+                            table, form: str, skip: int, theta0=None, refine_phi: bool = False,
+                            cost: np.ndarray | None = None) -> tuple[PEMResult, np.ndarray]:
     """PEM of the hybrid's output error over the first ``n_est`` samples with the high part
     fixed (z = ΔCL − high) or, with ``refine_phi``, scaled by a jointly estimated β
     (ΔCL ≈ β·high + W(Cμ_env), so φ → β φ). Returns the fit and the hybrid's ΔCL over the
@@ -87,7 +87,7 @@ def wiener_fit_for_highpass(high: np.ndarray, dcl: np.ndarray, env: np.ndarray, 
     g = None if gain is None else gain[:n_est]
     res = fit_wiener(env[:n_est], z[:n_est], order, form=form, fs_hz=fs_hz, gain=g,
                      table=table, skip=skip, theta0=theta0, n_starts=2 if theta0 is None else 1,
-                     extra=high[:n_est] if refine_phi else None)
+                     extra=high[:n_est] if refine_phi else None, cost=cost)
     zhat, _ = res.output(env, gain, table)
     beta = float(res.extra_coef[0]) if refine_phi else 1.0
     return res, beta * high + zhat
@@ -99,7 +99,7 @@ def choose_highpass(conv: np.ndarray, dcl: np.ndarray, env: np.ndarray, fs_hz: f
                     orders: tuple[int, ...] = (1, 2, 3, 4),
                     cutoffs_hz: tuple[float, ...] = (0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 5.5),
                     refine_phi: bool = False, stop_gain: float = 0.1,
-                    control_band_hz: float = 1.0) -> HighPassChoice:
+                    control_band_hz: float = 1.0, cost: np.ndarray | None = None) -> HighPassChoice:
     """Grid search over (order, cutoff): min over the admitted candidates of
     RMSE(ΔCL − ĤΔCL) on samples ``n_est:`` (see module docstring).
     ``conv`` = φ Σ h(j) Cμ(k−j) over the record."""
@@ -113,7 +113,7 @@ def choose_highpass(conv: np.ndarray, dcl: np.ndarray, env: np.ndarray, fs_hz: f
     for fc, order in admitted or grid:
         high = signal.sosfilt(butter_highpass(order, fc, fs_hz), conv)
         res, dhat = wiener_fit_for_highpass(high, dcl, env, n_est, wiener_order, fs_hz, gain,
-                                            table, form, skip, theta, refine_phi)
+                                            table, form, skip, theta, refine_phi, cost)
         theta = res.theta
         err = float(np.sqrt(np.mean((dcl[val] - dhat[val]) ** 2)))
         table_rows.append({"order": order, "cutoff_hz": fc, "holdout_rmse": err})
@@ -122,6 +122,6 @@ def choose_highpass(conv: np.ndarray, dcl: np.ndarray, env: np.ndarray, fs_hz: f
     err, order, fc, res = best
     high_zp = signal.sosfiltfilt(butter_highpass(order, fc, fs_hz), conv)
     _, dhat_zp = wiener_fit_for_highpass(high_zp, dcl, env, n_est, wiener_order, fs_hz, gain,
-                                         table, form, skip, res.theta, refine_phi)
+                                         table, form, skip, res.theta, refine_phi, cost)
     err_zp = float(np.sqrt(np.mean((dcl[val] - dhat_zp[val]) ** 2)))
     return HighPassChoice(order, fc, err, err_zp, table_rows, res, f_c)

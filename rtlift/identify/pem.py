@@ -226,7 +226,7 @@ class _Problem:
     gain: np.ndarray | None
     table: tuple[np.ndarray, np.ndarray] | None
     degree: int
-    mask: slice                       # samples in the cost (skip:)
+    mask: slice | np.ndarray          # samples in the cost (skip:, or explicit indices)
     r_max: float
     extra: np.ndarray | None = None   # (N, m) regressors entering linearly: ẑ += extra β
 
@@ -394,7 +394,7 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
                table: tuple[np.ndarray, np.ndarray] | None = None, degree: int = 3,
                skip: int = 0, theta0: np.ndarray | None = None, n_starts: int = 2,
                max_nfev: int = 400, r_max: float = R_MAX,
-               extra: np.ndarray | None = None) -> PEMResult:
+               extra: np.ndarray | None = None, cost: np.ndarray | None = None) -> PEMResult:
     """Identify the Wiener model ẑ = static(u, y), y = G(q) u by output-error PEM.
 
     ``u``: the Wiener input (the envelope Cμ); ``z``: its target output (for the hybrid,
@@ -402,7 +402,9 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
     for ``output_map``; ``degree`` of the polynomial for ``output_poly``; ``skip`` leading
     samples are simulated but left out of the cost (unknown initial state). ``extra`` (N×m)
     are further regressors entering linearly, ẑ += extra·β (for the hybrid: the high-passed
-    convolution, whose scale β refines φ). ``theta0`` warm
+    convolution, whose scale β refines φ). ``cost`` (indices) replaces ``skip``: the samples
+    in the cost, e.g. several records laid end to end with rest between them, one of them
+    thinned so that each weighs alike. ``theta0`` warm
     starts (e.g. from a neighbouring candidate); otherwise the best ``n_starts`` of the ARX
     and bandwidth-grid starts are refined and the best result is kept.
     """
@@ -416,7 +418,7 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
         raise ValueError("input_gain needs gain = N(u) with the length of u")
     if form == "output_map" and table is None:
         raise ValueError("output_map needs table = (y grid, f)")
-    mask = slice(skip, None)
+    mask = slice(skip, None) if cost is None else np.asarray(cost, dtype=np.intp)
     if extra is not None:
         extra = np.asarray(extra, dtype=float).reshape(u.size, -1)
     prob = _Problem(u, z, order, form, None if gain is None else np.asarray(gain, float),
@@ -445,7 +447,7 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
         if best is None or sol.cost < best.cost:
             best = sol
     r, a, c, p, beta = prob.solve(best.x)
-    N = u.size - skip
+    N = z[mask].size
     d = (order + order + (0 if p is None else p.size) - (form == "output_poly")
          + (0 if beta is None else beta.size))
     rss = float(np.sum(r**2))

@@ -1,0 +1,173 @@
+"""The independent plant's protocol (``../shared/data/independent_plant/README.md``), as a user runs it.
+
+1. ``rtlift identify`` on the clean campaign (static, single burst, sine k = 0.125; defaults);
+2. per case: ``rtlift diagnose --train CASE/sine_k0125 --validate CASE/sine_k025 CASE/random``;
+3. right when the accepted entries of kind ``effect`` are exactly the truth's names (none on
+   ``clean``), the key parameters are close (frequency ±10 %, delay ±1 sample, fade fraction
+   ±0.1) and ``rtlift validate`` of ``model_augmented.json`` recovers ≥ 50 % of the error the
+   effect added on sine_k025 and random (against the same model on ``clean``), or, where the
+   effect added < 10 %, is no worse than the model.
+
+``--mixes`` runs the protocol on mixes the set does not show, composed from it: all cases share
+one noise seed, so a case minus ``clean`` is its effect's exact imprint, and ``clean`` plus two
+imprints is the mix (exact for effects that add to the measured lift — drift, pickup; an
+approximation where one acts on the other, e.g. a mode filtering a drift).
+
+Prints a markdown table and, as its last line, one JSON object. ``--data DIR`` points at the
+development set (default ``../shared/data/independent_plant`` beside the checkout).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from rtlift.cli import main as rtlift
+
+DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "independent_plant"
+CASES = ("clean", "delay", "resonance", "fade", "drift", "mains", "hysteresis", "delay_mains")
+MIXES = (("drift", "mains"), ("fade", "mains"), ("resonance", "drift"), ("fade", "drift"),
+         ("hysteresis", "mains"), ("delay", "drift"))
+SCORED = ("sine_k025", "random")
+FS = 400.0
+
+
+def compose(data: Path, parts: tuple[str, ...], out: Path) -> Path:
+    """``clean`` plus each part's imprint (case − clean, same noise seed) as a new case folder."""
+    from rtlift.records import read_record, write_record
+
+    case = out / "+".join(parts)
+    case.mkdir(parents=True, exist_ok=True)
+    names = [e for p in parts for e in json.loads((data / p / "truth.json").read_text())["interfaces_equivalent"]]
+    (case / "truth.json").write_text(json.dumps({"interfaces_equivalent": names, "composed_of": list(parts)}))
+    for r in (*SCORED, "sine_k0125"):
+        clean = read_record(data / "clean" / f"{r}.csv")
+        mix = read_record(data / "clean" / f"{r}.csv")
+        mix.dcl = clean.dcl + sum(read_record(data / p / f"{r}.csv").dcl - clean.dcl for p in parts)
+        write_record(case / f"{r}.csv", mix)
+    return case
+
+
+def run_cli(*argv: str) -> str:
+    """``rtlift ARGV`` in process; its stdout; a non-zero exit raises."""
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = rtlift([str(a) for a in argv])
+    if code != 0:
+        raise RuntimeError(f"rtlift {' '.join(map(str, argv))} exited {code}")
+    return buf.getvalue()
+
+
+def validate(model: Path, case_dir: Path, out: Path) -> dict[str, float]:
+    run_cli("validate", "--model", model, *(case_dir / f"{r}.csv" for r in SCORED), "--json", out)
+    return {k: v["rmse"] for k, v in json.loads(out.read_text())["records"].items()}
+
+
+def params_close(name: str, got: dict, want: dict) -> tuple[bool, str]:
+    """The README's parameter tolerances for one effect name."""
+    if name == "delay":
+        d_got, d_want = got["seconds"] * FS, want["seconds"] * FS
+        return abs(d_got - d_want) <= 1.0 + 1e-9, f"{d_got:.0f} vs {d_want:.0f} samples"
+    if name in ("sensor_resonance", "periodic_disturbance"):
+        f_got, f_want = got["frequency_hz"], want["frequency_hz"]
+        return abs(f_got - f_want) <= 0.1 * f_want, f"{f_got:.2f} vs {f_want:.2f} Hz"
+    if name == "actuator_fade":
+        f_got, f_want = got["final_fraction"], want["final_fraction"]
+        return abs(f_got - f_want) <= 0.1 + 1e-12, f"f {f_got:.3f} vs {f_want:.3f}"
+    return True, ""
+
+
+def judge_case(case: str, report: dict, truth: dict, rmse_case: dict, rmse_aug: dict,
+               rmse_clean: dict) -> dict:
+    accepted = [e for e in report["effects"] if e["accepted"] and e.get("kind", "effect") == "effect"]
+    want = {e["name"]: e["params"] for e in truth["interfaces_equivalent"]}
+    names_ok = sorted(e["name"] for e in accepted) == sorted(want)
+    notes, params_ok = [], True
+    for e in accepted:
+        if e["name"] in want:
+            ok, text = params_close(e["name"], e["params"], want[e["name"]])
+            params_ok &= ok
+            if text:
+                notes.append(f"{e['name']} {text}")
+    recovery, recovery_ok = {}, True
+    for r in SCORED:
+        added = rmse_case[r] - rmse_clean[r]
+        if added < 0.10 * rmse_clean[r]:
+            ok = rmse_aug[r] <= rmse_case[r] * (1 + 1e-9)
+            recovery[r] = None
+        else:
+            frac = (rmse_case[r] - rmse_aug[r]) / added
+            ok = frac >= 0.5
+            recovery[r] = frac
+        recovery_ok &= ok
+    return {"case": case, "right": bool(names_ok and params_ok and recovery_ok),
+            "accepted": [e["name"] for e in accepted], "truth": sorted(want),
+            "names_ok": names_ok, "params_ok": params_ok, "recovery_ok": recovery_ok,
+            "recovered": recovery, "params": "; ".join(notes),
+            "rmse_clean": rmse_clean, "rmse_case": rmse_case, "rmse_augmented": rmse_aug,
+            "other_entries": [f"{e['name']}({e.get('kind', '?')}, {'accepted' if e['accepted'] else 'rejected'})"
+                              for e in report["effects"] if e not in accepted and e["accepted"]]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    ap.add_argument("--cases", nargs="*", default=list(CASES))
+    ap.add_argument("--work", type=Path, help="keep the outputs here (default: a temporary folder)")
+    ap.add_argument("--mixes", action="store_true", help="also run mixes composed from the cases")
+    args = ap.parse_args(argv)
+    if not (args.data / "campaign" / "static.csv").exists():
+        print(f"no independent plant data at {args.data}", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.work or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        camp = args.data / "campaign"
+        model = work / "model.json"
+        t0 = time.perf_counter()
+        run_cli("identify", "--static", camp / "static.csv", "--single-burst", camp / "single_burst.csv",
+                "--train", camp / "sine_k0125.csv", "-o", model)
+        identify_s = time.perf_counter() - t0
+        rmse_clean = validate(model, args.data / "clean", work / "clean_val.json")
+        rows = []
+        cases = [args.data / c for c in args.cases]
+        if args.mixes:
+            cases += [compose(args.data, parts, work / "mixes") for parts in MIXES]
+        for d in cases:
+            case = d.name
+            out = work / case
+            t1 = time.perf_counter()
+            run_cli("diagnose", "--model", model, "--train", d / "sine_k0125.csv",
+                    "--validate", *(d / f"{r}.csv" for r in SCORED), "--out", out)
+            secs = time.perf_counter() - t1
+            report = json.loads((out / "report.json").read_text())
+            truth = json.loads((d / "truth.json").read_text())
+            rmse_case = validate(model, d, out / "val_model.json")
+            rmse_aug = validate(out / "model_augmented.json", d, out / "val_augmented.json")
+            row = judge_case(case, report, truth, rmse_case, rmse_aug, rmse_clean)
+            row["diagnose_seconds"] = secs
+            row["structure"] = [e["name"] for e in report["effects"]
+                                if e["accepted"] and e.get("kind") == "structure"]
+            rows.append(row)
+    print("| case | truth | accepted effects | structure | parameters | recovered (sine_k025, random) | right |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        rec = ", ".join("n/a (<10 %)" if v is None else f"{100 * v:.0f} %" for v in r["recovered"].values())
+        print(f"| {r['case']} | {', '.join(r['truth']) or '—'} | {', '.join(r['accepted']) or '—'} | "
+              f"{', '.join(r['structure']) or '—'} | {r['params'] or '—'} | {rec} | "
+              f"{'yes' if r['right'] else 'no'} |")
+    right = sum(r["right"] for r in rows)
+    print(f"\n{right} of {len(rows)} cases right; identify {identify_s:.1f} s")
+    print(json.dumps({"cases_right": right, "cases": len(rows), "identify_seconds": identify_s,
+                      "rows": rows}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

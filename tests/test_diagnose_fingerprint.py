@@ -1,0 +1,110 @@
+"""The residual fingerprint: departures from it on signals with a known answer.
+
+A "residual" here is coloured noise (buffeting-like, AR(1)) of the same process at
+identification and later, with or without a known change: a drift, a gain drift, a line, a
+larger error level, a mode filtering part of it. The same process with another seed must stay
+within the fingerprint; the change must leave it, in the right place and direction.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from rtlift.blocks.stages import resonance_ba
+from rtlift.diagnose.catalog import Context, _spectral_mode
+from rtlift.diagnose.fingerprint import (
+    Z_DEPART,
+    coef_departure,
+    error_departure,
+    print_for,
+    psd_departure,
+    summarize,
+)
+from rtlift.diagnose.residual import run_all
+from rtlift.records import Record
+
+FS = 400.0
+N = 16000                                           # 40 s
+T = np.arange(N) / FS
+
+
+def noise(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return signal.lfilter([0.01], [1.0, -0.9], rng.normal(size=N))
+
+
+def yhat() -> np.ndarray:
+    """A model output with a slow envelope (the regressions need a signal to scale)."""
+    return 0.1 + 0.08 * np.sin(2 * np.pi * 0.3 * T)
+
+
+def residual_tests(e: np.ndarray) -> dict:
+    y = yhat()
+    return run_all(y + e, e, y, y, y / 10.0, y / 10.0, FS)
+
+
+@pytest.fixture(scope="module")
+def fp() -> dict:
+    e = noise(1)
+    return summarize(residual_tests(e), e, FS)
+
+
+def test_the_same_process_with_another_seed_stays_within_the_fingerprint(fp):
+    t = residual_tests(noise(2))
+    for key in ("slow_trend", "gain_trend", "direction"):
+        assert abs(coef_departure(t[key], fp, key).z) < Z_DEPART
+    assert abs(error_departure(noise(2), fp, FS).z) < Z_DEPART
+    for lo in range(5, 190, 10):                                  # no band of the spectrum departs
+        assert not psd_departure(t["spectrum"], fp, [(lo, lo + 10)], "band").departs
+
+
+def test_an_offset_drift_departs_as_a_drift_and_not_as_a_gain_drift(fp):
+    t = residual_tests(noise(2) + 1e-3 * T)
+    assert coef_departure(t["slow_trend"], fp, "drift").z > Z_DEPART
+    assert abs(coef_departure(t["gain_trend"], fp, "gain").z) < Z_DEPART
+    assert t["slow_trend"].data["coef"] == pytest.approx(1e-3, rel=0.2)
+
+
+def test_a_fading_gain_departs_as_a_gain_drift_and_not_as_an_offset_drift(fp):
+    y = yhat()
+    t = residual_tests(noise(2) - 0.01 * T * y)            # ΔCL lost: 1 %/s of the lift
+    assert coef_departure(t["gain_trend"], fp, "gain").z < -Z_DEPART
+    assert abs(coef_departure(t["slow_trend"], fp, "drift").z) < Z_DEPART
+    assert t["gain_trend"].data["coef"] == pytest.approx(-0.01, rel=0.2)
+
+
+def test_a_line_departs_at_its_frequency_only(fp):
+    t = residual_tests(noise(2) + 0.003 * np.sin(2 * np.pi * 47.3 * T))
+    df = float(t["spectrum"].data["f"][1])
+    assert psd_departure(t["spectrum"], fp, [(47.3 - 1.5 * df, 47.3 + 1.5 * df)], "line").departs
+    assert not psd_departure(t["spectrum"], fp, [(80.0, 90.0)], "elsewhere").departs
+
+
+def test_a_larger_error_level_departs_and_its_z_grows_with_it(fp):
+    z = [error_departure(noise(2) * k, fp, FS).z for k in (1.0, 1.15, 1.5)]
+    assert abs(z[0]) < Z_DEPART < z[1] < z[2]
+
+
+def test_a_mode_filtering_part_of_the_residual_is_found_from_the_spectrum_excess(fp):
+    """70 % of the residual's power through a 31 Hz, ζ 0.05 mode, the rest added after it."""
+    b, a = resonance_ba(31.0, 0.05, FS)
+    e = np.sqrt(0.7) * signal.lfilter(b, a, noise(2)) + np.sqrt(0.3) * noise(3)
+    ctx = Context(FS, 0, residual_tests(e), fp, ())
+    f0, zeta = _spectral_mode(ctx, 5.0, 0.47 * FS, 0.005, 0.7)
+    assert f0 == pytest.approx(31.0, rel=0.03)
+    assert zeta == pytest.approx(0.05, rel=0.5)
+    assert _spectral_mode(Context(FS, 0, residual_tests(noise(4)), fp, ()), 5.0, 0.47 * FS, 0.005, 0.7) is None
+
+
+def test_a_record_is_compared_with_its_own_type_and_says_so_otherwise(fp):
+    model_print = {"version": 1, "start": 0, "records": {"sine_k0125": {**fp, "n": 100},
+                                                          "static": {**fp, "n": 900}}}
+    rec = Record(T[:10], T[:10], T[:10], T[:10], meta={"experiment": "sine_k0125"}, name="x")
+    entry, note = print_for(model_print, rec)
+    assert entry["n"] == 100 and "own sine_k0125" in note
+    rec.meta = {}
+    entry, note = print_for(model_print, rec)
+    assert entry["n"] == 900 and "no x record" in note
+    assert print_for({}, rec)[0] is None

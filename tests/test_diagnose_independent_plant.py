@@ -1,0 +1,99 @@
+"""The diagnosis on a plant nobody here wrote: the development set in ``../shared/data/independent_plant``.
+
+The README's protocol, through the command line: ``rtlift identify`` with defaults on the clean
+campaign, ``rtlift diagnose`` per case (train sine_k0125, validate sine_k025 and random), and
+``rtlift validate`` of ``model_augmented.json``. A case is right when the accepted entries of kind
+``effect`` are exactly the truth's names, the key parameters are close and at least half of the
+error the effect added is recovered (or, where it added < 10 %, the model is no worse).
+
+Six of the eight cases are right and are asserted so, and a drift-plus-pickup mix composed
+from them. Two are not, and their tests assert what
+does hold, so that a change in either direction is seen:
+- ``resonance``: the mode is named (within 3 % of 31 Hz) and accepted as an effect, but an
+  open-loop model recovers 45 % of the error it adds, not 50 %: the mode sits on the 4th burst
+  harmonic and mostly rings with noise no open-loop prediction can follow;
+- ``hysteresis``: the direction test departs from the fingerprint and names it, but no
+  hysteresis fit (play operator, own branch gains) generalises to the held-out records, so
+  nothing is accepted — and nothing spurious either.
+
+These tests read ``../shared`` and skip, with that reason, in a clone without it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from benchmarks.independent_plant import DEFAULT_DATA, compose, judge_case, run_cli, validate
+
+pytestmark = pytest.mark.skipif(not (DEFAULT_DATA / "campaign" / "static.csv").exists(),
+                                reason=f"the independent plant's development set is not at {DEFAULT_DATA} "
+                                       "(it lives in ../shared, beside the project, not in a clone)")
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ip") / "model.json"
+    camp = DEFAULT_DATA / "campaign"
+    run_cli("identify", "--static", camp / "static.csv", "--single-burst", camp / "single_burst.csv",
+            "--train", camp / "sine_k0125.csv", "-o", out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def clean_rmse(model) -> dict:
+    return validate(model, DEFAULT_DATA / "clean", model.parent / "clean.json")
+
+
+def run_case(model: Path, clean_rmse: dict, case: str | Path) -> tuple[dict, dict]:
+    d = DEFAULT_DATA / case
+    out = model.parent / d.name
+    run_cli("diagnose", "--model", model, "--train", d / "sine_k0125.csv",
+            "--validate", d / "sine_k025.csv", d / "random.csv", "--out", out)
+    report = json.loads((out / "report.json").read_text())
+    truth = json.loads((d / "truth.json").read_text())
+    row = judge_case(case, report, truth, validate(model, d, out / "m.json"),
+                     validate(out / "model_augmented.json", d, out / "a.json"), clean_rmse)
+    return row, report
+
+
+@pytest.mark.parametrize("case", ["clean", "delay", "fade", "drift", "mains", "delay_mains"])
+def test_the_case_is_diagnosed_right_by_the_readme_protocol(model, clean_rmse, case):
+    row, report = run_case(model, clean_rmse, case)
+    assert row["names_ok"], (row["accepted"], row["truth"])
+    assert row["params_ok"], row["params"]
+    assert row["recovery_ok"], row["recovered"]
+    assert row["right"]
+
+
+def test_a_clean_record_accepts_nothing_at_all(model, clean_rmse):
+    _, report = run_case(model, clean_rmse, "clean")
+    assert [e["name"] for e in report["effects"] if e["accepted"]] == []
+    assert report["augmented"] == report["baseline"]
+
+
+def test_the_resonance_is_named_and_accepted_but_recovers_less_than_half(model, clean_rmse):
+    row, report = run_case(model, clean_rmse, "resonance")
+    assert row["accepted"] == ["sensor_resonance"] and row["params_ok"]
+    entry = next(e for e in report["effects"] if e["name"] == "sensor_resonance")
+    assert entry["params"]["frequency_hz"] == pytest.approx(31.0, rel=0.03)
+    assert 0.4 < min(row["recovered"].values()) < 0.5           # the README's 50 % is not met
+
+
+def test_the_hysteresis_is_named_by_the_evidence_but_nothing_is_accepted(model, clean_rmse):
+    row, report = run_case(model, clean_rmse, "hysteresis")
+    assert [e["name"] for e in report["effects"] if e["accepted"]] == []
+    entry = next(e for e in report["effects"] if e["name"] == "hysteresis")
+    assert entry["kind"] == "effect" and "z = +" in entry["evidence"]
+    assert any(line.startswith("hysteresis is pointed at by the evidence") for line in report["unexplained"])
+
+
+def test_a_drift_and_a_pickup_together_are_both_named(model, clean_rmse):
+    """A mix the set does not show, composed exactly (both add to the measured lift): clean plus
+    the drift case's and the mains case's departures from it (one noise seed for all cases)."""
+    mix = compose(DEFAULT_DATA, ("drift", "mains"), model.parent / "mixes")
+    row, _ = run_case(model, clean_rmse, mix)
+    assert sorted(row["accepted"]) == ["periodic_disturbance", "zero_drift"]
+    assert row["right"], row
