@@ -1,6 +1,6 @@
 """The Wiener PEM on a real measured benchmark: Wiener–Hammerstein 2009 (nonlinearbenchmark.org).
 
-Data from ``<repo>/../shared/data`` (official split: train [5200:105200], test after it,
+Data vendored in ``data/`` (official split: train [5200:105200], test after it,
 state-initialisation window 50). A subsample keeps this test short.
 """
 
@@ -13,7 +13,7 @@ import pytest
 
 from rtlift.identify.pem import fit_wiener
 
-WH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "wiener_hammerstein_2009"
+WH = Path(__file__).resolve().parents[1] / "data"          # vendored (data/README.md)
 
 
 @pytest.fixture(scope="module")

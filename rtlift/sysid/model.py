@@ -1,0 +1,192 @@
+"""A single-input model of the paper's W-block family, for any system (generic ``t,u,y`` records).
+
+    x(k) = G₁(q) u(k),   v(k) = f(x(k)),   y(k) = G₂(q) v(k)
+
+G₁ and G₂ are stable transfer functions run as second-order sections (the streaming SOS block
+of :mod:`rtlift.blocks.highpass`, sosfilt-compatible state), f a piecewise-linear static map
+on knots with linear extrapolation (:class:`rtlift.blocks.wiener.OutputNonlinearity`). With
+G₂ = 1 this is the textbook Wiener model (the paper's W block in its textbook form); with G₂
+it is Wiener–Hammerstein (the ``output_dynamics`` structure the diagnosis adds). The gain
+ambiguity is fixed by G₁(1) = 1: f carries the static gain.
+
+:meth:`SisoModel.step` is one sample (no allocation); :meth:`SisoModel.simulate` its batch
+twin; both carry one explicit state. A model file is JSON with ``"kind": "siso"``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rtlift.blocks.highpass import HighPassFilter
+from rtlift.blocks.wiener import OutputNonlinearity
+from rtlift.errors import ModelFileError
+
+FORMAT = "rtlift-siso-model"
+VERSION = 1
+STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback")
+
+
+@dataclass(eq=False)
+class SisoModel:
+    g1: HighPassFilter
+    f: OutputNonlinearity
+    g2: HighPassFilter | None
+    fs_hz: float
+    provenance: dict[str, Any] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def structure(self) -> str:
+        return "wiener" if self.g2 is None else "wiener_hammerstein"
+
+    @property
+    def blocks(self) -> tuple:
+        return (self.g1,) if self.g2 is None else (self.g1, self.g2)
+
+    def step(self, u: float) -> float:
+        v = self.f.step(0.0, self.g1.step(u))
+        return v if self.g2 is None else self.g2.step(v)
+
+    def simulate(self, u: np.ndarray) -> np.ndarray:
+        """Batch twin of :meth:`step`; starts from and advances the current state."""
+        v = self.f.simulate(None, self.g1.simulate(np.asarray(u, dtype=float)))
+        return v if self.g2 is None else self.g2.simulate(v)
+
+    def reset(self) -> None:
+        for b in self.blocks:
+            b.reset()
+
+    @property
+    def state_size(self) -> int:
+        return sum(b.state_size for b in self.blocks)
+
+    def get_state(self) -> np.ndarray:
+        return np.concatenate([b.get_state() for b in self.blocks])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (self.state_size,):
+            raise ValueError(f"model state must have shape ({self.state_size},), got {s.shape}")
+        i = 0
+        for b in self.blocks:
+            b.set_state(s[i:i + b.state_size])
+            i += b.state_size
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
+                "fs_hz": self.fs_hz, "g1_sos": self.g1.sos.tolist(),
+                "f": {"x": self.f.y.tolist(), "y": self.f.f.tolist()},
+                "g2_sos": None if self.g2 is None else self.g2.sos.tolist(),
+                "provenance": self.provenance, "metrics": self.metrics}
+
+    def copy(self) -> SisoModel:
+        return model_from_dict(self.to_dict())
+
+
+class FeedbackModel:
+    """The output fed back through a static map into a linear block's input (``nonlinear_feedback``;
+    Silverbox: an electronic Duffing oscillator, m ÿ + d ẏ + k y + k₃ y³ = u):
+
+        y(k) = Σ_{i=1..n} b_i v(k−i) − Σ_{i=1..n} a_i y(k−i),   v(k) = u(k) − k₂ y(k)² − k₃ y(k)³
+
+    G = B/A strictly proper, so y(k) needs no v(k) (no algebraic loop). The feedback makes the
+    response amplitude dependent (the resonance shifts with amplitude); it cannot be filtered
+    in one vectorised pass, so :meth:`simulate` runs the same recursion as :meth:`step` over the
+    array (identical by construction). State: [y(k−1) … y(k−n), v(k−1) … v(k−n)].
+    """
+
+    structure = "nonlinear_feedback"
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, feedback: np.ndarray, fs_hz: float,
+                 provenance: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None) -> None:
+        a, b, k = (np.asarray(v, dtype=float).ravel() for v in (a, b, feedback))
+        if a.size != b.size or a.size == 0 or k.size != 2 or not all(np.all(np.isfinite(v)) for v in (a, b, k)):
+            raise ValueError("nonlinear_feedback needs finite a, b of one length and two feedback coefficients")
+        self.a, self.b, self.k = a, b, k
+        self.n = a.size
+        self.fs_hz = float(fs_hz)
+        self.provenance, self.metrics = dict(provenance or {}), dict(metrics or {})
+        self._a, self._b = a.tolist(), b.tolist()
+        self._k2, self._k3 = float(k[0]), float(k[1])
+        self._y = [0.0] * self.n
+        self._v = [0.0] * self.n
+
+    state_size = property(lambda self: 2 * self.n)
+
+    def step(self, u: float) -> float:
+        yh, vh = self._y, self._v
+        y = 0.0
+        for i in range(self.n):
+            y += self._b[i] * vh[i] - self._a[i] * yh[i]
+        v = u - self._k2 * y * y - self._k3 * y * y * y
+        for i in range(self.n - 1, 0, -1):
+            yh[i], vh[i] = yh[i - 1], vh[i - 1]
+        yh[0], vh[0] = y, v
+        return y
+
+    def simulate(self, u: np.ndarray) -> np.ndarray:
+        return np.array([self.step(float(x)) for x in np.asarray(u, dtype=float)])
+
+    def reset(self) -> None:
+        self._y[:] = [0.0] * self.n
+        self._v[:] = [0.0] * self.n
+
+    def get_state(self) -> np.ndarray:
+        return np.array(self._y + self._v)
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (2 * self.n,):
+            raise ValueError(f"model state must have shape ({2 * self.n},), got {s.shape}")
+        self._y[:], self._v[:] = s[:self.n].tolist(), s[self.n:].tolist()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
+                "fs_hz": self.fs_hz, "a": self.a.tolist(), "b": self.b.tolist(), "feedback": self.k.tolist(),
+                "provenance": self.provenance, "metrics": self.metrics}
+
+    def copy(self) -> FeedbackModel:
+        return model_from_dict(self.to_dict())
+
+
+SISO_MODELS = (SisoModel, FeedbackModel)
+"""The single-input model classes (``isinstance(model, SISO_MODELS)``: a generic model)."""
+
+
+def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | FeedbackModel:
+    """Build and check a model from its file form; :class:`ModelFileError` (one line) if wrong."""
+    if d.get("format") != FORMAT or d.get("version") != VERSION:
+        raise ModelFileError(f"{source}: not an rtlift single-input model file of version {VERSION}")
+    if d.get("structure") == "nonlinear_feedback":
+        try:
+            return FeedbackModel(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"),
+                                 d.get("metrics"))
+        except KeyError as exc:
+            raise ModelFileError(f"{source}: missing key {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise ModelFileError(f"{source}: {exc}") from None
+    try:
+        g1 = HighPassFilter(np.asarray(d["g1_sos"], dtype=float))
+        f = OutputNonlinearity(d["f"]["x"], d["f"]["y"])
+        g2 = None if d.get("g2_sos") is None else HighPassFilter(np.asarray(d["g2_sos"], dtype=float))
+        fs = float(d["fs_hz"])
+    except KeyError as exc:
+        raise ModelFileError(f"{source}: missing key {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(f"{source}: {exc}") from None
+    if not np.isfinite(fs) or fs <= 0:
+        raise ModelFileError(f"{source}: fs_hz must be a positive number")
+    return SisoModel(g1, f, g2, fs, dict(d.get("provenance") or {}), dict(d.get("metrics") or {}))
+
+
+def save_siso_model(model: SisoModel | FeedbackModel, path: str | os.PathLike) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(model.to_dict(), fh, indent=1, allow_nan=False)
+        fh.write("\n")
+    os.replace(tmp, path)

@@ -1,0 +1,188 @@
+"""Generic single-input records and models (the measured benchmarks, a user's own rig).
+
+The model u → G₁ → f → G₂ → y streams and batches alike; its file round-trips; a record of the
+other kind is refused with one line; and on the measured WH2009 circuit (vendored in ``data/``)
+the residual of a Wiener model leads to the output block it lacks.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rtlift.blocks.highpass import HighPassFilter
+from rtlift.blocks.wiener import OutputNonlinearity
+from rtlift.cli import main
+from rtlift.errors import RecordError
+from rtlift.records import SisoRecord, read_siso_record, write_siso_record
+from rtlift.sysid.diagnose import diagnose_siso
+from rtlift.sysid.identify import SisoOptions, identify_siso
+from rtlift.sysid.model import FeedbackModel, SisoModel, model_from_dict
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def random_model(rng: np.random.Generator, hammerstein: bool) -> SisoModel:
+    def tf(n: int) -> HighPassFilter:
+        poles = rng.uniform(0.2, 0.95, n) * np.exp(1j * rng.uniform(-0.5, 0.5, n))
+        a = np.real(np.poly(np.concatenate([poles, poles.conj()])))
+        return HighPassFilter.from_ba(rng.normal(size=3), a)
+    knots = np.sort(rng.normal(size=7)) + np.arange(7)
+    return SisoModel(tf(2), OutputNonlinearity(knots, np.cumsum(rng.uniform(0.1, 1, 7))),
+                     tf(1) if hammerstein else None, 1000.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4), st.booleans())
+def test_steps_and_chunks_agree_to_1e12(seed, cuts, hammerstein):
+    rng = np.random.default_rng(seed)
+    m1 = random_model(rng, hammerstein)
+    m2 = model_from_dict(m1.to_dict())
+    u = rng.normal(size=sum(cuts)) * 3
+    stepped = np.array([m1.step(v) for v in u])
+    parts, i = [], 0
+    for c in cuts:
+        parts.append(m2.simulate(u[i:i + c]))
+        i += c
+    scale = max(1.0, float(np.max(np.abs(stepped))))
+    np.testing.assert_allclose(np.concatenate(parts), stepped, atol=1e-12 * scale, rtol=0)
+    np.testing.assert_allclose(m1.get_state(), m2.get_state(), atol=1e-12 * scale, rtol=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4))
+def test_the_feedback_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
+    rng = np.random.default_rng(seed)
+    poles = rng.uniform(0.3, 0.9, 2) * np.exp(1j * rng.uniform(0.05, 0.5, 2))
+    a = np.real(np.poly(np.concatenate([poles, poles.conj()])))[1:]
+    g = rng.normal(size=4)
+    # peak gain 0.5 on the unit circle and inputs of 0.1 rms: the loop gain of the feedback
+    # (0.5·(2|k2||y| + 3 k3 y²)) stays below one, so the drawn model cannot diverge (a DC-gain
+    # normalisation divided by a near-zero Σg for some draws and blew up)
+    z = np.exp(-1j * np.linspace(0.0, np.pi, 512))
+    peak = np.max(np.abs(np.polyval(g[::-1], z) * z / np.polyval(np.concatenate([[1.0], a])[::-1], z)))
+    g *= 0.5 / peak
+    m1 = FeedbackModel(a, g, [rng.uniform(-0.5, 0.5), rng.uniform(0, 2)], 100.0)
+    m2 = model_from_dict(json.loads(json.dumps(m1.to_dict())))
+    u = rng.normal(size=sum(cuts)) * 0.1
+    stepped = np.array([m1.step(v) for v in u])
+    assert np.all(np.isfinite(stepped))
+    parts, i = [], 0
+    for c in cuts:
+        state = m2.get_state()
+        m2.set_state(state)
+        parts.append(m2.simulate(u[i:i + c]))
+        i += c
+    np.testing.assert_allclose(np.concatenate(parts), stepped, atol=1e-12, rtol=0)
+    np.testing.assert_array_equal(m1.get_state(), m2.get_state())
+
+
+def test_a_generic_record_round_trips_and_a_bad_one_is_one_line(tmp_path):
+    rec = SisoRecord(np.arange(5) / 10.0, np.arange(5.0), -np.arange(5.0), {"fs_hz": "10"}, "r")
+    write_siso_record(tmp_path / "r.csv", rec)
+    back = read_siso_record(tmp_path / "r.csv")
+    assert back.fs_hz == 10.0 and np.array_equal(back.y, rec.y)
+    (tmp_path / "bad.csv").write_text("t,u\n0,1\n")
+    with pytest.raises(RecordError, match="column 'y' is missing"):
+        read_siso_record(tmp_path / "bad.csv")
+
+
+def test_a_model_refuses_records_of_the_other_kind_with_one_line(tmp_path, capsys):
+    rng = np.random.default_rng(1)
+    m = random_model(rng, False)
+    (tmp_path / "m.json").write_text(json.dumps(m.to_dict()))
+    lift = tmp_path / "lift.csv"
+    lift.write_text("t,cmu,cmu_envelope,dcl\n0,0,0,0\n0.0025,0,0,0\n0.005,0,0,0\n")
+    assert main(["validate", "--model", str(tmp_path / "m.json"), str(lift)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "lift record" in err
+
+
+@pytest.fixture(scope="module")
+def wh2009():
+    d = np.load(DATA / "wh2009.npz")
+    a, b = (int(v) for v in d["official_slice"])
+    u, y, n = d["u"][a:b], d["y"][a:b], int(d["n_train"])
+    fs = float(d["fs"])
+
+    def rec(lo: int, hi: int, name: str) -> SisoRecord:
+        return SisoRecord(np.arange(hi - lo) / fs, u[lo:hi], y[lo:hi], {"fs_hz": repr(fs)}, name)
+    # a shortened estimation (32 000 samples) to keep the suite quick; benchmarks/realdata.py
+    # runs the official estimation data (0.55 mV)
+    return rec(0, 32000, "est"), rec(32000, 40000, "val"), rec(n, u.size, "test")
+
+
+def test_on_wh2009_the_residual_leads_from_a_wiener_model_to_the_output_block_it_lacks(wh2009):
+    est, val, test = wh2009
+    # default options: the splits' ranking by their linear start is not reliable — the right
+    # split (three poles in each block) ranks third here and only the full refinement of the
+    # three best finds it (4.5 mV otherwise: a local minimum of the other splits)
+    opt = SisoOptions()
+    wiener = identify_siso(est, "wiener", options=opt)
+    report, augmented = diagnose_siso(wiener, est, [val], skip=50, options=opt)
+    entry = report["effects"][0]
+    assert (entry["name"], entry["kind"], entry["accepted"]) == ("output_dynamics", "structure", True)
+    assert "bv_u2_e (significant)" in entry["evidence"]           # Billings-Voon pointed there
+    rmse = {}
+    for name, model in (("wiener", wiener), ("wh", augmented)):
+        model.reset()
+        rmse[name] = 1e3 * float(np.sqrt(np.mean((model.simulate(test.u) - test.y)[50:] ** 2)))
+    assert rmse["wiener"] > 25.0                                   # ≈ 35 mV, the known Wiener level
+    assert rmse["wh"] < 2.0                                        # 0.55 mV here and with the full estimation data
+    assert report["augmented"]["records"]["val"]["rmse"] < 0.1 * report["baseline"]["records"]["val"]["rmse"]
+    b, a = augmented.g2.ba
+    assert np.all(np.abs(np.roots(a)) < 1) and augmented.structure == "wiener_hammerstein"
+    np.testing.assert_allclose(np.sum(augmented.g1.ba[0]) / np.sum(augmented.g1.ba[1]), 1.0, rtol=1e-9)
+
+
+def test_the_command_line_identifies_diagnoses_and_validates_a_generic_record(tmp_path, capsys):
+    """Cascaded tanks (1024 samples): identify, then validate --skip reproduces the diagnosis's scores."""
+    d = np.load(DATA / "cascaded_tanks.npz")
+    fs = 1.0 / float(d["Ts"])
+    u, y = d["u_est"], d["y_est"]
+    for name, lo, hi in (("est", 0, 820), ("val", 820, 1024)):
+        write_siso_record(tmp_path / f"{name}.csv",
+                          SisoRecord(np.arange(hi - lo) / fs, u[lo:hi], y[lo:hi], {"fs_hz": repr(fs)}, name))
+    assert main(["identify", "--record", str(tmp_path / "est.csv"), "-o", str(tmp_path / "m.json")]) == 0
+    assert main(["diagnose", "--model", str(tmp_path / "m.json"), "--train", str(tmp_path / "est.csv"),
+                 "--validate", str(tmp_path / "val.csv"), "--skip", "50", "--out", str(tmp_path / "d")]) == 0
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert main(["validate", "--model", str(tmp_path / "d" / "model_augmented.json"), str(tmp_path / "val.csv"),
+                 "--skip", "50", "--json", str(tmp_path / "v.json")]) == 0
+    scored = json.loads((tmp_path / "v.json").read_text())["records"]["val"]
+    assert scored["rmse"] == pytest.approx(report["augmented"]["records"]["val"]["rmse"], rel=1e-12)
+    assert [e["name"] for e in report["effects"]] == ["output_dynamics", "nonlinear_feedback"]
+    assert main(["identify", "--record", str(tmp_path / "est.csv"), "--static", "x.csv", "-o", "m.json"]) == 2
+    assert main(["identify", "-o", "m.json"]) == 2
+    assert capsys.readouterr().err.count("rtlift: error:") == 2
+
+
+def test_on_silverbox_the_diagnosis_feeds_the_output_back_through_a_cubic(tmp_path):
+    """Silverbox (a Duffing oscillator): a Wiener model's ≈ 14 mV on the arrow becomes ≈ 1 mV."""
+    d = np.load(DATA / "silverbox_SNLS80mV.npz")
+    u, y, fs = d["V1"], d["V2"], float(d["fs"])
+
+    def rec(lo: int, hi: int, name: str) -> SisoRecord:
+        return SisoRecord(np.arange(hi - lo) / fs, u[lo:hi], y[lo:hi], {"fs_hz": repr(fs)}, name)
+    # estimation shortened to 40 000 of the official 65 063 multisine samples (realdata.py: all)
+    est, val, test = rec(40650, 72650, "est"), rec(72650, 80650, "val"), rec(100, 40575, "arrow")
+    # default options: the splits' ranking by their linear start is not reliable — the right
+    # split (three poles in each block) ranks third here and only the full refinement of the
+    # three best finds it (4.5 mV otherwise: a local minimum of the other splits)
+    opt = SisoOptions()
+    wiener = identify_siso(est, "wiener", options=opt)
+    report, augmented = diagnose_siso(wiener, est, [val], skip=50, options=opt)
+    accepted = [e["name"] for e in report["effects"] if e["accepted"]]
+    assert accepted == ["nonlinear_feedback"] and augmented.structure == "nonlinear_feedback"
+    assert augmented.k[1] > 1.0                                    # a hardening cubic stiffness
+    rmse = {}
+    for name, model in (("wiener", wiener), ("feedback", augmented)):
+        model.reset()
+        rmse[name] = 1e3 * float(np.sqrt(np.mean((model.simulate(test.u) - test.y)[50:] ** 2)))
+    assert rmse["wiener"] > 8.0                                    # ≈ 14 mV, a Wiener model's level
+    assert rmse["feedback"] < 1.5                                  # 1.0 mV with the full estimation data
