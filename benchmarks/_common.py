@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import platform
 import sys
@@ -20,3 +22,15 @@ def emit(result: dict) -> None:
     result.setdefault("python", sys.version.split()[0])
     result.setdefault("machine", platform.machine())
     print(json.dumps(result, sort_keys=True))
+
+
+def run_cli(*argv) -> str:
+    """``rtlift ARGV`` in process; its stdout; a non-zero exit raises."""
+    from rtlift.cli import main as rtlift
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = rtlift([str(a) for a in argv])
+    if code != 0:
+        raise RuntimeError(f"rtlift {' '.join(map(str, argv))} exited {code}")
+    return buf.getvalue()

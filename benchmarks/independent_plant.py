@@ -20,15 +20,14 @@ development set (default ``../shared/data/independent_plant`` beside the checkou
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from rtlift.cli import main as rtlift
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks._common import run_cli  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "independent_plant"
 CASES = ("clean", "delay", "resonance", "fade", "drift", "mains", "hysteresis", "delay_mains")
@@ -52,16 +51,6 @@ def compose(data: Path, parts: tuple[str, ...], out: Path) -> Path:
         mix.dcl = clean.dcl + sum(read_record(data / p / f"{r}.csv").dcl - clean.dcl for p in parts)
         write_record(case / f"{r}.csv", mix)
     return case
-
-
-def run_cli(*argv: str) -> str:
-    """``rtlift ARGV`` in process; its stdout; a non-zero exit raises."""
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        code = rtlift([str(a) for a in argv])
-    if code != 0:
-        raise RuntimeError(f"rtlift {' '.join(map(str, argv))} exited {code}")
-    return buf.getvalue()
 
 
 def validate(model: Path, case_dir: Path, out: Path) -> dict[str, float]:

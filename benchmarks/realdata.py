@@ -12,8 +12,6 @@ last line, one JSON object. ``--only NAME`` runs one benchmark.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import sys
 import tempfile
@@ -22,8 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rtlift.cli import main as rtlift
 from rtlift.records import SisoRecord, write_siso_record
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks._common import run_cli  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 SKIP = 50
@@ -56,15 +56,6 @@ def record(path: Path, fs: float, u: np.ndarray, y: np.ndarray, name: str) -> Pa
     return path
 
 
-def cli(*argv) -> str:
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        code = rtlift([str(a) for a in argv])
-    if code != 0:
-        raise RuntimeError(f"rtlift {' '.join(map(str, argv))} exited {code}")
-    return buf.getvalue()
-
-
 def run(name: str, work: Path) -> dict:
     fs, ue, ye, ut, yt, scale, unit = splits(name)
     n_fit = int(round(0.8 * ue.size))
@@ -72,14 +63,14 @@ def run(name: str, work: Path) -> dict:
     val = record(work / "val.csv", fs, ue[n_fit:], ye[n_fit:], "val")
     test = record(work / "test.csv", fs, ut, yt, "test")
     t0 = time.perf_counter()
-    cli("identify", "--record", est, "--structure", "wiener", "-o", work / "model.json")
+    run_cli("identify", "--record", est, "--structure", "wiener", "-o", work / "model.json")
     t1 = time.perf_counter()
-    cli("diagnose", "--model", work / "model.json", "--train", est, "--validate", val, "--skip", SKIP,
+    run_cli("diagnose", "--model", work / "model.json", "--train", est, "--validate", val, "--skip", SKIP,
         "--out", work / "diag")
     t2 = time.perf_counter()
     rmse = {}
     for which, model in (("before", work / "model.json"), ("after", work / "diag" / "model_augmented.json")):
-        cli("validate", "--model", model, test, "--skip", SKIP, "--json", work / f"{which}.json")
+        run_cli("validate", "--model", model, test, "--skip", SKIP, "--json", work / f"{which}.json")
         rmse[which] = scale * json.loads((work / f"{which}.json").read_text())["records"]["test"]["rmse"]
     report = json.loads((work / "diag" / "report.json").read_text())
     return {"benchmark": name, "unit": unit, "before": rmse["before"], "after": rmse["after"],

@@ -366,13 +366,19 @@ def can_soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progres
             if sample is not None:
                 feed_loop(sample)
         fed += FS
-        if rss_warm is None and fed >= warm_at:
-            rss_warm = rss_mb()
-        if progress and fed % (600 * FS) == 0:
-            print(f"soak --can: {fed / FS / 60:.0f} min of data in {time.perf_counter() - t0:.0f} s, "
-                  f"RSS {rss_mb():.1f} MiB", file=sys.stderr, flush=True)
+        rss_warm = _tick("soak --can", fed, warm_at, rss_warm, progress, t0)
     seconds = time.perf_counter() - t0
     return _result(n, injector.expected, assembler.counters.as_dict(), observer, loop, seconds, rss_warm, rss_mb())
+
+
+def _tick(label: str, fed: int, warm_at: int, rss_warm: float | None, progress: bool, t0: float) -> float | None:
+    """After each second of data: the RSS once warm (returned), a progress line every 10 min."""
+    if rss_warm is None and fed >= warm_at:
+        rss_warm = rss_mb()
+    if progress and fed % (600 * FS) == 0:
+        print(f"{label}: {fed / FS / 60:.0f} min of data in {time.perf_counter() - t0:.0f} s, "
+              f"RSS {rss_mb():.1f} MiB", file=sys.stderr, flush=True)
+    return rss_warm
 
 
 def rss_mb() -> float:
@@ -410,11 +416,7 @@ def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: b
             while queue:
                 loop.feed(queue.popleft())
         fed += FS
-        if rss_warm is None and fed >= warm_at:
-            rss_warm = rss_mb()
-        if progress and fed % (600 * FS) == 0:
-            print(f"soak: {fed / FS / 60:.0f} min of data in {time.perf_counter() - t0:.0f} s, "
-                  f"RSS {rss_mb():.1f} MiB", file=sys.stderr, flush=True)
+        rss_warm = _tick("soak", fed, warm_at, rss_warm, progress, t0)
     seconds = time.perf_counter() - t0
     return _result(n, injector.expected, decoder.counters.as_dict(), observer, loop, seconds, rss_warm, rss_mb())
 

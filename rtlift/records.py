@@ -26,6 +26,13 @@ REQUIRED = ("t", "cmu", "cmu_envelope", "dcl")
 SISO_REQUIRED = ("t", "u", "y")
 
 
+
+def sample_rate(meta: dict[str, str], t: np.ndarray) -> float:
+    """A record's sample rate: its ``fs_hz`` metadata if present, else from the median time step."""
+    if "fs_hz" in meta:
+        return float(meta["fs_hz"])
+    return float(1.0 / np.median(np.diff(t)))
+
 @dataclass
 class Record:
     """One experiment: uniformly sampled arrays of equal length."""
@@ -53,9 +60,7 @@ class Record:
     @property
     def fs_hz(self) -> float:
         """Sample rate: the ``fs_hz`` metadata if present, else from the median time step."""
-        if "fs_hz" in self.meta:
-            return float(self.meta["fs_hz"])
-        return float(1.0 / np.median(np.diff(self.t)))
+        return sample_rate(self.meta, self.t)
 
     def slice(self, start: int, stop: int) -> Record:
         """Samples ``start:stop`` as a new record (metadata kept)."""
@@ -155,9 +160,8 @@ class SisoRecord:
 
     @property
     def fs_hz(self) -> float:
-        if "fs_hz" in self.meta:
-            return float(self.meta["fs_hz"])
-        return float(1.0 / np.median(np.diff(self.t)))
+        """Sample rate: the ``fs_hz`` metadata if present, else from the median time step."""
+        return sample_rate(self.meta, self.t)
 
 
 def read_siso_record(path: str | os.PathLike, min_samples: int = 2) -> SisoRecord:
