@@ -106,6 +106,7 @@ class Link(ABC):
     """Called with (samples missed, known from ``seq``) before the first sample after a
     reconnect is returned (an observer loop predicts through the gap)."""
     _down_since: float | None = None
+    _down_before: float = 0.0
     _gap_pending: bool = False
     _last: Sample | None = None
     _gap_from: Sample | None = None
@@ -114,6 +115,12 @@ class Link(ABC):
     def down(self) -> bool:
         """The device is gone and the link is trying to get it back (``reconnect``)."""
         return self._down_since is not None
+
+    @property
+    def seconds_down(self) -> float:
+        """Host seconds the device has been gone in all (the gaps before and the one now)."""
+        now = time.perf_counter()
+        return self._down_before + (0.0 if self._down_since is None else now - self._down_since)
 
     def _start(self, where: Any, log: str | None) -> None:
         """Open the device and the log (nothing left open if either fails)."""
@@ -167,6 +174,7 @@ class Link(ABC):
                         continue
                     self._restart_stream()
                     self.counters.reconnects += 1
+                    self._down_before += now - self._down_since
                     self._down_since = None
                     self._gap_pending = self._gap_from is not None
                     return True

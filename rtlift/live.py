@@ -20,7 +20,7 @@ import math
 import os
 import time
 from array import array
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -190,10 +190,13 @@ class ObserverLoop:
             self._index += missed
         self._last_seq = None
 
-    def run(self, samples: Iterable[Sample | None], *, host_timeout_s: float | None = None) -> str:
+    def run(self, samples: Iterable[Sample | None], *, host_timeout_s: float | None = None,
+            seconds_down: Callable[[], float] | None = None) -> str:
         """Consume samples until the source ends (``"ended"``), ``max_samples`` device samples
-        are done (``"completed"``) or ``host_timeout_s`` of host time passed (``"timeout"``);
-        ``None`` items (silence) only give the loop a chance to check its time limit."""
+        are done (``"completed"``) or ``host_timeout_s`` of host time passed (``"timeout"``),
+        not counting the time the device was gone while the link reconnected (``seconds_down``,
+        e.g. ``link.seconds_down``); ``None`` items (silence) only give the loop a chance to
+        check its time limit."""
         start = time.perf_counter()
         for sample in samples:
             if sample is not None:
@@ -201,7 +204,8 @@ class ObserverLoop:
                 if self.done:
                     self.stats.end = "completed"
                     return self.stats.end
-            if host_timeout_s is not None and time.perf_counter() - start > host_timeout_s:
+            if host_timeout_s is not None and (time.perf_counter() - start
+                                               - (seconds_down() if seconds_down else 0.0)) > host_timeout_s:
                 self.stats.end = "timeout"
                 return self.stats.end
         self.stats.end = "ended"

@@ -71,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
         with graceful_exit():
             try:
                 end = loop.run(link.samples(0.25),
-                               host_timeout_s=None if args.seconds is None else args.seconds + 5.0)
+                               host_timeout_s=None if args.seconds is None else args.seconds + 5.0,
+                               seconds_down=lambda: link.seconds_down)
             except KeyboardInterrupt:
                 loop.stats.end = "interrupted"
                 code = 130
