@@ -59,23 +59,23 @@ def read_until_done(link, dev):
 
 
 def serial_fields(s):
-    return (s.seq, s.t_us, s.volt_cv, s.envelope_cv, s.ft, s.status)
+    return (s.seq, s.t_us, s.volt_cv, s.envelope_cv, s.ft, s.status, s.cmd_seq)
 
 
 def serial_sent(entry):
-    seq, t_us, volt_cv, envelope_cv, counts, status = entry
+    seq, t_us, volt_cv, envelope_cv, counts, status, cmd_seq = entry
     return (seq, t_us, volt_cv, envelope_cv, tuple(c / 1e6 for c in counts[:3]) + tuple(c / 1e9 for c in counts[3:]),
-            status)
+            status, cmd_seq)
 
 
 def can_fields(s):
     return (s.seq, s.t_us, s.volt_cv, s.envelope_cv, tuple(round(f * 1e3 if i < 3 else f * 1e5)
-                                                          for i, f in enumerate(s.ft)), s.status)
+                                                          for i, f in enumerate(s.ft)), s.status, s.cmd_seq)
 
 
 def can_sent(entry):
-    seq, t_10us, volt_cv, envelope_cv, raw, status = entry
-    return (seq, t_10us * 10, volt_cv, envelope_cv, raw, status)
+    seq, t_10us, volt_cv, envelope_cv, raw, status, cmd_seq = entry
+    return (seq, t_10us * 10, volt_cv, envelope_cv, raw, status, cmd_seq)
 
 
 def test_serial_ten_seconds_at_400_hz_arrive_complete_and_equal_to_what_was_sent():
