@@ -17,8 +17,7 @@ STATUS_WATCHDOG = 0x20
 """Version 2: host control ended, no valid command for ``watchdog_ms``; the actuator is off."""
 STATUS_FLAGGED = STATUS_ADC_SATURATED | STATUS_SENSOR_FAULT
 """Status bits that make a sample's forces unusable (ΔCL is reported as missing)."""
-COMMAND_KEYS = ("commands_sent", "commands_applied", "watchdog_trips", "command_latency_p50_ms",
-                "command_latency_p99_ms")
+COMMAND_KEYS = ("commands_sent", "commands_applied", "watchdog_trips")
 """The keys of :meth:`Counters.as_dict` about commands (protocol version 2)."""
 
 
@@ -70,8 +69,8 @@ class Counters:
       echoed non-zero ``cmd_seq``);
     - ``watchdog_trips``: samples with status bit5 (watchdog) after a sample without it;
     - ``command_latency``: send → first echo of each command (s), a fixed-size
-      :class:`~firmware_io.latency.LatencyRecorder`; ``as_dict`` gives its p50 and p99 in ms
-      (``None`` before the first echo).
+      :class:`~firmware_io.latency.LatencyRecorder`; not a counter, so not in ``as_dict``
+      (which stays all exact integers): :meth:`command_latency_ms` gives its p50 and p99.
     """
 
     received: int = 0
@@ -89,12 +88,15 @@ class Counters:
     watchdog_trips: int = 0
     command_latency: LatencyRecorder = field(default_factory=LatencyRecorder, repr=False, compare=False)
 
-    def as_dict(self) -> dict[str, int | float | None]:
-        out: dict[str, int | float | None] = {f.name: getattr(self, f.name) for f in fields(self)
-                                              if f.name != "command_latency"}
-        out["command_latency_p50_ms"] = self.command_latency.percentile_ms(50)
-        out["command_latency_p99_ms"] = self.command_latency.percentile_ms(99)
-        return out
+    def as_dict(self) -> dict[str, int]:
+        """The exact counters (every field but ``command_latency``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "command_latency"}
+
+    def command_latency_ms(self) -> dict[str, float | None]:
+        """``command_latency_p50_ms`` and ``command_latency_p99_ms`` (``None`` before the first
+        echo), as SUMMARY.json of ``rtlift control`` names them."""
+        return {"command_latency_p50_ms": self.command_latency.percentile_ms(50),
+                "command_latency_p99_ms": self.command_latency.percentile_ms(99)}
 
 
 class EchoCounter:

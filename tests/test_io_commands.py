@@ -321,8 +321,17 @@ def test_can_link_sends_the_cmd_frame_on_the_bus_and_times_the_echo():
                 device.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
         assert [link.recv(1.0).cmd_seq for _ in range(3)] == [0, 3, 3]
         c = link.counters.as_dict()
+        lat = link.counters.command_latency_ms()
         assert (c["commands_sent"], c["commands_applied"]) == (3, 1)
-        assert 0 < c["command_latency_p50_ms"] == c["command_latency_p99_ms"] < 1000
+        assert 0 < lat["command_latency_p50_ms"] == lat["command_latency_p99_ms"] < 1000
+
+
+def test_as_dict_stays_exact_integers_and_latency_is_apart():
+    c = Counters()
+    assert all(type(v) is int for v in c.as_dict().values()) and "command_latency" not in c.as_dict()
+    assert c.command_latency_ms() == {"command_latency_p50_ms": None, "command_latency_p99_ms": None}
+    c.command_latency.append(0.002)
+    assert c.command_latency_ms()["command_latency_p99_ms"] == pytest.approx(2.0, rel=0.006)
 
 
 def test_can_link_cmd_seq_wraps_at_256_and_skips_zero():

@@ -24,8 +24,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 NO_GAPS = {k: 0 for k in ("reconnects", "gap_lost", "gaps_unknown", "gap_lost_estimated")}
 """The reconnect counters of a link that never lost its device."""
-NO_COMMANDS = {"commands_sent": 0, "commands_applied": 0, "watchdog_trips": 0, "command_latency_p50_ms": None,
-               "command_latency_p99_ms": None}
+NO_COMMANDS = {"commands_sent": 0, "commands_applied": 0, "watchdog_trips": 0}
 """The command counters of a link that sent no command to a device that applied none."""
 
 
