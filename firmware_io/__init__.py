@@ -7,11 +7,13 @@ links, conversion of samples to Cμ and ΔCL, and logs for replay.
         for sample in link:
             cmu, env, dcl = convert(sample)      # dcl is None when flagged or while taring
     link.counters                                # received crc_errors lost duplicates events resyncs
+    link.send_command(envelope_cv=6000)          # protocol version 2: returns the cmd_seq sent
 """
 
 from __future__ import annotations
 
 from firmware_io.calibration import Calibration, CalibrationError
+from firmware_io.commands import Command
 from firmware_io.convert import Converter, capture, record_from_samples
 from firmware_io.errors import FirmwareIOError, LinkError, LogError
 from firmware_io.links import (
@@ -28,7 +30,7 @@ from firmware_io.logs import RecordWriter, graceful_exit, read_log
 from firmware_io.samples import Counters, Sample
 
 __all__ = [
-    "Calibration", "CalibrationError", "CanLink", "Converter", "Counters", "FirmwareIOError", "Link",
+    "Calibration", "CalibrationError", "CanLink", "Command", "Converter", "Counters", "FirmwareIOError", "Link",
     "LinkError", "LogError", "RecordWriter", "Sample", "SerialLink", "add_link_arguments", "capture",
     "graceful_exit", "link_config", "link_config_from_args", "open_link", "parse_can_spec", "read_log",
     "record_from_samples",

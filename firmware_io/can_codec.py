@@ -1,10 +1,13 @@
-"""The CAN wire format (PROTOCOL.md, "CAN bus"): three 8-byte frames per sample, described
-by the DBC file shipped in this package (``rtlift_daq.dbc``) and coded with cantools.
+"""The CAN wire format (PROTOCOL.md, "CAN bus" and "Version 2"): three 8-byte frames per
+sample and the host's ``CMD`` frame, described by the DBC file shipped in this package
+(``rtlift_daq.dbc``) and coded with cantools.
 
 :class:`CanAssembler` collects the frames ``ACT`` (0x101), ``FT_FORCE`` (0x102) and
 ``FT_TORQUE`` (0x103) by their u8 ``seq``; a sample is complete when all three arrived.
 An incomplete sample is counted lost when a newer ``seq`` completes (the gap of ``seq``
-with wrap at 256). No I/O; never raises on any frame.
+with wrap at 256). No I/O; never raises on any frame. Version 2: ``FT_FORCE``'s last byte
+carries the ``cmd_seq`` (u8) of the last applied command, ``ACT``'s status bits 4 and 5 host
+control and watchdog; a version-1 device sends 0 there, so one assembler reads both.
 """
 
 from __future__ import annotations
@@ -17,9 +20,11 @@ from pathlib import Path
 import cantools
 from cantools.database.can import Database
 
-from firmware_io.samples import Counters, Sample
+from firmware_io.commands import Command, check_can_cmd_seq
+from firmware_io.samples import Counters, EchoCounter, Sample
 
 DBC_PATH = Path(__file__).with_name("rtlift_daq.dbc")
+CMD_ID = 0x100
 ACT_ID = 0x101
 FT_FORCE_ID = 0x102
 FT_TORQUE_ID = 0x103
@@ -39,9 +44,10 @@ def load_dbc() -> Database:
 
 def encode_sample_frames(seq: int, t_10us: int, volt_cv: int, envelope_cv: int, status: int,
                          force_raw: tuple[int, int, int], torque_raw: tuple[int, int, int],
-                         db: Database | None = None) -> list[tuple[int, bytes]]:
+                         db: Database | None = None, cmd_seq: int = 0) -> list[tuple[int, bytes]]:
     """The three frames ``(arbitration_id, data)`` of one sample, raw DBC values
-    (forces in 0.001 N, torques in 0.00001 N·m, i16; the caller saturates)."""
+    (forces in 0.001 N, torques in 0.00001 N·m, i16; the caller saturates); ``cmd_seq`` is
+    the last applied command's (version 2; its low byte travels)."""
     db = db or load_dbc()
     seq &= 0xFF
     act = db.get_message_by_frame_id(ACT_ID).encode(
@@ -50,10 +56,34 @@ def encode_sample_frames(seq: int, t_10us: int, volt_cv: int, envelope_cv: int, 
     fx, fy, fz = force_raw
     tx, ty, tz = torque_raw
     force = db.get_message_by_frame_id(FT_FORCE_ID).encode(
-        {"seq": seq, "fx": fx, "fy": fy, "fz": fz, "spare": 0}, scaling=False)
+        {"seq": seq, "fx": fx, "fy": fy, "fz": fz, "cmd_seq": cmd_seq & 0xFF}, scaling=False)
     torque = db.get_message_by_frame_id(FT_TORQUE_ID).encode(
         {"seq": seq, "tx": tx, "ty": ty, "tz": tz, "spare": 0}, scaling=False)
     return [(ACT_ID, bytes(act)), (FT_FORCE_ID, bytes(force)), (FT_TORQUE_ID, bytes(torque))]
+
+
+def encode_command_frame(cmd_seq: int, envelope_cv: int, burst_period_ms: int = 0, enable: bool = True,
+                         watchdog_ms_div10: int = 0, db: Database | None = None) -> tuple[int, bytes]:
+    """The ``CMD`` frame ``(0x100, data)`` of a command (PROTOCOL.md, "CAN (version 2)"):
+    ``cmd_seq`` is a u8, never 0. Out-of-range values raise ``ValueError`` (one line)."""
+    check_can_cmd_seq(cmd_seq)
+    cmd = Command(cmd_seq, envelope_cv, burst_period_ms, enable, watchdog_ms_div10)
+    db = db or load_dbc()
+    data = db.get_message_by_frame_id(CMD_ID).encode(
+        {"cmd_seq": cmd.cmd_seq, "envelope_cv": cmd.envelope_cv, "burst_period_ms": cmd.burst_period_ms,
+         "flags": cmd.flags, "watchdog_ms_div10": cmd.watchdog_ms_div10, "spare": 0}, scaling=False)
+    return CMD_ID, bytes(data)
+
+
+def decode_command_frame(data: bytes | bytearray, db: Database | None = None) -> Command | None:
+    """The command in a ``CMD`` frame's data, or ``None`` when it is not valid (DLC ≠ 8 or
+    ``cmd_seq`` 0). Never raises; flag bits other than bit0 are reserved and ignored."""
+    if len(data) != DLC or data[0] == 0:
+        return None
+    db = db or load_dbc()
+    d = db.get_message_by_frame_id(CMD_ID).decode(bytes(data), decode_choices=False, scaling=False)
+    return Command(d["cmd_seq"], d["envelope_cv"], d["burst_period_ms"], bool(d["flags"] & 1),
+                   d["watchdog_ms_div10"])
 
 
 class CanAssembler:
@@ -78,6 +108,7 @@ class CanAssembler:
         self._force = db.get_message_by_frame_id(FT_FORCE_ID)
         self._torque = db.get_message_by_frame_id(FT_TORQUE_ID)
         self._clock = clock or time.perf_counter
+        self._echo = EchoCounter(self.counters)
         self._pending: dict[int, list] = {}
         self.last_seq: int | None = None
 
@@ -140,6 +171,8 @@ class CanAssembler:
                 del self._pending[p]
         c.received += 1
         act, force, torque = parts
+        cmd_seq = int(force["cmd_seq"])
+        self._echo.see(cmd_seq, act["status"])
         return Sample(seq, act["t_10us"] * 10, act["volt_cv"], act["envelope_cv"],
                       (force["fx"], force["fy"], force["fz"], torque["tx"], torque["ty"], torque["tz"]),
-                      act["status"], self._clock())
+                      act["status"], self._clock(), cmd_seq)

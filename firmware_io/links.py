@@ -14,6 +14,11 @@ go on with the same counters and log), ``calibration`` (serial only: a
 :class:`~firmware_io.calibration.Calibration` or a TOML path, for counts per N and N·m).
 Any other key of a CAN config is passed to ``can.Bus`` (``ignore_config=True`` is the
 default, and ``sleep_after_open=0`` for ``slcan``).
+
+Protocol version 2: ``link.send_command(envelope_cv, ...)`` sends a command with the link's
+next ``cmd_seq`` (serial: a COBS packet through pyserial; CAN: the ``CMD`` frame through
+``bus.send``); ``commands_sent``, ``commands_applied``, ``watchdog_trips`` and the command
+latency are in ``link.counters``.
 """
 
 from __future__ import annotations
@@ -31,13 +36,14 @@ import can
 import serial
 
 from firmware_io.calibration import Calibration
+from firmware_io.can_codec import CMD_ID, CanAssembler, encode_command_frame
 from firmware_io.can_codec import SEQ_MODULUS as CAN_SEQ_MODULUS
-from firmware_io.can_codec import CanAssembler
+from firmware_io.commands import CAN_CMD_SEQ_MODULUS, SERIAL_CMD_SEQ_MODULUS, CommandTracker
 from firmware_io.errors import LinkError
 from firmware_io.logs import open_link_log
 from firmware_io.samples import Counters, Sample
 from firmware_io.serial_codec import SEQ_MODULUS as SERIAL_SEQ_MODULUS
-from firmware_io.serial_codec import SerialDecoder
+from firmware_io.serial_codec import SerialDecoder, encode_command
 
 SERIAL_BAUD = 921_600
 CAN_BITRATE = 500_000
@@ -216,6 +222,45 @@ class Link(ABC):
         if self.on_gap is not None:
             self.on_gap(missed, known)
 
+    _commands: CommandTracker
+
+    def send_command(self, envelope_cv: int, burst_period_ms: int = 0, enable: bool = True,
+                     watchdog_ms_div10: int = 0) -> int | None:
+        """Send one command (PROTOCOL.md, "Version 2") with the link's next ``cmd_seq`` and
+        return that ``cmd_seq``; ``None`` when the device is gone or being reconnected (nothing
+        was sent or counted). Values out of range raise ``ValueError`` before anything is
+        sent; a link closed by its user raises :class:`LinkError`. Call it from the thread
+        that calls ``recv``."""
+        if self.disconnected or self._down_since is not None:
+            return None
+        if self.closed:
+            raise LinkError(f"{self.kind} link is closed: cannot send a command")
+        tracker = self._commands
+        cmd_seq = tracker.next_seq()
+        wire = self._encode_command(cmd_seq, envelope_cv, burst_period_ms, enable, watchdog_ms_div10)
+        now = time.perf_counter()
+        if not self._write_command(wire):
+            return None
+        tracker.sent(cmd_seq, now)
+        return cmd_seq
+
+    @abstractmethod
+    def _encode_command(self, cmd_seq: int, envelope_cv: int, burst_period_ms: int, enable: bool,
+                        watchdog_ms_div10: int) -> Any:
+        """The command as this link's wire carries it."""
+
+    @abstractmethod
+    def _write_command(self, wire: Any) -> bool:
+        """Write a command; ``False`` (and the device handled as gone) if the write failed."""
+
+    def _delivered(self, sample: Sample) -> Sample:
+        """Bookkeeping of every sample ``recv`` returns."""
+        self._last = sample
+        self._commands.received(sample)
+        if self._gap_pending:
+            self._close_gap(sample)
+        return sample
+
     @abstractmethod
     def recv(self, timeout: float | None = None) -> Sample | None:
         """The next sample; ``None`` after ``timeout`` seconds of silence (``None``: wait
@@ -280,6 +325,7 @@ class SerialLink(Link):
         self._queue: deque[Sample] = deque()
         self._decoder = SerialDecoder(self._queue.append, cal.counts_per_n, cal.counts_per_nm)
         self.counters = self._decoder.counters
+        self._commands = CommandTracker(self.counters, SERIAL_CMD_SEQ_MODULUS)
         self.port = self._where = port
         self.reconnect = reconnect
         self._ser = None
@@ -307,6 +353,18 @@ class SerialLink(Link):
     def _restart_stream(self) -> None:
         self._decoder.restart()
 
+    def _encode_command(self, cmd_seq: int, envelope_cv: int, burst_period_ms: int, enable: bool,
+                        watchdog_ms_div10: int) -> bytes:
+        return encode_command(cmd_seq, envelope_cv, burst_period_ms, enable, watchdog_ms_div10)
+
+    def _write_command(self, wire: bytes) -> bool:
+        try:
+            self._ser.write(wire)
+        except (serial.SerialException, OSError):
+            self._device_gone()
+            return False
+        return True
+
     @property
     def events(self) -> list[str]:
         return list(self._decoder.events)
@@ -314,8 +372,7 @@ class SerialLink(Link):
     def recv(self, timeout: float | None = None) -> Sample | None:
         queue = self._queue
         if queue:
-            sample = self._last = queue.popleft()
-            return sample
+            return self._delivered(queue.popleft())
         if self.closed or self.disconnected:
             return None
         deadline = None if timeout is None else time.perf_counter() + timeout
@@ -339,10 +396,7 @@ class SerialLink(Link):
                     self._log.write(data)
                 self._decoder.feed(data)
                 if queue:
-                    sample = self._last = queue.popleft()
-                    if self._gap_pending:
-                        self._close_gap(sample)
-                    return sample
+                    return self._delivered(queue.popleft())
 
 
 class CanLink(Link):
@@ -358,6 +412,7 @@ class CanLink(Link):
         self.closed = True
         self._assembler = CanAssembler()
         self.counters = self._assembler.counters
+        self._commands = CommandTracker(self.counters, CAN_CMD_SEQ_MODULUS)
         self.interface = interface
         self.channel = self._where = channel
         self.reconnect = reconnect
@@ -395,6 +450,19 @@ class CanLink(Link):
     def _restart_stream(self) -> None:
         self._assembler.restart()
 
+    def _encode_command(self, cmd_seq: int, envelope_cv: int, burst_period_ms: int, enable: bool,
+                        watchdog_ms_div10: int) -> can.Message:
+        _, data = encode_command_frame(cmd_seq, envelope_cv, burst_period_ms, enable, watchdog_ms_div10)
+        return can.Message(arbitration_id=CMD_ID, data=data, is_extended_id=False)
+
+    def _write_command(self, wire: can.Message) -> bool:
+        try:
+            self._bus.send(wire)
+        except (can.CanError, OSError, serial.SerialException):
+            self._device_gone()
+            return False
+        return True
+
     def recv(self, timeout: float | None = None) -> Sample | None:
         if self.closed or self.disconnected:
             return None
@@ -425,10 +493,7 @@ class CanLink(Link):
                 self._log(msg)
             sample = assembler.feed_message(msg)
             if sample is not None:
-                self._last = sample
-                if self._gap_pending:
-                    self._close_gap(sample)
-                return sample
+                return self._delivered(sample)
             if deadline is not None and time.perf_counter() >= deadline:
                 return None
 

@@ -21,11 +21,14 @@ from firmware_io.can_codec import (
 
 PROTOCOL_TABLE = {
     # id: (name, [(signal, start bit, length, signed, scale)])
+    0x100: ("CMD", [("cmd_seq", 0, 8, False, 1), ("envelope_cv", 8, 16, False, 0.01),
+                    ("burst_period_ms", 24, 16, False, 1), ("flags", 40, 8, False, 1),
+                    ("watchdog_ms_div10", 48, 8, False, 10), ("spare", 56, 8, False, 1)]),
     0x101: ("ACT", [("seq", 0, 8, False, 1), ("volt_cv", 8, 16, False, 0.01),
                     ("envelope_cv", 24, 16, False, 0.01), ("status", 40, 8, False, 1),
                     ("t_10us", 48, 16, False, 1e-5)]),
     0x102: ("FT_FORCE", [("seq", 0, 8, False, 1), ("fx", 8, 16, True, 0.001), ("fy", 24, 16, True, 0.001),
-                         ("fz", 40, 16, True, 0.001), ("spare", 56, 8, False, 1)]),
+                         ("fz", 40, 16, True, 0.001), ("cmd_seq", 56, 8, False, 1)]),
     0x103: ("FT_TORQUE", [("seq", 0, 8, False, 1), ("tx", 8, 16, True, 1e-5), ("ty", 24, 16, True, 1e-5),
                           ("tz", 40, 16, True, 1e-5), ("spare", 56, 8, False, 1)]),
 }

@@ -16,6 +16,8 @@ from rtlift.errors import UserError
 
 NO_GAPS = {k: 0 for k in ("reconnects", "gap_lost", "gaps_unknown", "gap_lost_estimated")}
 """The reconnect counters of a link that never lost its device."""
+NO_COMMANDS = {"commands_sent": 0, "commands_applied": 0, "watchdog_trips": 0}
+"""The command counters of a link that sent no command to a device that applied none."""
 
 
 def test_a_missing_serial_port_is_a_one_line_user_error(tmp_path):
@@ -80,7 +82,7 @@ def test_can_link_assembles_samples_from_any_python_can_interface():
         assert [s.volt_cv for s in got] == [0, 10, 20]
         assert link.recv(0.05) is None
         assert link.counters.as_dict() == {"received": 3, "crc_errors": 1, "lost": 0, "duplicates": 0,
-                                           "events": 0, "resyncs": 0, **NO_GAPS}
+                                           "events": 0, "resyncs": 0, **NO_GAPS, **NO_COMMANDS}
 
 
 def test_samples_yields_none_on_silence_and_ends_when_the_link_is_closed():

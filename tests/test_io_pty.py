@@ -24,6 +24,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 NO_GAPS = {k: 0 for k in ("reconnects", "gap_lost", "gaps_unknown", "gap_lost_estimated")}
 """The reconnect counters of a link that never lost its device."""
+NO_COMMANDS = {"commands_sent": 0, "commands_applied": 0, "watchdog_trips": 0}
+"""The command counters of a link that sent no command to a device that applied none."""
 
 
 def serial_config(dev):
@@ -56,23 +58,23 @@ def read_until_done(link, dev):
 
 
 def serial_fields(s):
-    return (s.seq, s.t_us, s.volt_cv, s.envelope_cv, s.ft, s.status)
+    return (s.seq, s.t_us, s.volt_cv, s.envelope_cv, s.ft, s.status, s.cmd_seq)
 
 
 def serial_sent(entry):
-    seq, t_us, volt_cv, envelope_cv, counts, status = entry
+    seq, t_us, volt_cv, envelope_cv, counts, status, cmd_seq = entry
     return (seq, t_us, volt_cv, envelope_cv, tuple(c / 1e6 for c in counts[:3]) + tuple(c / 1e9 for c in counts[3:]),
-            status)
+            status, cmd_seq)
 
 
 def can_fields(s):
     return (s.seq, s.t_us, s.volt_cv, s.envelope_cv, tuple(round(f * 1e3 if i < 3 else f * 1e5)
-                                                          for i, f in enumerate(s.ft)), s.status)
+                                                          for i, f in enumerate(s.ft)), s.status, s.cmd_seq)
 
 
 def can_sent(entry):
-    seq, t_10us, volt_cv, envelope_cv, raw, status = entry
-    return (seq, t_10us * 10, volt_cv, envelope_cv, raw, status)
+    seq, t_10us, volt_cv, envelope_cv, raw, status, cmd_seq = entry
+    return (seq, t_10us * 10, volt_cv, envelope_cv, raw, status, cmd_seq)
 
 
 def test_serial_ten_seconds_at_400_hz_arrive_complete_and_equal_to_what_was_sent():
@@ -84,7 +86,7 @@ def test_serial_ten_seconds_at_400_hz_arrive_complete_and_equal_to_what_was_sent
         got = read_all(link, n)
         elapsed = time.perf_counter() - t0
         assert link.counters.as_dict() == {"received": n, "crc_errors": 0, "lost": 0, "duplicates": 0,
-                                           "events": 0, "resyncs": 0, **NO_GAPS}
+                                           "events": 0, "resyncs": 0, **NO_GAPS, **NO_COMMANDS}
     assert dev.error is None
     assert [serial_fields(s) for s in got] == [serial_sent(e) for e in dev.sent]
     assert got[-1].seq == (65536 - 1500 + n - 1) % 65536  # crossed the u16 wrap
@@ -101,7 +103,7 @@ def test_slcan_ten_seconds_at_400_hz_arrive_complete_through_python_can_slcan():
             got = read_all(link, n)
             elapsed = time.perf_counter() - t0
             assert link.counters.as_dict() == {"received": n, "crc_errors": 0, "lost": 0, "duplicates": 0,
-                                               "events": 0, "resyncs": 0, **NO_GAPS}
+                                               "events": 0, "resyncs": 0, **NO_GAPS, **NO_COMMANDS}
         t_closed = time.perf_counter() + 2.0
         while dev.commands[-1] != "C" and time.perf_counter() < t_closed:
             time.sleep(0.01)
@@ -124,7 +126,7 @@ def test_serial_counters_equal_the_faults_injected():
         assert link.counters.as_dict() == {
             "received": st.samples_delivered, "lost": st.samples_lost,
             "crc_errors": st.frames_corrupted + st.garbage_chunks, "duplicates": st.frames_duplicated,
-            "events": 1, "resyncs": st.invalid_runs, **NO_GAPS}
+            "events": 1, "resyncs": st.invalid_runs, **NO_GAPS, **NO_COMMANDS}
         assert link.events == ["overtemp"]
     assert [serial_fields(s) for s in got] == [serial_sent(e) for e in dev.sent]
 
@@ -140,7 +142,7 @@ def test_slcan_counters_equal_the_faults_injected():
         assert min(st.frames_corrupted, st.frames_dropped, st.frames_duplicated, st.garbage_bursts) > 0
         assert link.counters.as_dict() == {
             "received": st.samples_delivered, "lost": st.samples_lost, "crc_errors": st.frames_corrupted,
-            "duplicates": st.frames_duplicated, "events": 0, "resyncs": 0, **NO_GAPS}
+            "duplicates": st.frames_duplicated, "events": 0, "resyncs": 0, **NO_GAPS, **NO_COMMANDS}
     assert [can_fields(s) for s in got] == [can_sent(e) for e in dev.sent]
 
 

@@ -99,7 +99,7 @@ def test_wrong_version_wrong_length_and_unknown_kind_are_invalid_packets():
         return cobs.encode(body + struct.pack("<H", crc_hqx(body, 0xFFFF))) + b"\x00"
 
     good = cobs.decode(frame(1)[:-1])[:-2]
-    stream = b"\x00" + packet(b"\x02" + good[1:]) + packet(good[:-1]) + packet(b"\x01\x07" + good[2:])
+    stream = b"\x00" + packet(b"\x03" + good[1:]) + packet(good[:-1]) + packet(b"\x01\x07" + good[2:])
     dec, out = decode(stream + frame(2))
     assert out[0].seq == 2 and dec.counters.crc_errors == 3 and dec.counters.resyncs == 1
 

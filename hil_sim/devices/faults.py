@@ -98,6 +98,11 @@ class DeviceStats:
     those whose frames all went out intact. ``garbage_chunks`` (serial) is the number of
     invalid packets the garbage bursts make; ``invalid_runs`` (serial) the runs of
     consecutive invalid packets on the wire (each is one resync for the host).
+
+    Commands (protocol version 2, :mod:`.host_control`): ``commands_valid`` arrived intact
+    (``commands_applied`` of them were applied and echoed, ``commands_superseded`` replaced by
+    a newer one before the next sample, ``commands_ignored`` not newer than the last);
+    ``cmd_errors`` were dropped as invalid; ``watchdog_trips`` times the watchdog fired.
     """
 
     samples: int = 0
@@ -112,6 +117,12 @@ class DeviceStats:
     invalid_runs: int = 0
     events_sent: int = 0
     bytes_sent: int = 0
+    commands_valid: int = 0
+    commands_applied: int = 0
+    commands_superseded: int = 0
+    commands_ignored: int = 0
+    cmd_errors: int = 0
+    watchdog_trips: int = 0
     disconnected: bool = False
 
     def as_dict(self) -> dict[str, int | bool]:

@@ -6,14 +6,22 @@ packet is delimited on both sides. Faults per packet (see :mod:`.faults`): a cor
 packet has one COBS data byte replaced by another non-zero value (the decoded body differs
 in exactly one byte, which the CRC-16 always detects); garbage is 1–32 random bytes
 followed by 0x00, inserted before a packet.
+
+Protocol version 2 (:mod:`.host_control`): the device reads command packets the host writes
+(COBS, 0x00-terminated); it streams version-1 packets until a valid command is applied, then
+version-2 packets echoing the applied ``cmd_seq``. While ``stats.cmd_errors`` is nonzero it
+sends the event ``"cmd_errors=N"`` (N since start) once a second of its clock. The applied
+command and envelope are exposed in :attr:`SerialDaq.control` (the hook for the plant).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 
-from firmware_io.serial_codec import encode_event, encode_sample
+from firmware_io.commands import SERIAL_CMD_SEQ_MODULUS
+from firmware_io.serial_codec import MAX_PACKET_BYTES, decode_command, encode_event, encode_sample
 from hil_sim.devices.faults import FaultPlan
+from hil_sim.devices.host_control import HostControl
 from hil_sim.devices.pty_device import FS_HZ, PtyDevice
 from hil_sim.devices.source import serial_wire, wire_samples
 
@@ -48,10 +56,27 @@ class SerialDaq(PtyDevice):
         self._started = False
         self._in_error = False
         self._events: list[str] = []
+        self.control = HostControl(self.stats, SERIAL_CMD_SEQ_MODULUS, self.fs_hz)
+        """What the host commanded (version 2): the applied command, envelope and watchdog."""
+        self._input = bytearray()
+        self._samples_per_report = max(1, int(round(self.fs_hz)))
 
     def send_event(self, text: str) -> None:
         """Queue a firmware event packet (kind 2); it goes out before the next sample."""
         self._events.append(text)
+
+    def on_input(self, data: bytes) -> None:
+        """Command packets from the host: each run between 0x00 bytes is one packet."""
+        buf = self._input
+        buf += data
+        *packets, rest = bytes(buf).split(b"\x00")
+        for chunk in packets:
+            if chunk:
+                self.control.receive(decode_command(chunk), self.stats.samples)
+        buf[:] = rest
+        if len(buf) > MAX_PACKET_BYTES:
+            buf.clear()
+            self.control.receive(None, self.stats.samples)
 
     def _packet(self, data: bytes, valid: bool) -> None:
         self.write(data)
@@ -66,13 +91,16 @@ class SerialDaq(PtyDevice):
         if not self._started:
             self._started = True
             self.write(b"\x00")
-        while self._events:
-            self._packet(encode_event(self._events.pop(0)), True)
-            st.events_sent += 1
         volt_cv, envelope_cv, status, counts = sample
+        cmd_seq, status, envelope_cv = self.control.step(index, status, envelope_cv)
+        if st.cmd_errors and index % self._samples_per_report == 0:
+            self.send_event(f"cmd_errors={st.cmd_errors}")
+        while self._events:
+            self._packet(encode_event(self._events.pop(0), self.control.version), True)
+            st.events_sent += 1
         seq = (self.first_seq + index) & 0xFFFF
         t_us = (self.first_t_us + index * self.period_us) & 0xFFFFFFFF
-        frame = encode_sample(seq, t_us, volt_cv, counts, status, envelope_cv)
+        frame = encode_sample(seq, t_us, volt_cv, counts, status, envelope_cv, cmd_seq)
         fault, garbage = self._fault(index)
         if garbage:
             n = int(self.rng.integers(1, 33))
@@ -103,7 +131,7 @@ class SerialDaq(PtyDevice):
         st.frames_sent += 1
         st.samples_delivered += 1
         if self.sent is not None:
-            self.sent.append((seq, t_us, volt_cv, envelope_cv, counts, status))
+            self.sent.append((seq, t_us, volt_cv, envelope_cv, counts, status, cmd_seq or 0))
         if fault == "duplicate":
             self._packet(frame, True)
             st.frames_sent += 1

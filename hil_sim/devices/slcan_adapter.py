@@ -10,6 +10,12 @@ acceptance, ``t``/``T``/``r``/``R`` transmit (``z``/``Z``). While the channel is
 DAQ sample goes out as three frames ``tIIILDD…`` (0x101, 0x102, 0x103); while it is closed
 the DAQ is paused, so no sample is generated unseen.
 
+Protocol version 2 (:mod:`.host_control`): a ``CMD`` frame (0x100) the host transmits is
+the DAQ's command; an invalid one (DLC ≠ 8, bad hex, ``cmd_seq`` 0) is counted in
+``stats.cmd_errors`` (CAN has no event frame to report it). From the first applied command on,
+``FT_FORCE`` echoes its ``cmd_seq`` (u8) and ``ACT``'s status carries bits 4 and 5. The
+applied command and envelope are exposed in :attr:`SlcanAdapter.control` (the plant hook).
+
 Faults per frame (see :mod:`.faults`): drop, duplicate, corrupt (the frame arrives
 truncated to 4 data bytes, which the host counts as invalid), garbage (a junk line before
 the frame that is no frame command, which the driver ignores).
@@ -20,8 +26,10 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from firmware_io.calibration import Calibration
-from firmware_io.can_codec import encode_sample_frames, load_dbc
+from firmware_io.can_codec import CMD_ID, DLC, decode_command_frame, encode_sample_frames, load_dbc
+from firmware_io.commands import CAN_CMD_SEQ_MODULUS
 from hil_sim.devices.faults import FaultPlan
+from hil_sim.devices.host_control import HostControl
 from hil_sim.devices.pty_device import FS_HZ, PtyDevice
 from hil_sim.devices.source import can_wire, wire_samples
 
@@ -52,6 +60,8 @@ class SlcanAdapter(PtyDevice):
         self._line = bytearray()
         self._db = load_dbc()
         self._t10_per_sample = int(round(1e5 / fs_hz))
+        self.control = HostControl(self.stats, CAN_CMD_SEQ_MODULUS, self.fs_hz)
+        """What the host commanded (version 2): the applied command, envelope and watchdog."""
 
     def streaming(self) -> bool:
         return self.is_open
@@ -96,16 +106,32 @@ class SlcanAdapter(PtyDevice):
         elif head in ("t", "T", "r", "R", "d", "D", "b", "B"):
             if self.is_open and not self.listen_only:
                 self.frames_from_host.append(cmd)
+                if cmd[:4] == f"t{CMD_ID:03X}":
+                    self._cmd_frame(cmd)
                 reply = b"Z\r" if head.isupper() else b"z\r"
         self.write(reply)
+
+    def _cmd_frame(self, cmd: str) -> None:
+        """``t100Ldd…``: the host's command to the DAQ behind the adapter."""
+        try:
+            dlc = int(cmd[4])
+            data = bytes.fromhex(cmd[5:])
+        except (ValueError, IndexError):
+            data = b""
+            dlc = -1
+        frame = decode_command_frame(data, self._db) if dlc == DLC == len(data) else None
+        self.control.receive(frame, self.stats.samples)
 
     # -- the DAQ side ------------------------------------------------------------------------
     def _emit(self, index: int, sample: tuple[int, int, int, tuple[int, ...]]) -> None:
         st = self.stats
         volt_cv, envelope_cv, status, raw = sample
+        cmd_seq, status, envelope_cv = self.control.step(index, status, envelope_cv)
+        cmd_seq = cmd_seq or 0
         seq = (self.first_seq + index) & 0xFF
         t_10us = (index * self._t10_per_sample) & 0xFFFF
-        frames = encode_sample_frames(seq, t_10us, volt_cv, envelope_cv, status, raw[:3], raw[3:], self._db)
+        frames = encode_sample_frames(seq, t_10us, volt_cv, envelope_cv, status, raw[:3], raw[3:], self._db,
+                                      cmd_seq)
         out = []
         intact = True
         for arbitration_id, data in frames:
@@ -135,6 +161,6 @@ class SlcanAdapter(PtyDevice):
         if intact:
             st.samples_delivered += 1
             if self.sent is not None:
-                self.sent.append((seq, t_10us, volt_cv, envelope_cv, raw, status))
+                self.sent.append((seq, t_10us, volt_cv, envelope_cv, raw, status, cmd_seq))
         else:
             st.samples_lost += 1
