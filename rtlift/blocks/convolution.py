@@ -40,7 +40,7 @@ class RingConvolution:
 
     def step(self, u: float) -> float:
         """Push Cμ(k), return y(k). No allocation beyond the returned float."""
-        p = int(self._pos[0]) - 1
+        p = self._pos.item() - 1
         if p < 0:
             p = self._n - 1
         self._pos[0] = p

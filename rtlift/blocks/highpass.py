@@ -70,15 +70,14 @@ class HighPassFilter:
         return 2 * len(self._sec)
 
     def step(self, x: float) -> float:
-        z = self._z.tolist()
+        z, zs = self._z, self._z.tolist()
         i = 0
         for b0, b1, b2, a1, a2 in self._sec:
-            y = b0 * x + z[i]
-            z[i] = b1 * x - a1 * y + z[i + 1]
+            y = b0 * x + zs[i]
+            z[i] = b1 * x - a1 * y + zs[i + 1]
             z[i + 1] = b2 * x - a2 * y
             x = y
             i += 2
-        self._z[:] = z
         return x
 
     def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:

@@ -77,10 +77,10 @@ class LTIBlock:
                 s += row[j] * x[j]
             t[i] = s
         y = 0.0
-        C = self._C
+        C, state = self._C, self._x
         for i in range(n):
+            state[i] = t[i]                     # element-wise: cheaper than a slice from a list
             y += C[i] * t[i]
-        self._x[:] = t
         return y
 
     def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:

@@ -117,8 +117,8 @@ class Delay(InputStage):
     def step(self, cmu: float, env: float) -> tuple[float, float]:
         if self.samples == 0:
             return cmu, env
-        i = int(self._pos[0])
-        out = (float(self._cmu[i]), float(self._env[i]))
+        i = self._pos.item()
+        out = (self._cmu.item(i), self._env.item(i))
         self._cmu[i] = cmu
         self._env[i] = env
         self._pos[0] = i + 1 if i + 1 < self.samples else 0
