@@ -1,8 +1,12 @@
-"""One HybridModel.step (300-sample kernel) and batch-vs-streaming throughput.
+"""One HybridModel.step (300-sample kernel), compiled and reference, and batch-vs-streaming throughput.
 
-Prints JSON as its last line: step_median_us, step_p99_us, batch_speedup (batch vs
-streaming throughput on a 10-minute 400 Hz record, same output), max_abs_difference.
-Targets (issue 2): step median ≤ 10 µs, batch ≥ 100× faster than streaming.
+Prints JSON as its last line: step_median_us, step_p99_us (the compiled ``HybridModel.step``),
+reference_step_median_us, reference_step_p99_us (the pure-Python ``reference_step``, same run,
+same model), warm_up_seconds (compile or cache load), batch_speedup (batch vs streaming
+``step`` throughput on a 10-minute 400 Hz record, same output), batch_speedup_vs_reference
+(the same against ``reference_step``), max_abs_difference (batch vs streamed ``step``) and
+max_abs_difference_reference (compiled vs reference ``step``).
+Targets (issue 14): step median ≤ 2 µs, batch ≥ 100× faster than streaming.
 """
 
 from __future__ import annotations
@@ -20,50 +24,71 @@ from benchmarks._common import emit, percentiles_us  # noqa: E402
 from tests.conftest import burst_input, make_model  # noqa: E402
 
 
+def _latency(step, cmu: np.ndarray, env: np.ndarray) -> tuple[float, float]:
+    """Median and p99 (µs) of single calls, each timed with perf_counter around it."""
+    durations = np.empty(cmu.size)
+    pc = time.perf_counter
+    for i, (c, e) in enumerate(zip(cmu.tolist(), env.tolist(), strict=True)):
+        t0 = pc()
+        step(c, e)
+        durations[i] = pc() - t0
+    return percentiles_us(durations)
+
+
+def _stream(step, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, float]:
+    pc = time.perf_counter
+    t0 = pc()
+    out = np.fromiter((step(c, e)[0] for c, e in zip(cmu.tolist(), env.tolist(), strict=True)),
+                      float, count=cmu.size)
+    return out, pc() - t0
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0, help="record length for the throughput test")
-    ap.add_argument("--steps", type=int, default=50_000, help="timed single steps")
+    ap.add_argument("--steps", type=int, default=50_000, help="timed single steps (each path)")
     args = ap.parse_args()
 
     rng = np.random.default_rng(0)
     model = make_model(rng, kernel_len=300, order=2, hp_order=2)
     n = int(args.minutes * 60 * 400)
     cmu, env = burst_input(rng, n)
+    if not model.compiled:
+        raise SystemExit("step_latency: the benchmark model does not take the compiled step")
+    warm_up_s = model.warm_up()
 
-    # single-step latency: time each call with perf_counter_ns around it
-    durations = np.empty(args.steps)
-    pc = time.perf_counter
-    step = model.step
-    for i in range(args.steps):
-        c, e = float(cmu[i]), float(env[i])
-        t0 = pc()
-        step(c, e)
-        durations[i] = pc() - t0
-    step_median, step_p99 = percentiles_us(durations)
-
-    # throughput: the whole record streamed vs in one batch call (same result)
+    steps = cmu[: args.steps], env[: args.steps]
+    step_median, step_p99 = _latency(model.step, *steps)
     model.reset()
-    t0 = pc()
-    streamed = np.fromiter((step(c, e)[0] for c, e in zip(cmu.tolist(), env.tolist(), strict=True)),
-                           float, count=n)
-    t_stream = pc() - t0
+    ref_median, ref_p99 = _latency(model.reference_step, *steps)
+
+    # throughput: the whole record streamed (compiled, then reference) vs in one batch call
+    model.reset()
+    streamed, t_stream = _stream(model.step, cmu, env)
+    model.reset()
+    reference, t_reference = _stream(model.reference_step, cmu, env)
     batch_times = []
     for _ in range(5):
         model.reset()
-        t0 = pc()
+        t0 = time.perf_counter()
         batch = model.simulate(cmu, env).total
-        batch_times.append(pc() - t0)
+        batch_times.append(time.perf_counter() - t0)
     t_batch = float(np.median(batch_times))
     emit({
         "step_median_us": round(step_median, 3),
         "step_p99_us": round(step_p99, 3),
+        "reference_step_median_us": round(ref_median, 3),
+        "reference_step_p99_us": round(ref_p99, 3),
+        "warm_up_seconds": round(warm_up_s, 3),
         "batch_speedup": round(t_stream / t_batch, 1),
+        "batch_speedup_vs_reference": round(t_reference / t_batch, 1),
         "stream_seconds": round(t_stream, 3),
+        "reference_stream_seconds": round(t_reference, 3),
         "batch_seconds": round(t_batch, 4),
         "samples": n,
         "kernel_len": 300,
         "max_abs_difference": float(np.max(np.abs(streamed - batch))),
+        "max_abs_difference_reference": float(np.max(np.abs(streamed - reference))),
     })
 
 

@@ -8,10 +8,22 @@ with the single-burst kernel; the low-frequency part is the Wiener block driven 
 burst envelope. Augmentation stages (effects the paper lacks) may map the inputs before
 and the total after. :meth:`HybridModel.step` is the 400 Hz hot path; :meth:`simulate` is
 its vectorised twin; both carry one explicit state.
+
+The hot path is compiled (:mod:`rtlift.blocks.compiled`, numba) for every model whose
+nonlinearity has a compiled form (``input_gain``, ``output``) and whose only augmentation
+stage is at most one input ``delay``: the paper's model and a model as ``rtlift identify``
+writes it. The other effect stages (``actuator_fade``, ``sensor_resonance``, ``zero_drift``,
+``periodic_disturbance``) and the hysteresis nonlinearities are not compiled yet: a model that
+carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain of the
+blocks' own ``step`` (``model.compiled`` says which). That chain is also the compiled
+step's test oracle; both advance the same state arrays. The compiled step is bound to the
+blocks on the first step after a block or stage field of the model is assigned; a part swapped
+inside a block (``model.wiener.nonlinearity = ...``) is not seen: build a new model instead.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -19,8 +31,11 @@ import numpy as np
 
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
-from rtlift.blocks.stages import InputStage, OutputStage
+from rtlift.blocks.stages import Delay, InputStage, OutputStage
 from rtlift.blocks.wiener import WienerBlock
+
+_STRUCTURE = frozenset({"convolution", "highpass", "wiener", "input_stages", "output_stages"})
+"""Fields whose assignment changes which step (compiled or reference) the model takes."""
 
 
 class HybridOutput(NamedTuple):
@@ -44,6 +59,18 @@ class HybridModel:
     """The residual on the identification campaign (:mod:`rtlift.diagnose.fingerprint`)."""
     stable: bool = True
 
+    def __setattr__(self, name: str, value: Any) -> None:
+        object.__setattr__(self, name, value)
+        if name in _STRUCTURE:
+            object.__setattr__(self, "_kernel", None)    # bound again on the next step
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "_kernel"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._kernel = None
+
     def __post_init__(self) -> None:
         self.input_stages = tuple(self.input_stages)
         self.output_stages = tuple(self.output_stages)
@@ -59,8 +86,55 @@ class HybridModel:
         """Every stateful block, in the order of :meth:`get_state`."""
         return (*self.input_stages, self.convolution, self.highpass, self.wiener, *self.output_stages)
 
+    def _bind_kernel(self) -> tuple[Any, ...]:
+        """(compiled step, its arguments after Cμ and Cμ_env), or () when this model takes
+        :meth:`reference_step` (module docstring). The arguments are the blocks' own state
+        arrays and one copy of their parameters (fixed after construction)."""
+        kernel: tuple[Any, ...] = ()
+        stages = self.input_stages
+        delay = stages[0].kernel_arrays()[1] if len(stages) == 1 and type(stages[0]) is Delay else None
+        wiener = self.wiener.kernel_arrays()
+        if (delay is not None or not stages) and not self.output_stages and wiener is not None:
+            from rtlift.blocks.compiled import hybrid_step, pack_parameters
+
+            (taps,), conv_state = self.convolution.kernel_arrays()
+            (coef,), hp_state = self.highpass.kernel_arrays()
+            (A, B, C, form, xs, fs, slopes), wiener_state = wiener
+            if delay is None:
+                delay = (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
+            par = pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes)
+            kernel = (hybrid_step, (par, *delay, *conv_state, *hp_state, *wiener_state))
+        object.__setattr__(self, "_kernel", kernel)
+        return kernel
+
+    @property
+    def compiled(self) -> bool:
+        """True when :meth:`step` is the compiled step (see the module docstring)."""
+        return bool(self._bind_kernel() if self._kernel is None else self._kernel)
+
+    def warm_up(self) -> float:
+        """Compile the step (or load it from numba's cache) now, not on the first live sample;
+        the state is untouched. Returns the seconds taken (≈ 0 for a reference-step model)."""
+        t0 = time.perf_counter()
+        kernel = self._bind_kernel()
+        if kernel:
+            fn, args = kernel
+            fn(0.0, 0.0, *(a.copy() if isinstance(a, np.ndarray) else a for a in args))
+        return time.perf_counter() - t0
+
     def step(self, cmu: float, cmu_envelope: float) -> tuple[float, float, float]:
-        """One sample: returns (ΔCL, ΔCL_H, ΔCL_L). No array allocation, no I/O."""
+        """One sample: returns (ΔCL, ΔCL_H, ΔCL_L). No array allocation, no I/O; compiled
+        when the model allows it, else :meth:`reference_step`."""
+        kernel = self._kernel
+        if kernel is None:
+            kernel = self._bind_kernel()
+        if kernel:
+            fn, args = kernel
+            return fn(float(cmu), float(cmu_envelope), *args)
+        return self.reference_step(cmu, cmu_envelope)
+
+    def reference_step(self, cmu: float, cmu_envelope: float) -> tuple[float, float, float]:
+        """:meth:`step` in pure Python, block by block (the compiled step's oracle)."""
         for s in self.input_stages:
             cmu, cmu_envelope = s.step(cmu, cmu_envelope)
         high = self.highpass.step(self.convolution.step(cmu))

@@ -5,6 +5,8 @@
 ``h`` is the single-burst kernel (ΔCL per unit Cμ sample, as measured), ``φ`` the
 normalisation. The last L inputs live twice in a mirrored buffer of length 2L, so the newest
 L inputs are always one contiguous slice and a step is one dot product (no roll, no copy).
+The state is numpy arrays (buffer and write position) so that the compiled step of
+:mod:`rtlift.blocks.compiled` advances the very state this block reads and sets.
 """
 
 from __future__ import annotations
@@ -29,8 +31,8 @@ class RingConvolution:
         self.phi = float(phi)
         self._taps = self.phi * h                     # φ h(0..L−1)
         self._n = h.size
-        self._buf = np.zeros(2 * self._n)             # u(k), u(k−1), … at _buf[_p:_p+L]
-        self._p = 0
+        self._buf = np.zeros(2 * self._n)             # u(k), u(k−1), … at _buf[p:p+L]
+        self._pos = np.zeros(1, dtype=np.int64)       # p
 
     @property
     def state_size(self) -> int:
@@ -38,10 +40,10 @@ class RingConvolution:
 
     def step(self, u: float) -> float:
         """Push Cμ(k), return y(k). No allocation beyond the returned float."""
-        p = self._p - 1
+        p = self._pos.item() - 1
         if p < 0:
             p = self._n - 1
-        self._p = p
+        self._pos[0] = p
         buf = self._buf
         buf[p] = u
         buf[p + self._n] = u
@@ -61,18 +63,23 @@ class RingConvolution:
         self.set_state(ext[::-1][: self._n])
         return y
 
+    def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: parameters (φh,) and state (buffer, position), not copies."""
+        return (self._taps,), (self._buf, self._pos)
+
     def reset(self) -> None:
         self._buf[:] = 0.0
-        self._p = 0
+        self._pos[0] = 0
 
     def get_state(self) -> np.ndarray:
         """The last L inputs, newest first: [u(k), u(k−1), …, u(k−L+1)]."""
-        return self._buf[self._p:self._p + self._n].copy()
+        p = int(self._pos[0])
+        return self._buf[p:p + self._n].copy()
 
     def set_state(self, state: np.ndarray) -> None:
         s = np.asarray(state, dtype=float)
         if s.shape != (self._n,):
             raise ValueError(f"convolution state must have shape ({self._n},), got {s.shape}")
-        self._p = 0
+        self._pos[0] = 0
         self._buf[: self._n] = s
         self._buf[self._n:] = s

@@ -11,7 +11,9 @@ so the state ``z`` (n_sections × 2) is sosfilt's ``zi`` and chunks can be hande
 and back. Sections rather than one transfer function: a single (b, a) polynomial of
 order ≥ 3 at a cutoff near 1 Hz at 400 Hz has poles within 1e-2 of z = 1 and amplifies its
 own rounding by ~1e5 at DC; the cascade does not. Designed once as a Butterworth high-pass
-(``scipy.signal.butter(..., output="sos")``).
+(``scipy.signal.butter(..., output="sos")``). The state is one numpy array,
+[z₀ z₁ of section 1, z₀ z₁ of section 2, …], so that the compiled step of
+:mod:`rtlift.blocks.compiled` advances the very state this block reads and sets.
 """
 
 from __future__ import annotations
@@ -39,8 +41,9 @@ class HighPassFilter:
         poles = sum(2 if sec[5] != 0 else 1 if sec[4] != 0 else 0 for sec in sos)
         self.order = order if order is not None else int(poles)
         self.cutoff_hz = cutoff_hz
-        self._sec = [tuple(float(v) for v in (s[0], s[1], s[2], s[4], s[5])) for s in sos]
-        self._z = [[0.0, 0.0] for _ in sos]
+        self._coef = np.ascontiguousarray(sos[:, [0, 1, 2, 4, 5]])   # b₀ b₁ b₂ a₁ a₂ per section
+        self._sec = [tuple(float(v) for v in row) for row in self._coef]
+        self._z = np.zeros(2 * len(sos))
 
     @classmethod
     def design(cls, order: int, cutoff_hz: float, fs_hz: float) -> HighPassFilter:
@@ -67,36 +70,40 @@ class HighPassFilter:
         return 2 * len(self._sec)
 
     def step(self, x: float) -> float:
-        for (b0, b1, b2, a1, a2), z in zip(self._sec, self._z):  # noqa: B905 - equal by construction
-            y = b0 * x + z[0]
-            z[0] = b1 * x - a1 * y + z[1]
-            z[1] = b2 * x - a2 * y
+        z, zs = self._z, self._z.tolist()
+        i = 0
+        for b0, b1, b2, a1, a2 in self._sec:
+            y = b0 * x + zs[i]
+            z[i] = b1 * x - a1 * y + zs[i + 1]
+            z[i + 1] = b2 * x - a2 * y
             x = y
+            i += 2
         return x
+
+    def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: parameters (sections (n, 5): b₀ b₁ b₂ a₁ a₂,) and state (z,)."""
+        return (self._coef,), (self._z,)
 
     def simulate(self, x: np.ndarray) -> np.ndarray:
         """Batch twin: ``sosfilt(sos, x, zi=state)``; advances the state."""
         x = np.asarray(x, dtype=float)
         if x.size == 0:
             return x.copy()
-        y, zf = signal.sosfilt(self.sos, x, zi=np.asarray(self._z))
-        for z, v in zip(self._z, zf):  # noqa: B905
-            z[0], z[1] = float(v[0]), float(v[1])
+        y, zf = signal.sosfilt(self.sos, x, zi=self._z.reshape(-1, 2))
+        self._z[:] = zf.ravel()
         return y
 
     def reset(self) -> None:
-        for z in self._z:
-            z[0] = z[1] = 0.0
+        self._z[:] = 0.0
 
     def get_state(self) -> np.ndarray:
-        return np.array(self._z, dtype=float).ravel()
+        return self._z.copy()
 
     def set_state(self, state: np.ndarray) -> None:
         s = np.asarray(state, dtype=float)
         if s.shape != (self.state_size,):
             raise ValueError(f"filter state must have shape ({self.state_size},), got {s.shape}")
-        for i, z in enumerate(self._z):
-            z[0], z[1] = float(s[2 * i]), float(s[2 * i + 1])
+        self._z[:] = s
 
     def frequency_response(self, freqs_hz: np.ndarray, fs_hz: float) -> np.ndarray:
         """Complex gain at ``freqs_hz`` (for reports)."""

@@ -50,12 +50,12 @@ class LTIBlock:
             raise ValueError(f"LTI shapes do not agree: A {A.shape}, B {B.shape}, C {C.shape}")
         if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B)) and np.all(np.isfinite(C))):
             raise ValueError("LTI matrices must be finite")
-        self.A, self.B, self.C = A.copy(), B.copy(), C.copy()
+        self.A, self.B, self.C = (np.ascontiguousarray(M).copy() for M in (A, B, C))
         self.n = n
         self._A = [[float(v) for v in row] for row in A]
         self._B = [float(v) for v in B]
         self._C = [float(v) for v in C]
-        self._x = [0.0] * n
+        self._x = np.zeros(n)                  # x(k); numpy, so the compiled step advances it too
         self._tmp = [0.0] * n
         self._blocks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         shift = np.zeros((n, n))
@@ -69,7 +69,7 @@ class LTIBlock:
 
     def step(self, u: float) -> float:
         """x(k) = A x(k−1) + B u(k); returns y(k) = C x(k)."""
-        A, B, x, t, n = self._A, self._B, self._x, self._tmp, self.n
+        A, B, x, t, n = self._A, self._B, self._x.tolist(), self._tmp, self.n
         for i in range(n):
             row = A[i]
             s = B[i] * u
@@ -77,11 +77,15 @@ class LTIBlock:
                 s += row[j] * x[j]
             t[i] = s
         y = 0.0
-        C = self._C
+        C, state = self._C, self._x
         for i in range(n):
-            x[i] = t[i]
+            state[i] = t[i]                     # element-wise: cheaper than a slice from a list
             y += C[i] * t[i]
         return y
+
+    def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: parameters (A, B, C) and state (x,), not copies."""
+        return (self.A, self.B, self.C), (self._x,)
 
     def _block_matrices(self, m: int) -> tuple[np.ndarray, np.ndarray]:
         """Φ (m, n, n) = [A¹ … A^m] and G (m, n, m) with G[i, :, j] = A^{i−j} B (j ≤ i)."""

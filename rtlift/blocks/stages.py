@@ -103,9 +103,9 @@ class Delay(InputStage):
         self.fs_hz = float(fs_hz)
         self.samples = int(round(seconds * fs_hz))
         self.state_size = 2 * self.samples
-        self._cmu = [0.0] * self.samples
-        self._env = [0.0] * self.samples
-        self._i = 0
+        self._cmu = np.zeros(self.samples)         # numpy, so the compiled step advances them too
+        self._env = np.zeros(self.samples)
+        self._pos = np.zeros(1, dtype=np.int64)     # next slot to read (the oldest) and write
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> Delay:
@@ -117,12 +117,16 @@ class Delay(InputStage):
     def step(self, cmu: float, env: float) -> tuple[float, float]:
         if self.samples == 0:
             return cmu, env
-        i = self._i
-        out = (self._cmu[i], self._env[i])
+        i = self._pos.item()
+        out = (self._cmu.item(i), self._env.item(i))
         self._cmu[i] = cmu
         self._env[i] = env
-        self._i = i + 1 if i + 1 < self.samples else 0
+        self._pos[0] = i + 1 if i + 1 < self.samples else 0
         return out
+
+    def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: no parameters, state (Cμ ring, Cμ_env ring, position), not copies."""
+        return (), (self._cmu, self._env, self._pos)
 
     def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cmu = np.asarray(cmu, dtype=float)
@@ -138,17 +142,17 @@ class Delay(InputStage):
 
     def get_state(self) -> np.ndarray:
         """Pending inputs, oldest first: [Cμ(k−D+1) … Cμ(k), env(k−D+1) … env(k)]."""
-        i = self._i
-        return np.array(self._cmu[i:] + self._cmu[:i] + self._env[i:] + self._env[:i])
+        i = int(self._pos[0])
+        return np.concatenate([self._cmu[i:], self._cmu[:i], self._env[i:], self._env[:i]])
 
     def set_state(self, state: np.ndarray) -> None:
         s = np.asarray(state, dtype=float)
         if s.shape != (self.state_size,):
             raise ValueError(f"delay state must have shape ({self.state_size},), got {s.shape}")
         d = self.samples
-        self._cmu[:] = [float(v) for v in s[:d]]
-        self._env[:] = [float(v) for v in s[d:]]
-        self._i = 0
+        self._cmu[:] = s[:d]
+        self._env[:] = s[d:]
+        self._pos[0] = 0
 
 
 def _positive(value: float, what: str) -> float:

@@ -40,7 +40,8 @@ class _Table:
         self.extrapolate = extrapolate
         self._x = [float(v) for v in x]
         self._f = [float(v) for v in f]
-        self._slope = [float(v) for v in np.diff(f) / np.diff(x)]
+        self.slope = np.ascontiguousarray(np.diff(f) / np.diff(x))
+        self._slope = [float(v) for v in self.slope]
         self._last = len(self._x) - 1
 
     def __call__(self, v: float) -> float:
@@ -95,6 +96,8 @@ class InputGain(_Stateless):
     """
 
     form = "input_gain"
+    kernel_kind: int | None = 0
+    """How :mod:`rtlift.blocks.compiled` evaluates this form (None: it does not)."""
 
     def __init__(self, cmu: np.ndarray, gain: np.ndarray) -> None:
         self.cmu, self.gain = _check_table(cmu, gain, "N(Cmu)")
@@ -109,6 +112,10 @@ class InputGain(_Stateless):
     def gain_at(self, cmu: float) -> float:
         """N(Cμ) (the observer's time-varying measurement gain)."""
         return self._n(cmu)
+
+    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
+        """(grid, values, slopes) of the N(Cμ) table, for the compiled step."""
+        return self._n.x, self._n.f, self._n.slope
 
     def to_dict(self) -> dict[str, Any]:
         return {"form": self.form, "cmu": self.cmu.tolist(), "gain": self.gain.tolist()}
@@ -210,6 +217,7 @@ class HysteresisGain(_DirectionMemory, InputGain):
     :class:`_DirectionMemory` (``hysteresis`` on the paper's form)."""
 
     form = "input_gain_hysteresis"
+    kernel_kind = None
 
     def __init__(self, cmu: np.ndarray, gain: np.ndarray, magnitude: float,
                  time_constant_s: float, fs_hz: float, width: float = 0.0, rising_gain: float = 1.0) -> None:
@@ -238,6 +246,7 @@ class OutputNonlinearity(_Stateless):
     """f(y) — the textbook Wiener output nonlinearity, a (y, f) table, linear beyond its ends."""
 
     form = "output"
+    kernel_kind: int | None = 1
 
     def __init__(self, y: np.ndarray, f: np.ndarray) -> None:
         self.y, self.f = _check_table(y, f, "f(y)")
@@ -252,6 +261,10 @@ class OutputNonlinearity(_Stateless):
     def output_at(self, cmu: float, y: float) -> float:
         """f(y) without advancing any state (the observer's evaluation at its estimate)."""
         return self._f(y)
+
+    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
+        """(grid, values, slopes) of the f(y) table, for the compiled step."""
+        return self._f.x, self._f.f, self._f.slope
 
     def slope_at(self, y: float) -> float:
         """df/dy at y (for an extended Kalman observer)."""
@@ -272,6 +285,7 @@ class OutputHysteresis(_DirectionMemory, OutputNonlinearity):
     :meth:`slope_at` use the factor in force (after this sample's :meth:`step`)."""
 
     form = "output_hysteresis"
+    kernel_kind = None
 
     def __init__(self, y: np.ndarray, f: np.ndarray, magnitude: float, time_constant_s: float,
                  fs_hz: float, width: float = 0.0, rising_gain: float = 1.0) -> None:
@@ -312,7 +326,11 @@ class WienerBlock:
     def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, nonlinearity: Any) -> None:
         self.lti = LTIBlock(A, B, C)
         self.nonlinearity = nonlinearity
-        self.y = 0.0
+
+    @property
+    def y(self) -> float:
+        """y(k) = C x(k) of the last step (before the nonlinearity)."""
+        return float(self.lti.C @ self.lti.get_state())
 
     A = property(lambda self: self.lti.A)
     B = property(lambda self: self.lti.B)
@@ -323,22 +341,26 @@ class WienerBlock:
         return self.lti.state_size + self.nonlinearity.state_size
 
     def step(self, cmu: float) -> float:
-        y = self.lti.step(cmu)
-        self.y = y
-        return self.nonlinearity.step(cmu, y)
+        return self.nonlinearity.step(cmu, self.lti.step(cmu))
+
+    def kernel_arrays(self) -> tuple[tuple[Any, ...], tuple[np.ndarray, ...]] | None:
+        """For the compiled step: parameters (A, B, C, form, grid, values, slopes) and state
+        (x,), or None when the nonlinearity has no compiled form (``kernel_kind`` None)."""
+        kind = getattr(self.nonlinearity, "kernel_kind", None)
+        if kind is None:
+            return None
+        lti_par, lti_state = self.lti.kernel_arrays()
+        return (*lti_par, kind, *self.nonlinearity.kernel_arrays()), lti_state
 
     def simulate(self, cmu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Batch twin: (ΔCL_L, y) over ``cmu``; advances the state."""
         cmu = np.asarray(cmu, dtype=float)
         y = self.lti.simulate(cmu)
-        if y.size:
-            self.y = float(y[-1])
         return self.nonlinearity.simulate(cmu, y), y
 
     def reset(self) -> None:
         self.lti.reset()
         self.nonlinearity.reset()
-        self.y = 0.0
 
     def get_state(self) -> np.ndarray:
         return np.concatenate([self.lti.get_state(), self.nonlinearity.get_state()])
@@ -350,4 +372,3 @@ class WienerBlock:
             raise ValueError(f"Wiener state must have shape ({self.state_size},), got {s.shape}")
         self.lti.set_state(s[:n])
         self.nonlinearity.set_state(s[n:])
-        self.y = float(self.lti.C @ s[:n])

@@ -52,11 +52,12 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--reconnect: give-up time must be >= 0 seconds, got {args.reconnect}")
         reconnect = True if args.reconnect == -1.0 else {"give_up_s": args.reconnect}
     model = load_model(args.model)
+    compiled = f"model step compiled in {model.warm_up():.2f} s" if model.compiled else "model step not compiled"
     observer = Observer.from_model(model)
     calibration = Calibration.load(args.calibration)
     link = open_link(link_config_from_args(args, log=args.log, calibration=calibration, reconnect=reconnect))
     where = args.serial or args.can
-    print(f"rtlift observe: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
+    print(f"rtlift observe: {link.kind} link open on {where} ({compiled}); Ctrl-C stops", file=sys.stderr, flush=True)
     writer = None
     loop = None
     code = 0

@@ -1,0 +1,116 @@
+"""The compiled 400 Hz step of the hybrid model (numba ``@njit(cache=True)``).
+
+:func:`hybrid_step` is :meth:`rtlift.hybrid.HybridModel.reference_step` for a model whose
+only augmentation stage is at most one input ``delay`` (what ``rtlift identify`` writes), as
+one machine-code call on the blocks' own state arrays (their ``kernel_arrays()``, not
+copies), so the blocks' ``get_state``/``set_state`` see what it did, and on one packed copy
+of their parameters (:func:`pack_parameters`):
+
+    Cμ′(k) = Cμ(k − D), Cμ_env′(k) = Cμ_env(k − D)                     (delay, D ≥ 0)
+    ΔCL_H(k) = HF(φ Σ_j h(j) Cμ′(k − j))                ring buffer → SOS, TDF-II (sosfilt's)
+    x(k) = A x(k−1) + B Cμ_env′(k),  y(k) = C x(k),  ΔCL_L(k) = N(Cμ_env′(k)) y(k)  or  f(y(k))
+
+It allocates nothing on the heap and touches no Python object; the same recurrences in the same order
+as the pure-Python blocks, so the two agree to rounding (the convolution's sum order differs
+from BLAS ``ddot``'s). numba compiles on the first call with these argument types, or loads
+the machine code from its cache (``__pycache__``) — :meth:`HybridModel.warm_up` does that
+before a live link opens.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _table(xs, fs, slopes, v, extrapolate):
+    """The piecewise-linear table of :class:`rtlift.blocks.wiener._Table` (bisect_right search)."""
+    lo, hi = 0, xs.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if v < xs[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    j = lo - 1
+    last = xs.shape[0] - 1
+    if j < 0:
+        if extrapolate:
+            return slopes[0] * (v - xs[0]) + fs[0]
+        return fs[0]
+    if j >= last:
+        if v == xs[last] or not extrapolate:
+            return fs[last]
+        return slopes[last - 1] * (v - xs[last]) + fs[last]
+    return slopes[j] * (v - xs[j]) + fs[j]
+
+
+def pack_parameters(taps: np.ndarray, coef: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray,
+                    form: int, xs: np.ndarray, fs: np.ndarray, slopes: np.ndarray) -> np.ndarray:
+    """The fixed numbers of one model in one array (one argument instead of nine; each array
+    argument costs the numba dispatcher ≈ 45 ns): [form, table length, φh, SOS rows
+    (b₀ b₁ b₂ a₁ a₂), A (row-major), B, C, table grid, values, slopes, scratch (n)].
+    The lengths of φh, the sections and A follow from the state arrays' lengths."""
+    head = np.array([float(form), float(xs.size)])
+    return np.concatenate([head, taps, coef.ravel(), A.ravel(), B, C, xs, fs, slopes, np.zeros(B.size)])
+
+
+@njit(cache=True)
+def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, buf, pos, z, x):
+    """One sample: (ΔCL, ΔCL_H, ΔCL_L); advances the delay rings, the convolution buffer and
+    position, the filter state z and the LTI state x in place (``par``: :func:`pack_parameters`).
+    ``d_cmu``/``d_env`` are the ``delay`` stage's rings (length D; empty: no delay).
+    Form 0: ΔCL_L = N(Cμ_env) · y (paper, table held at its ends); 1: ΔCL_L = f(y) (textbook,
+    table continued along its end segments).
+    """
+    n_delay = d_cmu.shape[0]
+    if n_delay > 0:
+        i = d_pos[0]
+        c, e = d_cmu[i], d_env[i]
+        d_cmu[i] = cmu
+        d_env[i] = env
+        d_pos[0] = i + 1 if i + 1 < n_delay else 0
+        cmu, env = c, e
+
+    n_taps = buf.shape[0] // 2
+    p = pos[0] - 1
+    if p < 0:
+        p = n_taps - 1
+    pos[0] = p
+    buf[p] = cmu
+    buf[p + n_taps] = cmu
+    o = 2                                   # φh starts after [form, table length]
+    v = 0.0
+    for j in range(n_taps):
+        v += par[o + j] * buf[p + j]
+    o += n_taps
+
+    for s in range(z.shape[0] // 2):
+        y = par[o] * v + z[2 * s]
+        z[2 * s] = par[o + 1] * v - par[o + 3] * y + z[2 * s + 1]
+        z[2 * s + 1] = par[o + 2] * v - par[o + 4] * y
+        v = y
+        o += 5
+    high = v
+
+    n = x.shape[0]
+    a, b, c_ = o, o + n * n, o + n * n + n
+    o = c_ + n
+    n_table = int(par[1])
+    xs, fs, slopes = par[o:o + n_table], par[o + n_table:o + 2 * n_table], par[o + 2 * n_table:o + 3 * n_table - 1]
+    scratch = par[o + 3 * n_table - 1:o + 3 * n_table - 1 + n]
+    for i in range(n):
+        acc = par[b + i] * env
+        for j in range(n):
+            acc += par[a + i * n + j] * x[j]
+        scratch[i] = acc
+    y = 0.0
+    for i in range(n):
+        x[i] = scratch[i]
+        y += par[c_ + i] * scratch[i]
+    if par[0] == 0.0:
+        low = _table(xs, fs, slopes, env, False) * y
+    else:
+        low = _table(xs, fs, slopes, y, True)
+    return high + low, high, low
