@@ -121,6 +121,7 @@ class LiftController:
         self._count = 0
         self._err_sum = 0.0
         self._ref_sum = 0.0
+        self._ref_n = 0
         self._n = 0
 
     def sync(self, samples_to_decision: int) -> None:
@@ -148,12 +149,13 @@ class LiftController:
             self._err_sum += reference - dcl
             self._n += 1
         self._ref_sum += reference
+        self._ref_n += 1
         self._count += 1
         if self._count < self.config.period:
             self.updated = False
             return self.envelope
         cfg = self.config
-        ref = self._ref_sum / self._count
+        ref = self._ref_sum / self._ref_n
         self.feedforward = self.inverse(ref)
         v = ref
         if cfg.feedback and self._n:
@@ -172,6 +174,7 @@ class LiftController:
         self._count = 0
         self._err_sum = 0.0
         self._ref_sum = 0.0
+        self._ref_n = 0
         self._n = 0
         self.updated = True
         return self.envelope
