@@ -46,6 +46,8 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.errors import UserError
+
 FS_HZ = 400.0
 BURST_PERIOD_SAMPLES = 50
 """The lift-optimal 8 Hz burst rate at 400 Hz: the envelope changes once per period."""
@@ -104,6 +106,8 @@ class LiftController:
         keep = np.concatenate([[True], np.diff(dcl) > 0])  # strictly increasing for the inverse
         self._map_dcl = [float(v) for v in dcl[keep]]
         self._map_cmu = [float(v) for v in cmu[keep]]
+        if len(self._map_dcl) < 2 or not all(map(math.isfinite, self._map_dcl)):
+            raise UserError("model: its static map does not increase with Cμ; cannot invert it for control")
         self.dcl_min = self._map_dcl[0]
         self.dcl_max = self._map_dcl[-1]
         self._gain_i = cfg.period / (cfg.fs_hz * cfg.ti_s)
