@@ -6,6 +6,10 @@ flushed), stream at 400 Hz until SIGINT or SIGTERM.
 ``--slcan`` emulates a USB–CAN adapter with the DAQ behind it (``--can slcan:PATH``).
 Effects are plant effects (``hil_sim.effects.parse_effect``); faults are link faults
 (:mod:`hil_sim.devices.faults`, e.g. ``corrupt:rate=1e-3``, ``disconnect:after_s=30``).
+
+The device is a protocol-version-2 device and a real-time HIL plant (:mod:`hil_sim.hil`): it
+streams the experiment as version 1 until the first command, then the simulated plant follows
+the commanded envelope from the next burst onset.
 """
 
 from __future__ import annotations
@@ -24,7 +28,8 @@ DEFAULT_EXPERIMENT = "random"
 def serve_main(args: argparse.Namespace) -> int:
     """Run the emulator until SIGINT/SIGTERM; 0 on a clean stop, 1 if the device failed."""
     from hil_sim.effects import parse_effect
-    from hil_sim.experiments import EXPERIMENTS, daq_stream
+    from hil_sim.experiments import EXPERIMENTS
+    from hil_sim.hil import HilStream
 
     experiment = getattr(args, "experiment", None) or DEFAULT_EXPERIMENT
     if experiment not in EXPERIMENTS:
@@ -32,7 +37,7 @@ def serve_main(args: argparse.Namespace) -> int:
     effects = [parse_effect(spec) for spec in (getattr(args, "effect", None) or [])]
     faults = parse_faults(getattr(args, "fault", None) or [])
     seed = int(getattr(args, "seed", 0) or 0)
-    chunks = daq_stream(experiment, seed=seed, effects=effects)
+    chunks = HilStream(experiment, seed=seed, effects=effects)
     if getattr(args, "slcan", False):
         device = SlcanAdapter(chunks, faults=faults, seed=seed)
         how = "slcan"
@@ -41,6 +46,7 @@ def serve_main(args: argparse.Namespace) -> int:
         how = "serial"
     else:
         raise UserError("bench serve: give --serial or --slcan")
+    chunks.control = device.control
 
     stop = threading.Event()
 

@@ -16,7 +16,7 @@ import traceback
 
 from rtlift.errors import UserError
 
-COMMANDS = ("demo", "bench", "identify", "validate", "diagnose", "observe", "replay")
+COMMANDS = ("demo", "bench", "identify", "validate", "diagnose", "observe", "control", "replay")
 
 
 class _Parser(argparse.ArgumentParser):

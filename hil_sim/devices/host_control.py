@@ -13,8 +13,9 @@ until the next applied command.
 This is the framing level only. The plant hook: :attr:`HostControl.envelope_cv`,
 :attr:`HostControl.enabled`, :attr:`HostControl.burst_period_ms` and
 :attr:`HostControl.applied` say what the firmware would drive now; applying them to the
-simulated plant (from the next burst onset) is the bench's job, not done here — the samples
-still carry the experiment's drive and forces, with the commanded envelope in ``envelope_cv``.
+simulated plant (from the next burst onset) is the bench's job: :class:`hil_sim.hil.HilStream`
+(what ``rtlift bench serve`` streams). With a plain experiment stream the samples still carry
+the experiment's drive and forces, with the commanded envelope in ``envelope_cv``.
 """
 
 from __future__ import annotations

@@ -1,0 +1,141 @@
+"""The live closed loop of ``rtlift control``: samples in, observer, controller, commands out.
+
+Per received sample (the device's ``seq`` is the clock, as in :mod:`rtlift.live`)::
+
+    observer loop: converter → observer.step → estimate ΔĈL
+    envelope = controller.step(estimate, r(t))          # t from the start of tracking
+    if controller.updated: link.send_command(envelope_cv)
+
+Phases: for ``SETTLE_S`` the host holds the actuator off (envelope-0 commands; samples not fed
+to the observer, so a bench that was actuating relaxes before the tare), then the converter's
+tare window (actuator still off), then tracking. Decisions are aligned ``MARGIN_SAMPLES``
+ahead of the device's burst onsets (status bit3 rising edge), so each command is applied at
+the next onset. On the way out the actuator is switched off (``enable`` false) and that
+command's echo awaited briefly, so ``commands_applied`` stays exact.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from array import array
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from firmware_io.commands import ENVELOPE_LIMIT_CV
+from firmware_io.samples import Sample
+from rtlift.control import LiftController
+from rtlift.live import ObserverLoop
+from rtlift.reference import Reference
+
+SETTLE_S = 1.0
+MARGIN_SAMPLES = 10
+"""Decide this many samples (25 ms) ahead of the next burst onset: ≫ the command latency."""
+STATUS_BURST_ON = 0x08
+LOWPASS_HZ = 1.0
+OFF_ECHO_S = 0.5
+
+
+def lowpassed_rmse(reference: np.ndarray, estimate: np.ndarray, fs_hz: float) -> float | None:
+    """RMSE of ``estimate`` against ``reference``, both low-passed at 1 Hz (zero phase)."""
+    ok = np.isfinite(estimate)
+    if ok.sum() < 20:
+        return None
+    sos = signal.butter(2, LOWPASS_HZ, fs=fs_hz, output="sos")
+    r, e = reference[ok], estimate[ok]
+    pad = min(len(r) - 1, 3 * 6)
+    return float(np.sqrt(np.mean((signal.sosfiltfilt(sos, r, padlen=pad)
+                                  - signal.sosfiltfilt(sos, e, padlen=pad)) ** 2)))
+
+
+class ControlLoop:
+    """One closed-loop run on an open link (module docstring)."""
+
+    def __init__(self, link: Any, loop: ObserverLoop, controller: LiftController, reference: Reference,
+                 calibration: Any, fs_hz: float, tracking_samples: int | None = None) -> None:
+        self.link = link
+        self.loop = loop
+        self.controller = controller
+        self.reference = reference
+        self.calibration = calibration
+        self.fs_hz = fs_hz
+        self.tracking_samples = tracking_samples
+        self.settle_samples = int(round(SETTLE_S * fs_hz))
+        self.tare_samples = max(1, int(round(calibration.tare_seconds * fs_hz)))
+        self.received = 0
+        self.tracked = 0
+        self.decisions = 0
+        self.saturated = 0
+        self.refs = array("d")
+        self.estimates = array("d")
+        self._burst = False
+        self._period = controller.config.period
+
+    @property
+    def done(self) -> bool:
+        return self.tracking_samples is not None and self.tracked >= self.tracking_samples
+
+    def envelope_cv(self, cmu: float) -> int:
+        v = float(self.calibration.volts_from_cmu(cmu))
+        return min(ENVELOPE_LIMIT_CV, max(0, int(round(v * 100.0))))
+
+    def _hold_off(self) -> None:
+        if self.received % self._period == 1:
+            self.link.send_command(0)
+
+    def feed(self, sample: Sample) -> None:
+        self.received += 1
+        if self.received <= self.settle_samples:
+            self._hold_off()
+            return
+        self.loop.feed(sample)
+        if self.received <= self.settle_samples + self.tare_samples:
+            self._hold_off()
+            return
+        burst = bool(sample.status & STATUS_BURST_ON)
+        ctl = self.controller
+        if burst and not self._burst:
+            ctl.sync(self._period - MARGIN_SAMPLES)
+        self._burst = burst
+        est = self.loop.observer.estimate
+        r = self.reference.at(self.tracked / self.fs_hz)
+        envelope = ctl.step(est, r)
+        self.tracked += 1
+        self.refs.append(r)
+        self.estimates.append(est.dcl)
+        if ctl.updated:
+            self.decisions += 1
+            self.saturated += ctl.saturated
+            self.link.send_command(self.envelope_cv(envelope))
+
+    def switch_off(self) -> None:
+        """Actuator off (``enable`` false); wait briefly for its echo (exact counters)."""
+        link = self.link
+        if link.closed or link.disconnected:
+            return
+        try:
+            cmd_seq = link.send_command(0, enable=False)
+        except Exception:  # noqa: BLE001 - best effort on the way out
+            return
+        if cmd_seq is None:
+            return
+        end = time.perf_counter() + OFF_ECHO_S
+        while time.perf_counter() < end:
+            s = link.recv(0.05)
+            if s is not None and s.cmd_seq == cmd_seq:
+                return
+
+    def results(self) -> dict[str, Any]:
+        c = self.link.counters
+        out: dict[str, Any] = {k: int(c.as_dict()[k]) for k in ("commands_sent", "commands_applied",
+                                                                  "watchdog_trips")}
+        out.update(c.command_latency_ms())
+        out["tracking_rmse"] = lowpassed_rmse(np.asarray(self.refs), np.asarray(self.estimates), self.fs_hz)
+        out["saturated_fraction"] = self.saturated / self.decisions if self.decisions else 0.0
+        out["tracking_samples"] = self.tracked
+        out["feedback"] = self.controller.config.feedback
+        if out["tracking_rmse"] is not None and not math.isfinite(out["tracking_rmse"]):
+            out["tracking_rmse"] = None
+        return out
