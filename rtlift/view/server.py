@@ -73,8 +73,14 @@ class LiveView:
         self._stop: asyncio.Event | None = None
         self._ready = threading.Event()
         self._final: dict[str, Any] | None = None
+        self._linger_s = 1.0
         self._error: BaseException | None = None
         self.stats = {"batches": 0, "rows_sent": 0, "pages": 0, "pages_now": 0, "batches_dropped": 0}
+
+    @property
+    def pages_connected(self) -> int:
+        """Pages with an open WebSocket now."""
+        return len(self._clients)
 
     @property
     def url(self) -> str:
@@ -106,6 +112,7 @@ class LiveView:
         if loop is None or thread is None or not thread.is_alive():
             return
         self._final = final
+        self._linger_s = linger_s
         with contextlib.suppress(RuntimeError):          # the loop closed meanwhile
             loop.call_soon_threadsafe(self._stop.set)
         thread.join(linger_s + 3.0)
@@ -139,7 +146,7 @@ class LiveView:
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/favicon.ico", self._no_content)
         app.router.add_static("/static/", STATIC_DIR)
-        runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=0.5)
         await runner.setup()
         await web.SockSite(runner, sock).start()
         self._ready.set()
@@ -153,7 +160,9 @@ class LiveView:
             for q in list(self._clients):
                 self._offer(q, None)
             if self._handlers:
-                await asyncio.wait(list(self._handlers), timeout=1.0)
+                await asyncio.wait(list(self._handlers), timeout=self._linger_s)
+            for task in list(self._handlers):       # a page that stopped reading
+                task.cancel()
             await runner.cleanup()
 
     async def _index(self, request: Any) -> Any:
@@ -169,8 +178,11 @@ class LiveView:
     async def _websocket(self, request: Any) -> Any:
         from aiohttp import WSMsgType, web
 
-        ws = web.WebSocketResponse()
-        await ws.prepare(request)
+        ws = web.WebSocketResponse(timeout=0.5)            # close handshake: do not wait on a stalled page
+        try:
+            await ws.prepare(request)
+        except ConnectionError:                             # it left before the handshake was done
+            return web.Response(status=400)
         queue: asyncio.Queue = asyncio.Queue(maxsize=CLIENT_QUEUE)
         self.stats["pages"] += 1
         self._clients.add(queue)
