@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +30,8 @@ REPO = Path(__file__).resolve().parents[1]
 FIGURE = REPO / "docs" / "figures" / "live_view.png"
 
 
-@pytest.fixture
-def browser(tmp_path):
+@pytest.fixture(scope="module")
+def browser():
     path = find_chromium()
     if path is None:
         pytest.skip("Chromium not found (apt-get install chromium, as .ci/run does, or set RTLIFT_CHROMIUM)")
@@ -56,14 +57,50 @@ def shown_counters(page) -> dict[str, int]:
         .map((td) => [td.id.slice(2), Number(td.dataset.value)]))""")
 
 
-@pytest.mark.pty
-def test_the_page_plots_the_live_run_and_ends_on_the_summary_counters(browser, model_file, tmp_path):
+def received_above(page, n: int) -> None:
+    page.wait_for_function(f"() => Number(document.getElementById('c-received').dataset.value) > {n}",
+                           timeout=15_000)
+
+
+def wait_ended(page) -> str:
+    page.wait_for_function("() => document.getElementById('state').textContent.startsWith('ended')",
+                           timeout=15_000)
+    return page.inner_text("#state")
+
+
+def open_page(browser, url: str):
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.errors = []
+    page.on("pageerror", lambda e: page.errors.append(str(e)))
+    page.goto(url)
+    return page
+
+
+@dataclass
+class Watched:
+    """What the page showed during an 8 s ``rtlift observe --view 0`` on the bench, and the run."""
+
+    returncode: int
+    stderr: str
+    plots: tuple[bytes, bytes]
+    counters: tuple[dict, dict]
+    update_rate_hz: float
+    state: str
+    final: dict[str, int]
+    summary: dict
+    errors: list[str]
+    log: Path
+
+
+@pytest.fixture(scope="module")
+def watched(browser, model_file, tmp_path_factory) -> Watched:
+    tmp = tmp_path_factory.mktemp("live_view")
     dev = SerialDaq(daq_stream("random", seed=11))
     with dev:
         proc = subprocess.Popen(
             [sys.executable, "-m", "rtlift", "observe", "--serial", dev.path, "--model", str(model_file),
-             "--out", str(tmp_path / "estimates.csv"), "--json", str(tmp_path / "summary.json"),
-             "--seconds", "8", "--view", "0"],
+             "--log", str(tmp / "frames.bin"), "--out", str(tmp / "estimates.csv"),
+             "--json", str(tmp / "summary.json"), "--seconds", "8", "--view", "0"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             line = proc.stderr.readline()
@@ -71,44 +108,79 @@ def test_the_page_plots_the_live_run_and_ends_on_the_summary_counters(browser, m
             dev.start()
             line = proc.stderr.readline()
             assert "live view on http://127.0.0.1:" in line, line + proc.stderr.read()
-            url = line.split()[-1]
-            page = browser.new_page(viewport={"width": 1280, "height": 720})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(url)
-            page.wait_for_function("() => Number(document.getElementById('c-received').dataset.value) > 400",
-                                   timeout=15_000)
+            page = open_page(browser, line.split()[-1])
+            received_above(page, 400)
             plots1, counters1 = page.locator("#plots").screenshot(), shown_counters(page)
             updates1, t1 = int(page.inner_text("#v-updates")), time.monotonic()
             time.sleep(1.0)
             plots2, counters2 = page.locator("#plots").screenshot(), shown_counters(page)
             updates2, t2 = int(page.inner_text("#v-updates")), time.monotonic()
-            page.wait_for_function("() => Number(document.getElementById('c-received').dataset.value) > 2800",
-                                   timeout=15_000)
+            received_above(page, 2800)
             shot = page.screenshot()                 # for the README: 7 s of the run on the page
-            out, err = proc.communicate(timeout=60)
+            _, err = proc.communicate(timeout=60)
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.communicate()
-    (tmp_path / "live_view.png").write_bytes(shot)
+    (tmp / "live_view.png").write_bytes(shot)
     if os.environ.get("RTLIFT_WRITE_FIGURES") == "1":
         FIGURE.write_bytes(shot)
-    assert proc.returncode == 0, err
-    a, b = pixels(plots1), pixels(plots2)
+    state = wait_ended(page)
+    return Watched(proc.returncode, err, (plots1, plots2), (counters1, counters2),
+                   (updates2 - updates1) / (t2 - t1), state, shown_counters(page),
+                   json.loads((tmp / "summary.json").read_text()), page.errors, tmp / "frames.bin")
+
+
+@pytest.mark.pty
+def test_the_page_loads_and_its_plot_moves_within_a_second(watched):
+    assert watched.returncode == 0, watched.stderr
+    a, b = (pixels(p) for p in watched.plots)
     assert a.shape == b.shape
     changed = float(np.mean(np.any(a != b, axis=2)))
     assert changed > 0.01, f"only {changed:.2%} of the plot's pixels changed in 1 s"
-    assert 200 <= counters2["received"] - counters1["received"] <= 800     # 400 Hz for about a second
-    assert (updates2 - updates1) / (t2 - t1) >= 15.0                       # 25 Hz nominal, on a busy machine
-    page.wait_for_function("() => document.getElementById('state').textContent.startsWith('ended')",
-                           timeout=10_000)
-    assert page.inner_text("#state") == "ended: completed"
-    summary = json.loads((tmp_path / "summary.json").read_text())
-    final = shown_counters(page)
-    assert final == {k: summary[k] for k in COUNTER_KEYS if k in summary}
-    assert final["received"] == 3200 and final["estimates"] == 3200
-    assert errors == []
+    assert watched.errors == []
+
+
+@pytest.mark.pty
+def test_the_counters_shown_move_with_the_link(watched):
+    before, after = watched.counters
+    assert 200 <= after["received"] - before["received"] <= 800     # 400 Hz for about a second
+    assert after["lost"] == 0
+
+
+@pytest.mark.pty
+def test_the_page_updates_about_25_times_a_second(watched):
+    assert watched.update_rate_hz >= 15.0                            # 25 Hz nominal, on a busy machine
+
+
+@pytest.mark.pty
+def test_the_page_ends_on_the_summary_counters(watched):
+    assert watched.state == "ended: completed"
+    assert watched.final == {k: watched.summary[k] for k in COUNTER_KEYS if k in watched.summary}
+    assert watched.final["received"] == 3200 and watched.final["estimates"] == 3200
+
+
+@pytest.mark.pty
+def test_a_realtime_replay_shows_on_the_page_and_ends_on_its_summary(watched, browser, model_file, tmp_path):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rtlift", "replay", str(watched.log), "--model", str(model_file), "--realtime",
+         "--json", str(tmp_path / "replay.json"), "--view", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stderr.readline()
+        assert "live view on http://127.0.0.1:" in line, line + proc.stderr.read()
+        page = open_page(browser, line.split()[-1])
+        received_above(page, 400)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert wait_ended(page) == "ended: ended"
+    summary = json.loads((tmp_path / "replay.json").read_text())
+    assert shown_counters(page) == {k: summary[k] for k in COUNTER_KEYS if k in summary}
+    assert summary["received"] == watched.summary["received"]
 
 
 def test_rows_are_decimated_and_carry_the_two_sigma_band():
@@ -151,6 +223,16 @@ async def _receive(url: str, seconds: float) -> list[dict]:
     return got
 
 
+def receive(url: str, seconds: float) -> list[dict]:
+    """What a WebSocket client gets in ``seconds`` (in a thread of its own: Playwright's sync
+    API may own this thread's event loop)."""
+    out: list[list[dict]] = []
+    t = threading.Thread(target=lambda: out.append(asyncio.run(_receive(url, seconds))))
+    t.start()
+    t.join(seconds + 10.0)
+    return out[0]
+
+
 def test_a_stalled_page_and_a_vanished_one_do_not_hold_up_a_live_one():
     """One page connects and never reads, one leaves at once; a third still gets its batches
     at the view's rate, and the producer (the loop's side) never waits."""
@@ -176,7 +258,7 @@ def test_a_stalled_page_and_a_vanished_one_do_not_hold_up_a_live_one():
             vanished.sendall(b"GET /ws HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                              b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
         producer.start()
-        got = asyncio.run(_receive(view.url.replace("http", "ws") + "ws", 2.0))
+        got = receive(view.url.replace("http", "ws") + "ws", 2.0)
     finally:
         stop.set()
         producer.join(5)
