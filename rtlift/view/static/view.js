@@ -24,7 +24,7 @@ function chart(el, title, series, extra) {
   const opts = Object.assign({
     title, width, height: 170,
     scales: { x: { time: false } },
-    axes: [{ label: "t (s)" }, {}],
+    axes: [{ label: "t (s)" }, { space: 20, size: 60 }],
     cursor: { sync: { key: "rtlift" }, drag: { x: true, y: false } },
     series: [{ label: "t (s)" }].concat(series),
     hooks: {
