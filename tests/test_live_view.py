@@ -8,6 +8,7 @@ import io
 import json
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -181,6 +182,35 @@ def test_a_realtime_replay_shows_on_the_page_and_ends_on_its_summary(watched, br
     summary = json.loads((tmp_path / "replay.json").read_text())
     assert shown_counters(page) == {k: summary[k] for k in COUNTER_KEYS if k in summary}
     assert summary["received"] == watched.summary["received"]
+
+
+@pytest.mark.pty
+def test_sigterm_with_a_page_open_ends_the_run_the_page_and_the_server(browser, model_file, tmp_path):
+    dev = SerialDaq(daq_stream("random", seed=12))
+    with dev:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "rtlift", "observe", "--serial", dev.path, "--model", str(model_file),
+             "--json", str(tmp_path / "summary.json"), "--view", "0"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert "link open" in proc.stderr.readline()
+            dev.start()
+            url = proc.stderr.readline().split()[-1]
+            page = open_page(browser, url)
+            received_above(page, 400)
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert wait_ended(page) == "ended: terminated"
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert shown_counters(page) == {k: summary[k] for k in COUNTER_KEYS if k in summary}
+    port = int(url.rstrip("/").rsplit(":", 1)[1])
+    with socket.socket() as s, pytest.raises(ConnectionRefusedError):
+        s.connect(("127.0.0.1", port))
 
 
 def test_rows_are_decimated_and_carry_the_two_sigma_band():
