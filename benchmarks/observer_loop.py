@@ -14,6 +14,15 @@ pinned to core 0 when the machine has two or more) and bursts of disk writes (``
 MB written and fsync'd every ``--burst-every`` s into a temporary directory), both in their
 own processes; the JSON gains ``load`` (what the hog and the writer did).
 
+``--view`` runs the same live loop with the live view up (``rtlift.view.LiveView``, the tap
+fed once per sample) and a headless Chromium showing the page: after a warm-up (not counted)
+that lasts until the samples queued while the browser started are consumed, the run
+alternates phases without and with the tap (off, view, four times; ``--seconds`` of each in
+all; same link, same observer, server and browser up throughout),
+so both are measured in one run under the same machine load; the JSON keeps the keys above
+for the phases without the view and gains ``view`` (the same keys with it) and
+``view_server`` (batches sent, pages, batches dropped).
+
 ``--model MODEL.json`` uses a model file with observer settings; by default the model is
 identified from the bench (seed 1, 2nd-order Wiener) and the observer tuned on a seed-1
 ``random`` record first (≈ 15 s, not timed).
@@ -116,6 +125,76 @@ def stop_load(procs: list[subprocess.Popen]) -> dict:
             "disk_burst_worst_s": float(w[2]) if w else None}
 
 
+PAIRS = 4
+"""``--view``: the run alternates this many (without, with) pairs of phases."""
+
+
+def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | None) -> dict:
+    """The live loop for ``seconds`` of device time; with ``view_dir`` (a scratch folder for the
+    browser's profile) alternately without and with the view's tap, ``seconds`` of each."""
+    from firmware_io import Converter
+    from rtlift.live import LatencyHistogram, ObserverLoop
+
+    converter = Converter()
+    stream = link.samples(0.5)
+    runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "steps": [], "latencies": LatencyHistogram()}
+            for c in ("warm-up", "off", "view")}
+
+    def phase(condition: str, n: int, tap) -> None:
+        lost0 = link.counters.lost
+        loop = ObserverLoop(observer, converter, link.seq_modulus, fs_hz=fs_hz, max_samples=n, time_steps=True,
+                            tap=tap)
+        t0 = time.perf_counter()
+        loop.run(stream, host_timeout_s=n / fs_hz + 10.0)
+        r = runs[condition]
+        r["wall"] += time.perf_counter() - t0
+        r["samples"] += loop.stats.samples
+        r["lost"] += link.counters.lost - lost0
+        r["steps"].append(np.frombuffer(loop.stats.step_times, dtype=float))
+        h = r["latencies"]
+        for i, c in enumerate(loop.stats.latencies.counts):
+            h.counts[i] += c
+        h.n += loop.stats.latencies.n
+
+    n = int(round(seconds * fs_hz))
+    if view_dir is None:
+        phase("off", n, None)
+        return runs
+    from rtlift.view import LiveView
+    from rtlift.view.browser import HeadlessPage
+
+    view = LiveView(0, title="benchmarks/observer_loop.py --view", fs_hz=fs_hz,
+                    counters=lambda: link.counters.as_dict()).start()
+    try:
+        with HeadlessPage(view.url, os.path.join(view_dir, "chromium-profile")) as page:
+            deadline = time.perf_counter() + 30.0
+            while view.pages_connected < 1:
+                if time.perf_counter() > deadline or page.proc.poll() is not None:
+                    raise RuntimeError("the headless browser did not open the live view")
+                time.sleep(0.05)
+            for _ in range(20):                            # until the backlog queued while the browser started is gone
+                wall = runs["warm-up"]["wall"]
+                phase("warm-up", int(fs_hz / 2), None)
+                if runs["warm-up"]["wall"] - wall > 0.45:
+                    break
+            for condition in ("off", "view") * PAIRS:
+                phase(condition, n // PAIRS, view.tap if condition == "view" else None)
+            runs["view_server"] = {**view.stats, "pages_connected_at_end": view.pages_connected}
+    finally:
+        view.close()
+    return runs
+
+
+def loop_figures(run: dict) -> dict:
+    """Step and latency percentiles of one condition, in the JSON's units."""
+    step_median, step_p99 = percentiles_us(np.concatenate(run["steps"]))
+    h = run["latencies"]
+    return {"observer_step_median_us": round(step_median, 2), "observer_step_p99_us": round(step_p99, 2),
+            "loop_latency_p50_ms": round(h.percentile(50) * 1e3, 4),
+            "loop_latency_p99_ms": round(h.percentile(99) * 1e3, 4),
+            "lost_samples": run["lost"], "samples": run["samples"], "seconds": round(run["wall"], 2)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="device seconds to run (default 20)")
@@ -123,11 +202,11 @@ def main() -> None:
     ap.add_argument("--load", action="store_true", help="run under a CPU hog on the other core and disk bursts")
     ap.add_argument("--burst-mb", type=int, default=64, help="MB per disk burst with --load (default 64)")
     ap.add_argument("--burst-every", type=float, default=1.0, help="seconds between disk bursts (default 1)")
+    ap.add_argument("--view", action="store_true", help="also run with the live view and a headless Chromium on it")
     args = ap.parse_args()
     import tempfile
 
-    from firmware_io import Converter, open_link
-    from rtlift.live import ObserverLoop
+    from firmware_io import open_link
     from rtlift.modelfile import load_model
     from rtlift.observer import Observer
 
@@ -140,33 +219,27 @@ def main() -> None:
     try:
         path = serve.stdout.readline().strip()
         if args.load:
-            load = start_load(args.seconds + 2.0, args.burst_mb, args.burst_every, tmp.name)
+            load = start_load((2 if args.view else 1) * args.seconds + 2.0, args.burst_mb, args.burst_every, tmp.name)
         with open_link({"kind": "serial", "port": path}) as link:
-            loop = ObserverLoop(observer, Converter(), link.seq_modulus, fs_hz=model.fs_hz,
-                                max_samples=int(round(args.seconds * model.fs_hz)), time_steps=True)
-            t0 = time.perf_counter()
-            loop.run(link.samples(0.5), host_timeout_s=args.seconds + 10.0)
-            wall = time.perf_counter() - t0
+            runs = run_phases(link, observer, model.fs_hz, args.seconds, tmp.name if args.view else None)
             counters = link.counters.as_dict()
     finally:
         serve.terminate()
         serve.wait(10)
         load_stats = stop_load(load) if load is not None else None
         tmp.cleanup()
-    step_median, step_p99 = percentiles_us(np.frombuffer(loop.stats.step_times, dtype=float))
-    lat50, lat99 = loop.stats.latency_ms()
     result = {
-        "observer_step_median_us": round(step_median, 2),
-        "observer_step_p99_us": round(step_p99, 2),
-        "loop_latency_p50_ms": round(lat50, 4),
-        "loop_latency_p99_ms": round(lat99, 4),
-        "lost_samples": counters["lost"],
-        "seconds": round(wall, 2),
-        "samples": loop.stats.samples,
+        **loop_figures(runs["off"]),
         "state_dim": observer.structure.d,
         **{k: v for k, v in counters.items() if k != "lost"},
         **allocation(model),
     }
+    if args.view:
+        result["lost_samples"] = runs["off"]["lost"] + runs["warm-up"]["lost"]
+        result["view"] = loop_figures(runs["view"])
+        result["view_server"] = runs["view_server"]
+    else:
+        result["lost_samples"] = counters["lost"]
     if load_stats is not None:
         result["load"] = load_stats
     emit(result)

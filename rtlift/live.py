@@ -8,7 +8,8 @@ The loop is driven by the arrival of samples; the device's ``seq`` is the clock.
     est = observer.step(Cμ, Cμ_env, ΔCL)
     latency = perf_counter() − sample.host_time            # receive → estimate
 
-then the estimate row is written. The same samples in give the same rows out, bit for bit,
+then the estimate row is written (and, with a live view, one small tuple appended to its
+drop-oldest ``tap``: never a wait, never I/O). The same samples in give the same rows out, bit for bit,
 whatever the pacing (live link, log replayed as fast as possible or in real time): nothing
 here depends on the host clock except the latency figures.
 """
@@ -20,6 +21,7 @@ import math
 import os
 import time
 from array import array
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -113,11 +115,12 @@ class LoopStats:
 
 
 class ObserverLoop:
-    """Feeds samples to an :class:`~rtlift.observer.Observer` (module docstring)."""
+    """Feeds samples to an :class:`~rtlift.observer.Observer` (module docstring); ``tap``, a
+    ``deque(maxlen=...)``, receives one row per estimate for a live view and drops its oldest."""
 
     def __init__(self, observer: Observer, converter: Any, seq_modulus: int, *,
                  writer: EstimateWriter | None = None, fs_hz: float = FS_HZ,
-                 max_samples: int | None = None, time_steps: bool = False) -> None:
+                 max_samples: int | None = None, time_steps: bool = False, tap: deque | None = None) -> None:
         self.observer = observer
         self.converter = converter
         self.seq_modulus = seq_modulus
@@ -125,6 +128,7 @@ class ObserverLoop:
         self.fs_hz = fs_hz
         self.max_samples = max_samples
         self.time_steps = time_steps
+        self.tap = tap      # rtlift.view.LiveView.tap: (index, dcl | None, dcl_hat, model_dcl, ν, NIS) rows
         self.stats = LoopStats()
         self._last_seq: int | None = None
         self._index = -1
@@ -137,7 +141,7 @@ class ObserverLoop:
 
     def feed(self, sample: Sample) -> None:
         """One received sample (and the predict-only steps of any gap before it)."""
-        obs, writer, stats = self.observer, self.writer, self.stats
+        obs, writer, stats, tap = self.observer, self.writer, self.stats, self.tap
         if self._last_seq is not None:
             gap = (sample.seq - self._last_seq) % self.seq_modulus
             if gap == 0:
@@ -146,6 +150,8 @@ class ObserverLoop:
                 self._index += 1
                 est = obs.step(self._last_cmu, self._last_env, None)
                 stats.filled += 1
+                if tap is not None:
+                    tap.append((self._index, None, est.dcl, est.model_dcl, est.innovation, est.nis))
                 if writer is not None:
                     writer.write(self._index, self._index / self.fs_hz,
                                  (self._last_seq + i) % self.seq_modulus, None,
@@ -165,6 +171,8 @@ class ObserverLoop:
         stats.latencies.append(t1 - sample.host_time)
         stats.samples += 1
         self._last_cmu, self._last_env = cmu, env
+        if tap is not None:
+            tap.append((self._index, dcl, est.dcl, est.model_dcl, est.innovation, est.nis))
         if writer is not None:
             writer.write(self._index, self._index / self.fs_hz, sample.seq, sample.t_us, cmu, env, dcl, est)
             stats.estimates += 1
@@ -181,6 +189,8 @@ class ObserverLoop:
             est = obs.step(self._last_cmu, self._last_env, None)
             est.flags |= FLAG_LINK_GAP
             stats.bridged += 1
+            if self.tap is not None:
+                self.tap.append((self._index + i, None, est.dcl, est.model_dcl, est.innovation, est.nis))
             if writer is not None:
                 index = self._index + i
                 writer.write(index, index / self.fs_hz, (last + i) % self.seq_modulus if known else "", None,

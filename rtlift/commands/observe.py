@@ -4,7 +4,8 @@ Driven by frame arrival (the device's ``seq`` is the clock; the host clock only 
 receive → estimate latency). ``--log`` keeps the raw frames (``.bin``/``.raw`` serial
 capture, ``.asc``/``.blf`` CAN log) for ``rtlift replay``; ``--out`` the estimates (CSV).
 Ctrl-C, SIGTERM and a vanished device end the loop with every file flushed, and
-``--json`` is written on every exit path; with ``--reconnect`` a vanished device is reopened
+``--json`` is written on every exit path; ``--view`` serves a live plot on loopback (its
+last word is the summary's counters, then it stops); with ``--reconnect`` a vanished device is reopened
 with backoff instead, and the observer predicts through the gap (rows flagged 16).
 """
 
@@ -19,6 +20,7 @@ from rtlift.errors import UserError
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from firmware_io.links import add_link_arguments
+    from rtlift.view.arguments import add_view_argument
 
     p = subparsers.add_parser("observe", help="run the Kalman observer live on a serial or CAN link",
                               description=__doc__.splitlines()[0])
@@ -32,6 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--reconnect", nargs="?", const=-1.0, type=float, metavar="GIVE_UP_S",
                    help="when the device vanishes, reopen it with backoff (for ever, or give up after "
                         "GIVE_UP_S seconds) and go on with the same log and summary")
+    add_view_argument(p)
     p.set_defaults(func=run)
 
 
@@ -43,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from rtlift.live import EstimateWriter, ObserverLoop, summary, write_summary
     from rtlift.modelfile import load_model
     from rtlift.observer import Observer
+    from rtlift.view.arguments import start_view
 
     if args.seconds is not None and not args.seconds > 0:
         raise UserError(f"--seconds must be positive, got {args.seconds}")
@@ -60,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"rtlift observe: {link.kind} link open on {where} ({compiled}); Ctrl-C stops", file=sys.stderr, flush=True)
     writer = None
     loop = None
+    view = None
     code = 0
     message = None
     t0 = time.perf_counter()
@@ -69,6 +74,9 @@ def run(args: argparse.Namespace) -> int:
                             fs_hz=model.fs_hz,
                             max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))
         link.on_gap = loop.bridge
+        view = start_view(args, f"rtlift observe {where}", model.fs_hz,
+                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates})
+        loop.tap = None if view is None else view.tap
         with graceful_exit():
             try:
                 end = loop.run(link.samples(0.25),
@@ -99,15 +107,20 @@ def run(args: argparse.Namespace) -> int:
         link.close()
         if writer is not None:
             writer.close()
-        if loop is not None:
-            data = summary(link.counters.as_dict(), loop.stats, observer, model=str(args.model),
-                           link=link.kind, host_seconds=time.perf_counter() - t0,
-                           device_seconds=(loop.stats.samples + loop.stats.filled + loop.stats.bridged)
-                           / model.fs_hz,
-                           tare_cl=loop.converter.tare_cl)
-            if args.json:
-                write_summary(args.json, data)
-            _print(data)
+        data = None
+        try:
+            if loop is not None:
+                data = summary(link.counters.as_dict(), loop.stats, observer, model=str(args.model),
+                               link=link.kind, host_seconds=time.perf_counter() - t0,
+                               device_seconds=(loop.stats.samples + loop.stats.filled + loop.stats.bridged)
+                               / model.fs_hz,
+                               tare_cl=loop.converter.tare_cl)
+                if args.json:
+                    write_summary(args.json, data)
+                _print(data)
+        finally:
+            if view is not None:
+                view.close(data)
     if message:
         print(message, file=sys.stderr)
     return code

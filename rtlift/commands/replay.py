@@ -2,7 +2,8 @@
 same observer loop as ``rtlift observe`` — the same frames in give the same estimates out,
 bit for bit. As fast as possible by default; ``--realtime`` paces a CAN log with python-can's
 ``MessageSync`` (its recorded timestamps) and a raw serial capture on the device clock
-(one sample per 1/fs on absolute deadlines).
+(one sample per 1/fs on absolute deadlines). ``--view`` serves the live plot of ``rtlift
+observe`` (most useful with ``--realtime``).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from rtlift.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from rtlift.view.arguments import add_view_argument
+
     p = subparsers.add_parser("replay", help="replay a recorded serial or CAN log through the observer",
                               description=__doc__.splitlines()[0])
     p.add_argument("log", metavar="LOG", help="raw serial capture (.bin/.raw) or CAN log (.asc/.blf/...)")
@@ -23,6 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters and observer monitors")
+    add_view_argument(p)
     p.set_defaults(func=run)
 
 
@@ -88,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from rtlift.live import EstimateWriter, ObserverLoop, summary, write_summary
     from rtlift.modelfile import load_model
     from rtlift.observer import Observer
+    from rtlift.view.arguments import start_view
 
     model = load_model(args.model)
     observer = Observer.from_model(model)
@@ -100,23 +105,32 @@ def run(args: argparse.Namespace) -> int:
     else:
         samples = iter(source)
         counters_of = source
-    writer = EstimateWriter(args.out, {"model": args.model, "log": args.log, "fs_hz": "400"}) if args.out else None
-    loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), source.seq_modulus, writer=writer,
-                        fs_hz=model.fs_hz)
-    t0 = time.perf_counter()
+    view = start_view(args, f"rtlift replay {args.log}", model.fs_hz)
+    data = None
     try:
-        loop.run(samples)
-    except KeyboardInterrupt:
-        loop.stats.end = "interrupted"
+        writer = EstimateWriter(args.out, {"model": args.model, "log": args.log, "fs_hz": "400"}) if args.out else None
+        loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), source.seq_modulus, writer=writer,
+                            fs_hz=model.fs_hz)
+        if view is not None:
+            view.counters = lambda: {**counters_of.counters.as_dict(), "estimates": loop.stats.estimates}
+            loop.tap = view.tap
+        t0 = time.perf_counter()
+        try:
+            loop.run(samples)
+        except KeyboardInterrupt:
+            loop.stats.end = "interrupted"
+        finally:
+            if writer is not None:
+                writer.close()
+        seconds = time.perf_counter() - t0
+        data = summary(counters_of.counters.as_dict(), loop.stats, observer, model=str(args.model),
+                       log=str(args.log), realtime=bool(args.realtime), host_seconds=seconds,
+                       device_seconds=(loop.stats.samples + loop.stats.filled) / model.fs_hz)
+        if args.json:
+            write_summary(args.json, data)
     finally:
-        if writer is not None:
-            writer.close()
-    seconds = time.perf_counter() - t0
-    data = summary(counters_of.counters.as_dict(), loop.stats, observer, model=str(args.model),
-                   log=str(args.log), realtime=bool(args.realtime), host_seconds=seconds,
-                   device_seconds=(loop.stats.samples + loop.stats.filled) / model.fs_hz)
-    if args.json:
-        write_summary(args.json, data)
+        if view is not None:
+            view.close(data)
     if loop.stats.samples == 0:
         raise UserError(f"{args.log}: no samples in the log")
     o = data["observer"]
