@@ -553,6 +553,19 @@ def add_link_arguments(parser: argparse.ArgumentParser, required: bool = True) -
                        help="python-can interface and channel, e.g. slcan:/dev/ttyACM0")
 
 
+def add_reconnect_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--reconnect [GIVE_UP_S]`` (read by :func:`link_config_from_args`)."""
+    parser.add_argument("--reconnect", nargs="?", const=-1.0, type=float, metavar="GIVE_UP_S",
+                        help="when the device vanishes, reopen it with backoff (for ever, or give up after "
+                             "GIVE_UP_S seconds) and go on with the same log and summary")
+
+
 def link_config_from_args(args: argparse.Namespace, **extra: Any) -> dict[str, Any]:
-    """The link config from options added by :func:`add_link_arguments`."""
+    """The link config from options added by :func:`add_link_arguments` (and
+    :func:`add_reconnect_argument`); :class:`LinkError` for a negative give-up time."""
+    give_up = getattr(args, "reconnect", None)
+    if give_up is not None:
+        if give_up != -1.0 and not give_up >= 0:
+            raise LinkError(f"--reconnect: give-up time must be >= 0 seconds, got {give_up}")
+        extra.setdefault("reconnect", True if give_up == -1.0 else {"give_up_s": give_up})
     return link_config(getattr(args, "serial", None), getattr(args, "can", None), **extra)

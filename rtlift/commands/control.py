@@ -4,7 +4,11 @@ The observer's estimate in, burst-envelope commands out (:mod:`rtlift.closed_loo
 :mod:`rtlift.control`). The host first holds the actuator off for the settle and tare
 (3 s on the default calibration); the reference's time starts after them. ``--log`` keeps
 the raw frames for ``rtlift replay``. Ctrl-C, SIGTERM and a vanished device end the loop
-with the actuator switched off and ``--json`` written on every exit path.
+with the actuator switched off and ``--json`` written on every exit path. With
+``--reconnect`` a vanished device is reopened with backoff instead: while it is gone no command
+is sent and the device's watchdog takes its actuator to 0 (the safe state), the observer predicts
+through the gap (rows flagged 16) without stepping the controller, and tracking resumes on the
+first sample after it. ``--view`` serves the live page of ``rtlift observe``.
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ from rtlift.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from firmware_io.links import add_link_arguments
+    from firmware_io.links import add_link_arguments, add_reconnect_argument
+    from rtlift.view.arguments import add_view_argument
 
     p = subparsers.add_parser("control", help="track a lift reference live over protocol version 2",
                               description=__doc__.splitlines()[0])
@@ -31,6 +36,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
     p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters, command latency, tracking RMSE")
+    add_reconnect_argument(p)
+    add_view_argument(p)
     p.set_defaults(func=run)
 
 
@@ -45,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from rtlift.modelfile import load_model
     from rtlift.observer import Observer
     from rtlift.reference import parse_reference
+    from rtlift.view.arguments import start_view
 
     if args.seconds is not None and not args.seconds > 0:
         raise UserError(f"--seconds must be positive, got {args.seconds}")
@@ -59,12 +67,18 @@ def run(args: argparse.Namespace) -> int:
     print(f"rtlift control: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
     fs = model.fs_hz
     loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs)
+    link.on_gap = loop.bridge
     tracking = None if args.seconds is None else int(round(args.seconds * fs))
     closed = ControlLoop(link, loop, controller, reference, calibration, fs, tracking)
     code = 0
     message = None
+    view = None
+    data = None
     t0 = time.perf_counter()
     try:
+        view = start_view(args, f"rtlift control {where}", fs,
+                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates})
+        loop.tap = None if view is None else view.tap
         with graceful_exit():
             try:
                 loop.stats.end = _run(closed, link, None if args.seconds is None
@@ -84,20 +98,27 @@ def run(args: argparse.Namespace) -> int:
                     code = 1
                     message = (f"rtlift control: the device disappeared after {closed.received} "
                                "samples; summary written")
+                elif loop.stats.end == "timeout" and link.down:
+                    code = 1
+                    message = "rtlift control: the device was still gone when --seconds were done; summary written"
                 elif loop.stats.end == "timeout":
                     code = 1
                     message = "rtlift control: the device fell silent before --seconds were done"
     finally:
-        closed.switch_off()
-        link.close()
-        data = summary(link.counters.as_dict(), loop.stats, observer, model=str(args.model),
-                       link=link.kind, host_seconds=time.perf_counter() - t0,
-                       device_seconds=(loop.stats.samples + loop.stats.filled) / fs,
-                       tare_cl=loop.converter.tare_cl, reference=args.reference)
-        data.update(closed.results())
-        if args.json:
-            write_summary(args.json, data)
-        _print(data)
+        try:
+            closed.switch_off()
+            link.close()
+            data = summary(link.counters.as_dict(), loop.stats, observer, model=str(args.model),
+                           link=link.kind, host_seconds=time.perf_counter() - t0,
+                           device_seconds=(loop.stats.samples + loop.stats.filled + loop.stats.bridged) / fs,
+                           tare_cl=loop.converter.tare_cl, reference=args.reference)
+            data.update(closed.results())
+            if args.json:
+                write_summary(args.json, data)
+            _print(data)
+        finally:
+            if view is not None:
+                view.close(data)
     if message:
         print(message, file=sys.stderr)
     return code
@@ -114,13 +135,15 @@ def _warm_up(observer, controller) -> None:
 
 
 def _run(closed, link, host_timeout_s: float | None) -> str:
+    """Feed the closed loop until done; the host timeout does not count the time the device
+    was gone while the link reconnected."""
     start = time.perf_counter()
     for sample in link.samples(0.25):
         if sample is not None:
             closed.feed(sample)
             if closed.done:
                 return "completed"
-        if host_timeout_s is not None and time.perf_counter() - start > host_timeout_s:
+        if host_timeout_s is not None and time.perf_counter() - start - link.seconds_down > host_timeout_s:
             return "timeout"
     return "ended"
 

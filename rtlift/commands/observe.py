@@ -19,7 +19,7 @@ from rtlift.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from firmware_io.links import add_link_arguments
+    from firmware_io.links import add_link_arguments, add_reconnect_argument
     from rtlift.view.arguments import add_view_argument
 
     p = subparsers.add_parser("observe", help="run the Kalman observer live on a serial or CAN link",
@@ -31,9 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
     p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of device time")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters and latency percentiles")
-    p.add_argument("--reconnect", nargs="?", const=-1.0, type=float, metavar="GIVE_UP_S",
-                   help="when the device vanishes, reopen it with backoff (for ever, or give up after "
-                        "GIVE_UP_S seconds) and go on with the same log and summary")
+    add_reconnect_argument(p)
     add_view_argument(p)
     p.set_defaults(func=run)
 
@@ -50,16 +48,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seconds is not None and not args.seconds > 0:
         raise UserError(f"--seconds must be positive, got {args.seconds}")
-    reconnect = None
-    if args.reconnect is not None:
-        if args.reconnect != -1.0 and not args.reconnect >= 0:
-            raise UserError(f"--reconnect: give-up time must be >= 0 seconds, got {args.reconnect}")
-        reconnect = True if args.reconnect == -1.0 else {"give_up_s": args.reconnect}
     model = load_model(args.model)
     compiled = f"model step compiled in {model.warm_up():.2f} s" if model.compiled else "model step not compiled"
     observer = Observer.from_model(model)
     calibration = Calibration.load(args.calibration)
-    link = open_link(link_config_from_args(args, log=args.log, calibration=calibration, reconnect=reconnect))
+    link = open_link(link_config_from_args(args, log=args.log, calibration=calibration))
     where = args.serial or args.can
     print(f"rtlift observe: {link.kind} link open on {where} ({compiled}); Ctrl-C stops", file=sys.stderr, flush=True)
     writer = None
