@@ -15,67 +15,24 @@ command counters and latency, and lost samples. Prints the table, then one JSON 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import subprocess
 import sys
 import tempfile
-
-import numpy as np
-from scipy import signal
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit  # noqa: E402
+from rtlift.hil_tracking import BenchTracking  # noqa: E402
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
-FS = 400
-TRACKING_STARTS = 3 * FS
-FADE = "actuator_fade:final_fraction=0.75,time_constant_s=0.4"
 REFERENCES = {"steps": "steps:0.06@0,0.12@5,0.16@10,0.08@15",
               "sine": "sine:mean=0.11,amp=0.04,hz=0.1"}
 
 
-def reference_values(spec: str, n: int) -> np.ndarray:
-    from rtlift.reference import parse_reference
-
-    ref = parse_reference(spec)
-    return np.array([ref.at(k / FS) for k in range(n)])
-
-
 def one_run(model: str, spec: str, feedback: str, seconds: float, can: bool, tmp: str) -> dict:
-    from hil_sim.devices import SerialDaq, SlcanAdapter
-    from hil_sim.hil import HilStream
-
-    stream = HilStream("random", seed=11, effects=[FADE])
-    dev = (SlcanAdapter if can else SerialDaq)(stream)
-    stream.control = dev.control
-    link = ["--can", f"slcan:{dev.path}"] if can else ["--serial", dev.path]
-    out = os.path.join(tmp, f"summary_{feedback}.json")
-    cmd = [sys.executable, "-m", "rtlift", "control", *link, "--model", model, "--reference", spec,
-           "--seconds", str(seconds), "--feedback", feedback, "--json", out]
-    env = {**os.environ, "PYTHONPATH": os.path.abspath(ROOT)}
-    with dev:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-        proc.stderr.readline()
-        dev.start()
-        _, err = proc.communicate(timeout=seconds + 60)
-    if proc.returncode != 0:
-        raise RuntimeError(f"rtlift control exited {proc.returncode}: {err.strip()}")
-    s = json.loads(open(out, encoding="utf-8").read())
-    idx, truth = stream.truth_array()
-    n = int(seconds * FS)
-    sel = (idx >= TRACKING_STARTS) & (idx < TRACKING_STARTS + n)
-    y = truth[sel]
-    r = reference_values(spec, len(y))
-    sos = signal.butter(2, 1.0, fs=FS, output="sos")
-    rmse = float(np.sqrt(np.mean((signal.sosfiltfilt(sos, y) - signal.sosfiltfilt(sos, r)) ** 2)))
-    return {"feedback": feedback, "rmse_truth": rmse, "rmse_estimate": s["tracking_rmse"],
-            "lost": s["lost"], "commands_sent": s["commands_sent"], "commands_applied": s["commands_applied"],
-            "superseded": dev.stats.commands_superseded, "watchdog_trips": s["watchdog_trips"],
-            "command_latency_p50_ms": s["command_latency_p50_ms"],
-            "command_latency_p99_ms": s["command_latency_p99_ms"],
-            "saturated_fraction": s["saturated_fraction"]}
+    run = BenchTracking(model, spec, feedback == "on", seconds, os.path.join(tmp, f"summary_{feedback}.json"),
+                        can=can)
+    return run.start().finish()
 
 
 def main() -> None:

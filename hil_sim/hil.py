@@ -18,8 +18,8 @@ host control the stream is yielded in burst-period slices of the precomputed one
 chunks; at the switch the bench's state is recomputed exactly up to the onset from a copy
 taken at the chunk's start, so the version-1 stream is unchanged sample for sample.
 
-``truth`` keeps the plant's ΔCL of the last ``truth_seconds`` (bench truth for benchmarks
-and tests; the host never sees it).
+``truth`` keeps the plant's ΔCL of the last ``truth_seconds`` and ``envelope`` the envelope
+driving it (V) (bench truth for benchmarks and tests; the host never sees it).
 """
 
 from __future__ import annotations
@@ -46,6 +46,13 @@ def _slice(run: object, lo: int, hi: int) -> SimpleNamespace:
     return SimpleNamespace(**{f: getattr(run, f)[lo:hi] for f in FIELDS})
 
 
+def _concatenated(pieces: deque[tuple[int, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    if not pieces:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    idx = np.concatenate([k0 + np.arange(len(d)) for k0, d in pieces])
+    return idx, np.concatenate([d for _, d in pieces])
+
+
 class HilStream:
     """Iterable of bench chunks that obeys ``control`` (a :class:`~hil_sim.devices.host_control.
     HostControl`, attached after the device is built: ``stream.control = device.control``)."""
@@ -60,6 +67,8 @@ class HilStream:
         self.truth: deque[tuple[int, np.ndarray]] = deque(
             maxlen=max(1, int(truth_seconds * FS_HZ / BURST_SAMPLES)))
         """(first sample index, ΔCL of the plant) per yielded piece."""
+        self.envelope: deque[tuple[int, np.ndarray]] = deque(maxlen=self.truth.maxlen)
+        """(first sample index, envelope driving the plant in V) per yielded piece."""
         self.envelope_cv_applied = 0
         """The envelope driving the plant in the current burst period (0.01 V)."""
 
@@ -68,10 +77,11 @@ class HilStream:
 
     def truth_array(self) -> tuple[np.ndarray, np.ndarray]:
         """(sample index, ΔCL truth) of what ``truth`` still holds, concatenated."""
-        if not self.truth:
-            return np.zeros(0, dtype=np.int64), np.zeros(0)
-        idx = np.concatenate([k0 + np.arange(len(d)) for k0, d in self.truth])
-        return idx, np.concatenate([d for _, d in self.truth])
+        return _concatenated(self.truth)
+
+    def envelope_array(self) -> tuple[np.ndarray, np.ndarray]:
+        """(sample index, envelope in V) of what ``envelope`` still holds, concatenated."""
+        return _concatenated(self.envelope)
 
     def __iter__(self) -> Iterator[SimpleNamespace]:
         n = len(self._env)
@@ -91,6 +101,7 @@ class HilStream:
                     break
                 piece = _slice(run, off, off + OPTIMAL_PERIOD_SAMPLES)
                 self.truth.append((k + off, piece.dcl_true))
+                self.envelope.append((k + off, piece.envelope_volts))
                 yield piece
             else:
                 k += CHUNK_SAMPLES
@@ -111,5 +122,6 @@ class HilStream:
             run = self.bench.process(idx / FS_HZ, np.full(period, cmu), burst_gate(period, period),
                                      self.meta)
             self.truth.append((k, run.dcl_true))
+            self.envelope.append((k, run.envelope_volts))
             yield run
             k += period

@@ -10,7 +10,11 @@
    estimate with the measurement and the bench's noise-free truth;
 5. record experiments carrying an effect the model was not told about, diagnose them, and
    report the error before and after the augmentation;
-6. write everything to ``out_dir``: records, model files, figures, ``report.md`` and
+6. close the loop: ``rtlift control`` tracks a ΔCL reference (steps, then a slow sine) on the
+   bench as a hardware-in-the-loop plant while an undeclared actuator fade to 75 % sets in,
+   feedforward only beside feedforward + feedback (the two runs side by side), scored on the
+   bench's truth low-passed at 1 Hz (:mod:`rtlift.hil_tracking`);
+7. write everything to ``out_dir``: records, model files, figures, ``report.md`` and
    ``summary.json``.
 """
 
@@ -32,6 +36,10 @@ CAMPAIGN = ("static", "single_burst", "train_T1p75", "train_T3p5", "train_T7", "
 PAPER_CORR = {"sine_k0125": 0.9596, "sine_k025": 0.8654, "random": 0.9277}
 DEMO_EFFECT = "sensor_resonance:frequency_hz=24,damping_ratio=0.06"
 DIAGNOSE_RECORDS = ("sine_k0125", "sine_k025", "random")
+TRACKING_S = 16.0
+"""Closed-loop section: seconds of tracking, steps for the first half, a slow sine after."""
+STEPS = ((0.0, 0.06), (4.0, 0.13))
+SINE = {"mean": 0.10, "amp": 0.04, "hz": 0.125, "from_s": 8.0}
 
 
 @dataclass
@@ -115,7 +123,7 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
     summary: dict[str, Any] = {"version": 1, "seed": opt.seed}
 
     # 1. the standard campaign through the serial link ---------------------------------------
-    prog.say(f"1/5 recording the standard campaign through a serial pty at {opt.speedup:g}x real time")
+    prog.say(f"1/6 recording the standard campaign through a serial pty at {opt.speedup:g}x real time")
     records: dict[str, Record] = {}
     link_totals: dict[str, int] = {}
     for name in CAMPAIGN:
@@ -130,7 +138,7 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
              f"{link_totals.get('crc_errors', 0)} bad frames")
 
     # 2. identification + observer tuning --------------------------------------------------
-    prog.say("2/5 identifying the hybrid model (static map, kernel, HPF, PEM) and tuning the observer")
+    prog.say("2/6 identifying the hybrid model (static map, kernel, HPF, PEM) and tuning the observer")
     t0 = time.perf_counter()
     idf = identify_hybrid(records["static"], records["single_burst"], records["sine_k0125"])
     identify_s = time.perf_counter() - t0
@@ -144,16 +152,16 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
                            "wiener_order": int(idf.model.wiener.lti.n)}
 
     # 3. validation: the paper's protocol --------------------------------------------------
-    prog.say("3/5 validating: the paper's protocol and baselines")
+    prog.say("3/6 validating: the paper's protocol and baselines")
     validation = _validate(idf, records, out, validate_record, plot_validation)
     summary["validation"] = validation
 
     # 4. the observer live at 400 Hz ---------------------------------------------------------
-    prog.say(f"4/5 running the Kalman observer live at 400 Hz for {opt.live_seconds:g} s")
+    prog.say(f"4/6 running the Kalman observer live at 400 Hz for {opt.live_seconds:g} s")
     summary["live"] = _live(model_path, opt, out, prog)
 
     # 5. close the loop on a record with an undeclared effect ----------------------------------
-    prog.say(f"5/5 recording with an undeclared effect ({opt.effect}) and diagnosing it")
+    prog.say(f"5/6 recording with an undeclared effect ({opt.effect}) and diagnosing it")
     eff_records = {}
     for name in DIAGNOSE_RECORDS:
         rec, _ = record_through_link(name, opt.seed + 1, (opt.effect,), opt.speedup, prog)
@@ -175,6 +183,11 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
         "unexplained": rep["unexplained"],
         "report": os.path.join(diag_dir, "report.md"),
     }
+
+    # 6. closed-loop tracking on the bench as a HIL plant -----------------------------------
+    prog.say(f"6/6 tracking a ΔCL reference for {TRACKING_S:g} s under an undeclared actuator fade, "
+             "feedforward only beside feedforward + feedback")
+    summary["closed_loop"] = _closed_loop(model_path, opt, out)
 
     with open(os.path.join(out, "summary.json"), "w", encoding="utf-8") as f:
         json.dump(summary, f, indent=1, default=float)
@@ -264,6 +277,69 @@ def _live(model_path: str, opt: DemoOptions, out: str, prog: _Progress) -> dict[
 
 
 
+def tracking_reference(path: str) -> str:
+    """Write the closed-loop reference as a ``t, dcl_ref`` CSV (``rtlift control --reference``):
+    :data:`STEPS` (held), then the :data:`SINE` from ``from_s`` to :data:`TRACKING_S`; its path."""
+    rows = []
+    for (t0, v), (t1, _) in zip(STEPS, (*STEPS[1:], (SINE["from_s"], None)), strict=True):
+        rows += [(t0, v), (t1 - 1e-3, v)]
+    for t in np.arange(SINE["from_s"], TRACKING_S + 0.05, 0.05):
+        rows.append((t, SINE["mean"] + SINE["amp"] * np.sin(2 * np.pi * SINE["hz"] * (t - SINE["from_s"]))))
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("t,dcl_ref\n" + "".join(f"{t:.4f},{v:.6f}\n" for t, v in rows))
+    return path
+
+
+def _closed_loop(model_path: str, opt: DemoOptions, out: str) -> dict[str, Any]:
+    """Feedforward only and feedforward + feedback side by side on two benches with the same fade."""
+    from rtlift.hil_tracking import FADE, BenchTracking, reference_values
+
+    t0 = time.perf_counter()
+    spec = tracking_reference(os.path.join(out, "tracking_reference.csv"))
+    runs = {fb: BenchTracking(model_path, spec, fb == "on", TRACKING_S,
+                              os.path.join(out, f"control_feedback_{fb}.json"), seed=opt.seed + 3)
+            for fb in ("off", "on")}
+    for run in runs.values():
+        run.start()
+    rows = {fb: run.finish() for fb, run in runs.items()}
+    traces = {fb: run.traces() for fb, run in runs.items()}
+    seconds = time.perf_counter() - t0
+    t = traces["on"][0]
+    ref = reference_values(spec, len(t))
+    _tracking_figure(t, ref, traces, rows, os.path.join(out, "figures", "closed_loop.png"))
+    return {"seconds": TRACKING_S, "elapsed_s": seconds, "effect": FADE, "reference": os.path.basename(spec),
+            "feedforward": rows["off"], "feedback": rows["on"],
+            "ratio": rows["on"]["rmse_truth"] / rows["off"]["rmse_truth"], "figure": "figures/closed_loop.png"}
+
+
+def _tracking_figure(t: np.ndarray, ref: np.ndarray, traces: dict, rows: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from rtlift.hil_tracking import lowpass
+
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True, height_ratios=(2, 1))
+    style = {"off": ("tab:orange", "feedforward only"), "on": ("tab:blue", "feedforward + feedback")}
+    for fb, (tt, truth, env) in traces.items():
+        color, label = style[fb]
+        top.plot(tt, truth, color=color, lw=0.4, alpha=0.35)
+        top.plot(tt, lowpass(truth), color=color, lw=1.4,
+                 label=f"bench truth, {label} (RMSE {rows[fb]['rmse_truth']:.4f})")
+        bottom.step(tt, env, where="post", color=color, lw=1.0, label=label)
+    top.plot(t, ref, color="k", lw=1.2, ls="--", label="reference")
+    top.set_ylabel("ΔCL (1 Hz low-pass bold)")
+    top.legend(fontsize=8, loc="upper left")
+    top.set_title("closed loop on the bench: undeclared actuator fade to 75 %", fontsize=9)
+    bottom.set_ylabel("commanded envelope (V)")
+    bottom.set_xlabel("t from the start of tracking (s)")
+    bottom.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _live_report(cols: np.ndarray, true: np.ndarray, counters: dict[str, int], p50: float | None,
                  p99: float | None, step_us: np.ndarray, out: str) -> dict[str, Any]:
     """RMSE of measurement, open-loop model and observer against the bench's truth; a figure."""
@@ -338,6 +414,15 @@ def results_table(summary: dict[str, Any]) -> str:
     lines += ["", f"undeclared effect injected: {d['injected']}", f"  diagnosis found: {found}"]
     for name, e in d["records"].items():
         lines.append(f"  {name:<20} RMSE {e['rmse_before']:.5f} -> {e['rmse_after']:.5f}")
+    c = summary["closed_loop"]
+    lines += ["", f"closed loop {c['seconds']:g} s (steps, then a slow sine) under an undeclared actuator fade to 75 %,"
+                  " RMSE of the bench truth vs the reference (1 Hz low-pass)"]
+    for label, key in (("feedforward only", "feedforward"), ("ff + feedback", "feedback")):
+        r = c[key]
+        lines.append(f"  {label:<17} RMSE {r['rmse_truth']:.4f}  lost {r['lost']}  commands sent "
+                     f"{r['commands_sent']} applied {r['commands_applied']} superseded {r['superseded']}  "
+                     f"latency p99 {_fmt(r['command_latency_p99_ms'], '.2f')} ms")
+    lines.append(f"  feedback / feedforward RMSE {c['ratio']:.2f}")
     return "\n".join(lines)
 
 
@@ -391,4 +476,26 @@ def report_markdown(summary: dict[str, Any]) -> str:
     md += ["", "Unexplained: " + ("; ".join(d["unexplained"]) or "nothing"), "",
            "The full diagnosis, with residual spectra, autocorrelations and every test's statistic: "
            "[diagnosis/report.md](diagnosis/report.md).", ""]
+    md += _closed_loop_markdown(summary["closed_loop"])
     return "\n".join(md)
+
+
+def _closed_loop_markdown(c: dict[str, Any]) -> list[str]:
+    md = ["## 6. Closed-loop lift tracking on the bench", "",
+          f"`rtlift control` (protocol version 2) tracks a ΔCL reference for {c['seconds']:g} s (steps, then a "
+          f"0.125 Hz sine; `{c['reference']}`) on the bench as a hardware-in-the-loop plant, with the model "
+          f"identified above. Undeclared on the bench: `{c['effect']}`. Feedforward only (inverse static map and "
+          "DC gain) beside feedforward + PI feedback on the observer's estimate, run side by side on two "
+          "benches. Scored on the bench's noise-free ΔCL (which the host never sees) against the reference, "
+          "both low-passed at 1 Hz.", "",
+          "| | RMSE vs reference (truth) | RMSE (estimate) | lost | commands sent | applied | superseded | "
+          "latency p50 / p99 (ms) | saturated |", "|---|---|---|---|---|---|---|---|---|"]
+    for label, key in (("feedforward only", "feedforward"), ("feedforward + feedback", "feedback")):
+        r = c[key]
+        md.append(f"| {label} | {r['rmse_truth']:.4f} | {_fmt(r['rmse_estimate'])} | {r['lost']} | "
+                  f"{r['commands_sent']} | {r['commands_applied']} | {r['superseded']} | "
+                  f"{_fmt(r['command_latency_p50_ms'], '.2f')} / {_fmt(r['command_latency_p99_ms'], '.2f')} | "
+                  f"{r['saturated_fraction']:.1%} |")
+    md += ["", f"Feedback / feedforward RMSE: {c['ratio']:.2f}. The section took {c['elapsed_s']:.1f} s.", "",
+           "![closed loop](figures/closed_loop.png)", ""]
+    return md

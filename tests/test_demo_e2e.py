@@ -20,9 +20,10 @@ def test_demo_runs_end_to_end_and_reports_every_stage(tmp_path):
     assert "Traceback" not in run.stderr
     report = (out / "report.md").read_text()
     for section in ("## 1. The standard campaign", "## 2. Identification", "## 3. Validation",
-                    "## 4. The Kalman observer live", "## 5. Closing the loop"):
+                    "## 4. The Kalman observer live", "## 5. Closing the loop", "## 6. Closed-loop lift tracking"):
         assert section in report
-    for fig in ("validate_sine_k0125.png", "validate_sine_k025.png", "validate_random.png", "live_observer.png"):
+    for fig in ("validate_sine_k0125.png", "validate_sine_k025.png", "validate_random.png", "live_observer.png",
+                "closed_loop.png"):
         assert os.path.getsize(out / "figures" / fig) > 10_000
     assert (out / "diagnosis" / "report.md").exists() and (out / "diagnosis" / "model_augmented.json").exists()
 
@@ -38,4 +39,13 @@ def test_demo_runs_end_to_end_and_reports_every_stage(tmp_path):
     assert abs(d["accepted"][0]["params"]["frequency_hz"] - 24.0) < 2.4          # ±10 %
     for rec in d["records"].values():
         assert rec["rmse_after"] < 0.7 * rec["rmse_before"]
+    c = s["closed_loop"]
+    ff, fb = c["feedforward"], c["feedback"]
+    assert fb["rmse_truth"] < 0.6 * ff["rmse_truth"] and fb["rmse_truth"] < 0.015     # issue 15: ≤ 0.5×, ≤ 0.015
+    for row in (ff, fb):
+        assert row["lost"] == 0 and row["received"] >= (3 + c["seconds"]) * 400
+        assert row["commands_sent"] > 0 and row["watchdog_trips"] == 0
+        assert row["commands_applied"] == row["device_applied"] == row["commands_sent"] - row["superseded"]
+    assert c["elapsed_s"] <= 25.0
     assert "paper protocol" in run.stdout and "diagnosis found: sensor_resonance" in run.stdout
+    assert "feedback / feedforward RMSE" in run.stdout

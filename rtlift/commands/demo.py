@@ -11,7 +11,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("demo", help="the whole product on the simulated bench, end to end",
                               description="Serve the simulated bench on a pseudo-terminal, record the "
                                           "standard campaign through firmware_io, identify, validate, run "
-                                          "the observer live, diagnose an undeclared effect, write a report.")
+                                          "the observer live, diagnose an undeclared effect, track a lift reference "
+                                          "in closed loop under an undeclared actuator fade, write a report.")
     p.add_argument("--out", default="rtlift-demo", metavar="DIR", help="output directory (default: rtlift-demo)")
     p.add_argument("--seed", type=int, default=0, help="bench seed (default 0)")
     p.add_argument("--live-seconds", type=float, default=20.0, metavar="S",
