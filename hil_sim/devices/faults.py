@@ -6,8 +6,17 @@ twice; independently, with probability ``garbage``, a burst of junk precedes it.
 ``disconnect_after_s`` closes the device (the pseudo-terminal) after that much streaming.
 Only samples with index in ``[start, stop)`` are eligible, so a test can keep a clean tail.
 
+Command faults (protocol version 2, the serial DAQ): one decision per command packet the
+host writes, with probabilities ``cmd_drop``, ``cmd_corrupt`` and ``cmd_late`` (exclusive),
+from a random stream of their own (the samples' faults are unchanged by them). A dropped
+command never reaches the firmware; a corrupted one has one COBS data byte replaced (its
+CRC-16 always fails: counted in ``cmd_errors``, never applied, never echoed); a late one
+reaches the firmware ``cmd_delay_ms`` later (device clock), where it is applied, superseded
+or ignored like any other. Eligible while the device's sample index is in ``[start, stop)``.
+
 Spec strings (``--fault``): ``corrupt:rate=1e-3``, ``drop:rate=0.01``, ``duplicate:rate=0.01``,
-``garbage:rate=0.01``, ``disconnect:after_s=5``.
+``garbage:rate=0.01``, ``disconnect:after_s=5``, ``cmd_drop:rate=0.05``,
+``cmd_corrupt:rate=0.05``, ``cmd_late:rate=0.05[,delay_ms=50]``.
 """
 
 from __future__ import annotations
@@ -18,6 +27,8 @@ from dataclasses import dataclass, fields, replace
 from rtlift.errors import UserError
 
 RATE_FAULTS = ("corrupt", "drop", "duplicate", "garbage")
+COMMAND_FAULTS = ("cmd_drop", "cmd_corrupt", "cmd_late")
+DEFAULT_CMD_DELAY_MS = 50.0
 
 
 class FaultSpecError(UserError):
@@ -26,7 +37,8 @@ class FaultSpecError(UserError):
 
 @dataclass(frozen=True)
 class FaultPlan:
-    """Per-frame fault probabilities and an optional disconnect time (s of streaming)."""
+    """Per-frame and per-command fault probabilities, the late commands' delay (ms of the
+    device clock) and an optional disconnect time (s of streaming)."""
 
     corrupt: float = 0.0
     drop: float = 0.0
@@ -35,20 +47,45 @@ class FaultPlan:
     disconnect_after_s: float | None = None
     start: int = 0
     stop: int | None = None
+    cmd_drop: float = 0.0
+    cmd_corrupt: float = 0.0
+    cmd_late: float = 0.0
+    cmd_delay_ms: float = DEFAULT_CMD_DELAY_MS
 
     def __post_init__(self) -> None:
-        for name in RATE_FAULTS:
+        for name in (*RATE_FAULTS, *COMMAND_FAULTS):
             rate = getattr(self, name)
             if not 0.0 <= rate <= 1.0:
                 raise FaultSpecError(f"fault {name}: rate must be in [0, 1], got {rate}")
         if self.corrupt + self.drop + self.duplicate > 1.0:
             raise FaultSpecError("faults: corrupt + drop + duplicate rates exceed 1")
+        if self.cmd_drop + self.cmd_corrupt + self.cmd_late > 1.0:
+            raise FaultSpecError("faults: cmd_drop + cmd_corrupt + cmd_late rates exceed 1")
+        if not self.cmd_delay_ms > 0:
+            raise FaultSpecError(f"fault cmd_late: delay_ms must be > 0, got {self.cmd_delay_ms}")
         if self.disconnect_after_s is not None and self.disconnect_after_s < 0:
             raise FaultSpecError(f"fault disconnect: after_s must be >= 0, got {self.disconnect_after_s}")
 
     @property
     def any(self) -> bool:
         return any(getattr(self, name) > 0 for name in RATE_FAULTS) or self.disconnect_after_s is not None
+
+    @property
+    def any_command(self) -> bool:
+        return any(getattr(self, name) > 0 for name in COMMAND_FAULTS)
+
+    def command_fault(self, index: int, u: float) -> str | None:
+        """``"drop"`` | ``"corrupt"`` | ``"late"`` | ``None`` for a command arriving before
+        sample ``index``, given a uniform draw ``u``."""
+        if not self.eligible(index):
+            return None
+        if u < self.cmd_drop:
+            return "drop"
+        if u < self.cmd_drop + self.cmd_corrupt:
+            return "corrupt"
+        if u < self.cmd_drop + self.cmd_corrupt + self.cmd_late:
+            return "late"
+        return None
 
     def eligible(self, index: int) -> bool:
         return index >= self.start and (self.stop is None or index < self.stop)
@@ -67,17 +104,20 @@ def parse_fault(spec: str, plan: FaultPlan | None = None) -> FaultPlan:
             params[key.strip()] = float(value)
         except ValueError:
             raise FaultSpecError(f"fault {spec!r}: expected NAME:k=v[,k=v...]") from None
-    if name in RATE_FAULTS:
+    if name == "cmd_late" and set(params) == {"rate", "delay_ms"}:
+        return replace(plan, cmd_late=params["rate"], cmd_delay_ms=params["delay_ms"])
+    if name in RATE_FAULTS or name in COMMAND_FAULTS:
         wanted = "rate"
         field_name = name
     elif name == "disconnect":
         wanted = "after_s"
         field_name = "disconnect_after_s"
     else:
-        known = ", ".join((*RATE_FAULTS, "disconnect"))
+        known = ", ".join((*RATE_FAULTS, "disconnect", *COMMAND_FAULTS))
         raise FaultSpecError(f"unknown fault {name!r} (known: {known})")
     if set(params) != {wanted}:
-        raise FaultSpecError(f"fault {name}: give exactly {wanted}=VALUE, got {spec!r}")
+        extra = " (and optionally delay_ms=MS)" if name == "cmd_late" else ""
+        raise FaultSpecError(f"fault {name}: give exactly {wanted}=VALUE{extra}, got {spec!r}")
     return replace(plan, **{field_name: params[wanted]})
 
 
@@ -103,6 +143,10 @@ class DeviceStats:
     (``commands_applied`` of them were applied and echoed, ``commands_superseded`` replaced by
     a newer one before the next sample, ``commands_ignored`` not newer than the last);
     ``cmd_errors`` were dropped as invalid; ``watchdog_trips`` times the watchdog fired.
+    Command faults: ``commands_dropped`` never reached the firmware, ``commands_corrupted``
+    reached it corrupted (each one also in ``cmd_errors``), ``commands_delayed`` reached it
+    late (then counted like the others). Every command packet the host wrote is exactly one of
+    dropped, corrupted-or-otherwise-invalid (``cmd_errors``), valid, or still delayed.
     """
 
     samples: int = 0
@@ -122,6 +166,9 @@ class DeviceStats:
     commands_superseded: int = 0
     commands_ignored: int = 0
     cmd_errors: int = 0
+    commands_dropped: int = 0
+    commands_corrupted: int = 0
+    commands_delayed: int = 0
     watchdog_trips: int = 0
     disconnected: bool = False
 

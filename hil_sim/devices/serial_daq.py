@@ -12,11 +12,16 @@ Protocol version 2 (:mod:`.host_control`): the device reads command packets the 
 version-2 packets echoing the applied ``cmd_seq``. While ``stats.cmd_errors`` is nonzero it
 sends the event ``"cmd_errors=N"`` (N since start) once a second of its clock. The applied
 command and envelope are exposed in :attr:`SerialDaq.control` (the hook for the plant).
+Command faults (dropped, corrupted, late; :mod:`.faults`) are decided per command packet,
+before the firmware sees it, and counted in ``stats``.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable
+
+import numpy as np
 
 from firmware_io.commands import SERIAL_CMD_SEQ_MODULUS
 from firmware_io.serial_codec import MAX_PACKET_BYTES, decode_command, encode_event, encode_sample
@@ -35,6 +40,17 @@ def cobs_data_positions(frame: bytes) -> list[int]:
         codes.add(pos)
         pos += frame[pos]
     return [i for i in range(end) if i not in codes]
+
+
+def corrupt_one_byte(frame: bytes, rng: np.random.Generator) -> bytes:
+    """``frame`` with one COBS data byte replaced by another non-zero value (uniform over the
+    254 candidates): the decoded body differs in exactly one byte, which the CRC-16 detects."""
+    positions = cobs_data_positions(frame)
+    pos = positions[int(rng.integers(len(positions)))]
+    old = frame[pos]
+    new = int(rng.integers(1, 255))
+    new = new if new < old else new + 1
+    return frame[:pos] + bytes((new,)) + frame[pos + 1:]
 
 
 def invalid_chunks(data: bytes) -> int:
@@ -59,6 +75,9 @@ class SerialDaq(PtyDevice):
         self.control = HostControl(self.stats, SERIAL_CMD_SEQ_MODULUS, self.fs_hz)
         """What the host commanded (version 2): the applied command, envelope and watchdog."""
         self._input = bytearray()
+        self._cmd_rng = np.random.default_rng((seed, 1))
+        self._late: deque[tuple[int, object]] = deque()
+        self._delay_samples = max(1, int(round(self.faults.cmd_delay_ms * self.fs_hz / 1000.0)))
         self._samples_per_report = max(1, int(round(self.fs_hz)))
 
     def send_event(self, text: str) -> None:
@@ -72,11 +91,30 @@ class SerialDaq(PtyDevice):
         *packets, rest = bytes(buf).split(b"\x00")
         for chunk in packets:
             if chunk:
-                self.control.receive(decode_command(chunk), self.stats.samples)
+                self._command_packet(chunk)
         buf[:] = rest
         if len(buf) > MAX_PACKET_BYTES:
             buf.clear()
             self.control.receive(None, self.stats.samples)
+
+    def _command_packet(self, chunk: bytes) -> None:
+        """One command packet from the host, through the command faults to the firmware."""
+        st = self.stats
+        index = st.samples
+        f = self.faults
+        fault = f.command_fault(index, float(self._cmd_rng.random())) if f.any_command else None
+        if fault == "drop":
+            st.commands_dropped += 1
+            return
+        if fault == "corrupt":
+            chunk = corrupt_one_byte(chunk, self._cmd_rng)
+            st.commands_corrupted += 1
+        command = decode_command(chunk)
+        if fault == "late":
+            st.commands_delayed += 1
+            self._late.append((index + self._delay_samples, command))
+            return
+        self.control.receive(command, index)
 
     def _packet(self, data: bytes, valid: bool) -> None:
         self.write(data)
@@ -92,6 +130,8 @@ class SerialDaq(PtyDevice):
             self._started = True
             self.write(b"\x00")
         volt_cv, envelope_cv, status, counts = sample
+        while self._late and self._late[0][0] <= index:
+            self.control.receive(self._late.popleft()[1], index)
         cmd_seq, status, envelope_cv = self.control.step(index, status, envelope_cv)
         if st.cmd_errors and index % self._samples_per_report == 0:
             self.send_event(f"cmd_errors={st.cmd_errors}")
@@ -117,12 +157,7 @@ class SerialDaq(PtyDevice):
             st.samples_lost += 1
             return
         if fault == "corrupt":
-            positions = cobs_data_positions(frame)
-            pos = positions[int(self.rng.integers(len(positions)))]
-            old = frame[pos]
-            new = int(self.rng.integers(1, 255))
-            new = new if new < old else new + 1  # uniform over the 254 non-zero values != old
-            frame = frame[:pos] + bytes((new,)) + frame[pos + 1:]
+            frame = corrupt_one_byte(frame, self.rng)
             self._packet(frame, False)
             st.frames_corrupted += 1
             st.samples_lost += 1

@@ -28,7 +28,7 @@ from collections.abc import Iterable
 from firmware_io.calibration import Calibration
 from firmware_io.can_codec import CMD_ID, DLC, decode_command_frame, encode_sample_frames, load_dbc
 from firmware_io.commands import CAN_CMD_SEQ_MODULUS
-from hil_sim.devices.faults import FaultPlan
+from hil_sim.devices.faults import FaultPlan, FaultSpecError
 from hil_sim.devices.host_control import HostControl
 from hil_sim.devices.pty_device import FS_HZ, PtyDevice
 from hil_sim.devices.source import can_wire, wire_samples
@@ -47,6 +47,9 @@ class SlcanAdapter(PtyDevice):
     def __init__(self, chunks: Iterable[object], *, fs_hz: float = FS_HZ, faults: FaultPlan | None = None,
                  seed: int = 0, max_samples: int | None = None, keep_sent: bool = False,
                  first_seq: int = 0, calibration: Calibration | None = None) -> None:
+        if faults is not None and faults.any_command:
+            raise FaultSpecError("command faults (cmd_drop, cmd_corrupt, cmd_late) are emulated on the "
+                                 "serial DAQ only")
         cal = calibration or Calibration()
         super().__init__(wire_samples(chunks, lambda c: can_wire(c, cal)), fs_hz=fs_hz, faults=faults,
                          seed=seed, max_samples=max_samples, keep_sent=keep_sent)
