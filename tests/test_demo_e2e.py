@@ -46,6 +46,5 @@ def test_demo_runs_end_to_end_and_reports_every_stage(tmp_path):
         assert row["lost"] == 0 and row["received"] >= (3 + c["seconds"]) * 400
         assert row["commands_sent"] > 0 and row["watchdog_trips"] == 0
         assert row["commands_applied"] == row["device_applied"] == row["commands_sent"] - row["superseded"]
-    assert c["elapsed_s"] <= 25.0
     assert "paper protocol" in run.stdout and "diagnosis found: sensor_resonance" in run.stdout
     assert "feedback / feedforward RMSE" in run.stdout
