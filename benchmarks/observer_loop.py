@@ -133,11 +133,12 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
     """The live loop for ``seconds`` of device time; with ``view_dir`` (a scratch folder for the
     browser's profile) alternately without and with the view's tap, ``seconds`` of each."""
     from firmware_io import Converter
-    from rtlift.live import LatencyHistogram, ObserverLoop
+    from firmware_io.latency import LatencyRecorder
+    from rtlift.live import ObserverLoop
 
     converter = Converter()
     stream = link.samples(0.5)
-    runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "steps": [], "latencies": LatencyHistogram()}
+    runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "steps": [], "latencies": LatencyRecorder()}
             for c in ("warm-up", "off", "view")}
 
     def phase(condition: str, n: int, tap) -> None:

@@ -26,8 +26,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
+from firmware_io.latency import LatencyRecorder
 from firmware_io.logs import FlushedFile
 from firmware_io.samples import Sample
 from rtlift.observer import Observer
@@ -67,51 +66,21 @@ class EstimateWriter(FlushedFile):
         self.rows += 1
 
 
-class LatencyHistogram:
-    """Latencies (s) in fixed memory, so a run of any length does not grow: log-spaced bins
-    1 % wide from 1 µs to 100 s; a percentile is the centre of its bin (within 0.5 %)."""
-
-    LO_S = 1e-6
-    RATIO = 1.01
-    BINS = int(math.ceil(math.log(1e8) / math.log(RATIO))) + 2
-
-    def __init__(self) -> None:
-        self.counts = array("q", bytes(8 * self.BINS))
-        self.n = 0
-        self._scale = 1.0 / math.log(self.RATIO)
-
-    def append(self, seconds: float) -> None:
-        i = 1 + int(math.log(seconds / self.LO_S) * self._scale) if seconds > self.LO_S else 0
-        self.counts[i if i < self.BINS else self.BINS - 1] += 1
-        self.n += 1
-
-    def __len__(self) -> int:
-        return self.n
-
-    def percentile(self, q: float) -> float:
-        """The q-th percentile (s): the first bin holding the ⌈q/100 · n⌉-th smallest latency."""
-        rank = max(1, math.ceil(q / 100.0 * self.n))
-        i = int(np.searchsorted(np.cumsum(np.frombuffer(self.counts, dtype=np.int64)), rank))
-        return self.LO_S if i == 0 else self.LO_S * self.RATIO ** (i - 0.5)
-
-
 @dataclass
 class LoopStats:
     """What the loop did: samples received and stepped, gaps filled, estimates, latencies (s,
-    a :class:`LatencyHistogram`), and with ``time_steps`` the duration of each step (s)."""
+    a :class:`~firmware_io.latency.LatencyRecorder`), and with ``time_steps`` the duration of each step (s)."""
 
     samples: int = 0
     filled: int = 0
     bridged: int = 0
     estimates: int = 0
     end: str = "running"
-    latencies: LatencyHistogram = field(default_factory=LatencyHistogram)
+    latencies: LatencyRecorder = field(default_factory=LatencyRecorder)
     step_times: array = field(default_factory=lambda: array("d"))
 
     def latency_ms(self) -> tuple[float | None, float | None]:
-        if not self.latencies:
-            return None, None
-        return self.latencies.percentile(50) * 1e3, self.latencies.percentile(99) * 1e3
+        return self.latencies.percentile_ms(50), self.latencies.percentile_ms(99)
 
 
 class ObserverLoop:
