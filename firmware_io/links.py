@@ -18,7 +18,9 @@ default, and ``sleep_after_open=0`` for ``slcan``).
 Protocol version 2: ``link.send_command(envelope_cv, ...)`` sends a command with the link's
 next ``cmd_seq`` (serial: a COBS packet through pyserial; CAN: the ``CMD`` frame through
 ``bus.send``); ``commands_sent``, ``commands_applied``, ``watchdog_trips`` and the command
-latency are in ``link.counters``.
+latency are in ``link.counters``. On a link with a ``log``, every command sent also goes to
+``LOG.commands.csv`` (:class:`~firmware_io.logs.CommandLog`) with the number of samples
+received before it, so ``rtlift replay`` can rerun the controller and check its commands.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from firmware_io.can_codec import CMD_ID, CanAssembler, encode_command_frame
 from firmware_io.can_codec import SEQ_MODULUS as CAN_SEQ_MODULUS
 from firmware_io.commands import CAN_CMD_SEQ_MODULUS, SERIAL_CMD_SEQ_MODULUS, CommandTracker
 from firmware_io.errors import LinkError
-from firmware_io.logs import open_link_log
+from firmware_io.logs import CommandLog, LoggedCommand, commands_path, open_link_log
 from firmware_io.samples import Counters, Sample
 from firmware_io.serial_codec import SEQ_MODULUS as SERIAL_SEQ_MODULUS
 from firmware_io.serial_codec import SerialDecoder, encode_command
@@ -116,6 +118,13 @@ class Link(ABC):
     _gap_pending: bool = False
     _last: Sample | None = None
     _gap_from: Sample | None = None
+    delivered: int = 0
+    """Samples ``recv`` has returned (the position a command log records)."""
+    command_log_meta: dict[str, Any] | None = None
+    """Metadata of the command log (``LOG.commands.csv``), opened with the first command sent
+    on a link with a ``log``: what a replay needs to rerun the controller."""
+    _log_path: str | None = None
+    _command_log: Any = None
 
     @property
     def down(self) -> bool:
@@ -134,6 +143,7 @@ class Link(ABC):
         self.closed = False
         try:
             self._log = open_link_log(log, self.kind) if log else None
+            self._log_path = log
         except BaseException:
             self._close_device()
             self.closed = True
@@ -242,7 +252,17 @@ class Link(ABC):
         if not self._write_command(wire):
             return None
         tracker.sent(cmd_seq, now)
+        if self._log_path is not None:
+            self._log_command(now, LoggedCommand(self.delivered, cmd_seq, envelope_cv, burst_period_ms,
+                                                 bool(enable), watchdog_ms_div10))
         return cmd_seq
+
+    def _log_command(self, host_time: float, command: LoggedCommand) -> None:
+        if self._command_log is None:
+            self._command_log = CommandLog(commands_path(self._log_path),
+                                           {"link": self.kind, **(self.command_log_meta or {})})
+            self._command_t0 = host_time
+        self._command_log.write(host_time - self._command_t0, command)
 
     @abstractmethod
     def _encode_command(self, cmd_seq: int, envelope_cv: int, burst_period_ms: int, enable: bool,
@@ -256,6 +276,7 @@ class Link(ABC):
     def _delivered(self, sample: Sample) -> Sample:
         """Bookkeeping of every sample ``recv`` returns."""
         self._last = sample
+        self.delivered += 1
         self._commands.received(sample)
         if self._gap_pending:
             self._close_gap(sample)
@@ -274,8 +295,12 @@ class Link(ABC):
             return
         self.closed = True
         self._close_device()
-        if self._log is not None:
-            self._log.close()
+        try:
+            if self._log is not None:
+                self._log.close()
+        finally:
+            if self._command_log is not None:
+                self._command_log.close()
 
     @property
     def events(self) -> list[str]:

@@ -4,7 +4,10 @@
   they are read and flushed at least every :data:`FLUSH_S` seconds;
 - CAN logs (``.asc``, ``.blf``, ``.log``, ``.trc``): python-can's ``can.Logger`` chosen by
   extension, every frame as received;
-- record CSV (INTERFACES.md): :class:`RecordWriter`, one row per converted sample.
+- record CSV (INTERFACES.md): :class:`RecordWriter`, one row per converted sample;
+- command log (``LOG.commands.csv`` beside a frame log): :class:`CommandLog`, every command
+  the host sent, with the number of samples it had received when it sent it, so a replay of
+  the frames can check that the same samples give the same commands (:func:`read_command_log`).
 
 :func:`read_log` yields the samples of a raw capture or a CAN log through the very same
 decoders and counters as a live link, so the same frames in give the same samples out.
@@ -22,6 +25,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -194,6 +198,85 @@ class RecordWriter(FlushedFile):
             raise ValueError(f"{len(extra)} extra values for {len(self.extra_columns)} extra columns")
         self._append(",".join(repr(float(v)) for v in (t, cmu, cmu_envelope, dcl, *extra)) + "\n")
         self.rows += 1
+
+
+COMMANDS_SUFFIX = ".commands.csv"
+COMMAND_COLUMNS = ("host_s", "after_samples", "cmd_seq", "envelope_cv", "burst_period_ms", "enable",
+                   "watchdog_ms_div10")
+
+
+def commands_path(log_path: str | os.PathLike) -> Path:
+    """The command log that goes with the frame log ``log_path``."""
+    return Path(f"{log_path}{COMMANDS_SUFFIX}")
+
+
+@dataclass(frozen=True)
+class LoggedCommand:
+    """One command as sent: after ``after_samples`` received samples (the host clock aside)."""
+
+    after_samples: int
+    cmd_seq: int
+    envelope_cv: int
+    burst_period_ms: int
+    enable: bool
+    watchdog_ms_div10: int
+
+    def __str__(self) -> str:
+        return (f"cmd_seq {self.cmd_seq} envelope_cv {self.envelope_cv} enable {int(self.enable)} "
+                f"after sample {self.after_samples}")
+
+
+class CommandLog(FlushedFile):
+    """Every command a link sent (``LOG.commands.csv``): ``# key: value`` metadata (what a
+    replay needs to rerun the controller), then one row per command, flushed every
+    ``flush_s`` and on close."""
+
+    def __init__(self, path: str | os.PathLike, meta: dict[str, Any] | None = None,
+                 flush_s: float = FLUSH_S) -> None:
+        super().__init__(path, "command log", flush_s=flush_s)
+        self._start(meta, COMMAND_COLUMNS)
+        self.rows = 0
+
+    def write(self, host_s: float, c: LoggedCommand) -> None:
+        self._append(f"{host_s:.6f},{c.after_samples},{c.cmd_seq},{c.envelope_cv},{c.burst_period_ms},"
+                     f"{int(c.enable)},{c.watchdog_ms_div10}\n")
+        self.rows += 1
+
+
+def read_command_log(log_path: str | os.PathLike) -> tuple[dict[str, str], list[LoggedCommand]] | None:
+    """The metadata and commands logged beside ``log_path``; ``None`` if there is no command log,
+    :class:`LogError` (one line) if it is not one."""
+    path = commands_path(log_path)
+    if not path.is_file():
+        return None
+    meta: dict[str, str] = {}
+    rows: list[LoggedCommand] = []
+    try:
+        with open(path, encoding="utf-8") as fh:
+            lines = fh.read().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise LogError(f"{path}: cannot read command log ({getattr(exc, 'strerror', None) or exc})") from None
+    header = None
+    for n, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        if line.startswith("#"):
+            key, _, value = line[1:].partition(":")
+            meta[key.strip()] = value.strip()
+        elif header is None:
+            header = tuple(line.split(","))
+            if header != COMMAND_COLUMNS:
+                raise LogError(f"{path}: not a command log (header {line!r})")
+        else:
+            try:
+                _, after, seq, cv, period, enable, wd = (int(v) if i else float(v)
+                                                         for i, v in enumerate(line.split(",")))
+            except ValueError:
+                raise LogError(f"{path}:{n}: bad command row {line!r}") from None
+            rows.append(LoggedCommand(after, seq, cv, period, bool(enable), wd))
+    if header is None:
+        raise LogError(f"{path}: empty command log")
+    return meta, rows
 
 
 @contextlib.contextmanager

@@ -110,7 +110,7 @@ class ControlLoop:
             self.saturated += ctl.saturated
             self.link.send_command(self.envelope_cv(envelope))
 
-    def switch_off(self) -> None:
+    def switch_off(self, wait_echo: bool = True) -> None:
         """Actuator off (``enable`` false); wait briefly for its echo (exact counters)."""
         link = self.link
         if link.closed or link.disconnected:
@@ -119,7 +119,7 @@ class ControlLoop:
             cmd_seq = link.send_command(0, enable=False)
         except Exception:  # noqa: BLE001 - best effort on the way out
             return
-        if cmd_seq is None:
+        if cmd_seq is None or not wait_echo:
             return
         end = time.perf_counter() + OFF_ECHO_S
         while time.perf_counter() < end:
@@ -127,15 +127,22 @@ class ControlLoop:
             if s is not None and s.cmd_seq == cmd_seq:
                 return
 
-    def results(self) -> dict[str, Any]:
-        c = self.link.counters
-        out: dict[str, Any] = {k: int(c.as_dict()[k]) for k in ("commands_sent", "commands_applied",
-                                                                  "watchdog_trips")}
-        out.update(c.command_latency_ms())
+    def tracking(self) -> dict[str, Any]:
+        """Tracking RMSE (low-passed at 1 Hz), saturated share of the decisions, samples tracked."""
+        out: dict[str, Any] = {}
         out["tracking_rmse"] = lowpassed_rmse(np.asarray(self.refs), np.asarray(self.estimates), self.fs_hz)
         out["saturated_fraction"] = self.saturated / self.decisions if self.decisions else 0.0
         out["tracking_samples"] = self.tracked
         out["feedback"] = self.controller.config.feedback
         if out["tracking_rmse"] is not None and not math.isfinite(out["tracking_rmse"]):
             out["tracking_rmse"] = None
+        return out
+
+    def results(self) -> dict[str, Any]:
+        """The link's command counters and latency, then :meth:`tracking`."""
+        c = self.link.counters
+        out: dict[str, Any] = {k: int(c.as_dict()[k]) for k in ("commands_sent", "commands_applied",
+                                                                  "watchdog_trips")}
+        out.update(c.command_latency_ms())
+        out.update(self.tracking())
         return out

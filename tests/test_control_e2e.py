@@ -37,13 +37,14 @@ def _start(make, feedback: str, tmp: Path):
     stream.control = dev.control
     link = ["--serial", dev.path] if make is SerialDaq else ["--can", f"slcan:{dev.path}"]
     summary = tmp / f"{make.__name__}_{feedback}.json"
+    log = tmp / f"{make.__name__}_{feedback}.{'bin' if make is SerialDaq else 'asc'}"
     cmd = [sys.executable, "-m", "rtlift", "control", *link, "--model", str(MODEL), "--reference", REFERENCE,
-           "--seconds", str(SECONDS), "--feedback", feedback, "--json", str(summary)]
+           "--seconds", str(SECONDS), "--feedback", feedback, "--json", str(summary), "--log", str(log)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = proc.stderr.readline()
     assert "link open" in line, line + proc.stderr.read()
     dev.start()
-    return dev, stream, proc, summary
+    return dev, stream, proc, summary, log
 
 
 @pytest.fixture(scope="module")
@@ -52,14 +53,15 @@ def runs(tmp_path_factory):
     started = {name: _start(make, fb, tmp) for name, make, fb in (
         ("serial_on", SerialDaq, "on"), ("serial_off", SerialDaq, "off"), ("slcan_on", SlcanAdapter, "on"))}
     out = {}
-    for name, (dev, stream, proc, summary) in started.items():
+    for name, (dev, stream, proc, summary, log) in started.items():
         try:
             _, err = proc.communicate(timeout=90)
         finally:
             dev.stop()
         assert proc.returncode == 0, err
         idx, truth = stream.truth_array()
-        out[name] = {"summary": json.loads(summary.read_text()), "dev": dev, "idx": idx, "truth": truth}
+        out[name] = {"summary": json.loads(summary.read_text()), "dev": dev, "idx": idx, "truth": truth,
+                     "log": log}
     return out
 
 
@@ -75,6 +77,37 @@ def test_no_sample_is_lost_and_every_command_is_applied(runs, name):
     assert s["watchdog_trips"] == 0 and st.watchdog_trips <= 1 and st.cmd_errors == 0
     assert s["command_latency_p50_ms"] <= s["command_latency_p99_ms"] < 1000.0  # generous: a shared machine
     assert not dev.control.enabled and dev.control.envelope_cv == 0  # switched off on the way out
+
+
+@pytest.mark.parametrize("name", ["serial_on", "serial_off", "slcan_on"])
+def test_replay_of_the_log_reruns_the_controller_and_sends_the_same_commands(runs, name, tmp_path, capsys):
+    live = runs[name]["summary"]
+    out = tmp_path / "replay.json"
+    assert main(["replay", str(runs[name]["log"]), "--model", str(MODEL), "--json", str(out)]) == 0
+    rerun = json.loads(out.read_text())["commands"]
+    assert rerun["identical"], rerun["first_difference"]
+    assert rerun["logged"] == rerun["replayed"] == live["commands_sent"] > 20
+    # the same samples reach the observer in the same order: the estimates are the same bit for bit
+    assert rerun["tracking_samples"] == live["tracking_samples"]
+    assert rerun["tracking_rmse"] == live["tracking_rmse"]
+    assert "identical to the" in capsys.readouterr().out
+
+
+def test_a_replayed_controller_that_differs_from_the_log_says_where_and_exits_1(runs, tmp_path, capsys):
+    log = runs["serial_on"]["log"]
+    copy = tmp_path / log.name
+    copy.write_bytes(log.read_bytes())
+    lines = Path(f"{log}.commands.csv").read_text().splitlines()
+    rows = [i for i, line in enumerate(lines) if line[:1].isdigit()]
+    k = rows[len(rows) // 2]
+    cells = lines[k].split(",")
+    cells[3] = str(int(cells[3]) + 1)                   # one envelope changed by 0.01 V
+    lines[k] = ",".join(cells)
+    Path(f"{copy}.commands.csv").write_text("\n".join(lines) + "\n")
+    assert main(["replay", str(copy), "--model", str(MODEL)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"command {rows.index(k) + 1}: logged" in err[0], err
+    assert main(["replay", str(copy), "--model", str(MODEL), "--no-control"]) == 0
 
 
 def test_feedback_tracks_better_than_feedforward_under_a_fade(runs):

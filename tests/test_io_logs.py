@@ -145,3 +145,25 @@ def test_a_log_in_progress_is_complete_after_sigterm_or_ctrl_c(tmp_path, kind, s
     assert summary["received"] >= 200
     assert summary["received"] <= len(samples) <= summary["received"] + 3
     assert samples[summary["received"] - 1].seq == summary["last_seq"]
+
+
+def test_a_command_log_reads_back_and_a_broken_one_is_one_line(tmp_path):
+    from firmware_io.logs import CommandLog, LoggedCommand, commands_path, read_command_log
+
+    frames = tmp_path / "run.bin"
+    assert read_command_log(frames) is None                     # no commands beside this log
+    sent = [LoggedCommand(400, 1, 0, 0, True, 0), LoggedCommand(1251, 2, 317, 0, True, 0),
+            LoggedCommand(5200, 3, 0, 0, False, 0)]
+    with CommandLog(commands_path(frames), {"reference": "steps:0.1@0", "feedback": "on"}) as log:
+        for k, c in enumerate(sent):
+            log.write(0.01 * k, c)
+    meta, rows = read_command_log(frames)
+    assert meta == {"reference": "steps:0.1@0", "feedback": "on"} and rows == sent
+    path = commands_path(frames)
+    path.write_text(path.read_text().replace("1251,2,317", "1251,2,3x7"))
+    with pytest.raises(LogError, match=r"run\.bin\.commands\.csv:\d+: bad command row") as exc:
+        read_command_log(frames)
+    assert "\n" not in str(exc.value)
+    path.write_text("t,u,y\n1,2,3\n")
+    with pytest.raises(LogError, match="not a command log"):
+        read_command_log(frames)

@@ -3,7 +3,9 @@
 The observer's estimate in, burst-envelope commands out (:mod:`rtlift.closed_loop`,
 :mod:`rtlift.control`). The host first holds the actuator off for the settle and tare
 (3 s on the default calibration); the reference's time starts after them. ``--log`` keeps
-the raw frames for ``rtlift replay``. Ctrl-C, SIGTERM and a vanished device end the loop
+the raw frames and, beside them, every command sent (``LOG.commands.csv``, with the reference
+and the feedback setting): ``rtlift replay`` reruns the controller on the frames and checks
+that it sends the same commands. Ctrl-C, SIGTERM and a vanished device end the loop
 with the actuator switched off and ``--json`` written on every exit path. With
 ``--reconnect`` a vanished device is reopened with backoff instead: while it is gone no command
 is sent and the device's watchdog takes its actuator to 0 (the safe state), the observer predicts
@@ -63,6 +65,9 @@ def run(args: argparse.Namespace) -> int:
     calibration = Calibration.load(args.calibration)
     _warm_up(observer, controller)
     link = open_link(link_config_from_args(args, log=args.log, calibration=calibration))
+    link.command_log_meta = {"tool": "rtlift control", "model": args.model, "reference": args.reference,
+                             "feedback": args.feedback,
+                             "seconds": "" if args.seconds is None else repr(args.seconds)}
     where = args.serial or args.can
     print(f"rtlift control: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
     fs = model.fs_hz

@@ -4,11 +4,19 @@ bit for bit. As fast as possible by default; ``--realtime`` paces a CAN log with
 ``MessageSync`` (its recorded timestamps) and a raw serial capture on the device clock
 (one sample per 1/fs on absolute deadlines). ``--view`` serves the live plot of ``rtlift
 observe`` (most useful with ``--realtime``).
+
+A log written by ``rtlift control`` has its commands beside it (``LOG.commands.csv``): replay
+then reruns the controller too — the same settle and tare, the same reference and feedback
+setting, the observer fed exactly the samples the live loop fed it — and checks that it sends
+the same commands after the same samples (``cmd_seq``, envelope, flags); the summary says how
+many were logged and replayed and where they first differ (exit 1 if they do). ``--no-control``
+replays the observer alone over every sample.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Iterator
 
@@ -26,6 +34,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters and observer monitors")
+    p.add_argument("--no-control", action="store_true",
+                   help="do not rerun the controller of a log written by rtlift control")
     add_view_argument(p)
     p.set_defaults(func=run)
 
@@ -85,10 +95,78 @@ def _paced(samples, fs_hz: float) -> Iterator:
         yield s
 
 
+class _CommandRecorder:
+    """The link of a replayed closed loop: keeps the commands the controller sends, numbered
+    as the live link numbered them (:func:`firmware_io.commands.next_cmd_seq`)."""
+
+    closed = False
+    disconnected = False
+
+    def __init__(self, modulus: int) -> None:
+        self.modulus = modulus
+        self.last = 0
+        self.sent: list = []
+        self.position = lambda: 0
+
+    def send_command(self, envelope_cv: int, burst_period_ms: int = 0, enable: bool = True,
+                     watchdog_ms_div10: int = 0) -> int:
+        from firmware_io.commands import next_cmd_seq
+        from firmware_io.logs import LoggedCommand
+
+        self.last = next_cmd_seq(self.last, self.modulus)
+        self.sent.append(LoggedCommand(self.position(), self.last, envelope_cv, burst_period_ms, bool(enable),
+                                       watchdog_ms_div10))
+        return self.last
+
+
+def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibration, samples,
+                   kind: str) -> dict:
+    """Feed the samples through a fresh controller as ``rtlift control`` did; compare its commands."""
+    from firmware_io.commands import CAN_CMD_SEQ_MODULUS, SERIAL_CMD_SEQ_MODULUS
+    from rtlift.closed_loop import ControlLoop
+    from rtlift.control import ControlConfig, LiftController
+    from rtlift.reference import parse_reference
+
+    try:
+        reference = parse_reference(meta["reference"])
+        feedback = meta["feedback"] == "on"
+        seconds = float(meta["seconds"]) if meta.get("seconds") else None
+    except (KeyError, ValueError) as exc:
+        raise UserError(f"{args.log}.commands.csv: the command log's metadata lacks or garbles {exc}") from None
+    controller = LiftController(model, ControlConfig(feedback=feedback, fs_hz=model.fs_hz))
+    recorder = _CommandRecorder(SERIAL_CMD_SEQ_MODULUS if kind == "serial" else CAN_CMD_SEQ_MODULUS)
+    closed = ControlLoop(recorder, loop, controller, reference, calibration, model.fs_hz,
+                         None if seconds is None else int(round(seconds * model.fs_hz)))
+    recorder.position = lambda: closed.received
+    switched_off = bool(logged) and not logged[-1].enable
+    stop = logged[-1].after_samples if switched_off else None
+    loop.stats.end = "ended"
+    for sample in samples:
+        if stop is not None and closed.received >= stop:
+            break
+        closed.feed(sample)
+        if closed.done:
+            loop.stats.end = "completed"
+            break
+    if switched_off:
+        closed.switch_off(wait_echo=False)
+    replayed = recorder.sent
+    first = next((i for i, (a, b) in enumerate(zip(logged, replayed)) if a != b), None)
+    if first is None and len(logged) != len(replayed):
+        first = min(len(logged), len(replayed))
+    difference = None
+    if first is not None:
+        def at(rows: list, i: int) -> str:
+            return str(rows[i]) if i < len(rows) else "nothing"
+        difference = f"command {first + 1}: logged {at(logged, first)}, replayed {at(replayed, first)}"
+    return {"logged": len(logged), "replayed": len(replayed), "identical": first is None,
+            "first_difference": difference, "reference": meta["reference"], **closed.tracking()}
+
+
 def run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
-    from firmware_io.logs import read_log
+    from firmware_io.logs import read_command_log, read_log
     from rtlift.live import EstimateWriter, ObserverLoop, summary, write_summary
     from rtlift.modelfile import load_model
     from rtlift.observer import Observer
@@ -98,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
     observer = Observer.from_model(model)
     calibration = Calibration.load(args.calibration)
     source = read_log(args.log, calibration)
+    commands = None if args.no_control else read_command_log(args.log)
     if args.realtime:
         stream = _SyncedCanLog(args.log) if source.kind == "can" else source
         samples = iter(stream) if source.kind == "can" else _paced(source, model.fs_hz)
@@ -115,8 +194,12 @@ def run(args: argparse.Namespace) -> int:
             view.counters = lambda: {**counters_of.counters.as_dict(), "estimates": loop.stats.estimates}
             loop.tap = view.tap
         t0 = time.perf_counter()
+        control = None
         try:
-            loop.run(samples)
+            if commands is None:
+                loop.run(samples)
+            else:
+                control = _rerun_control(args, *commands, loop, model, calibration, samples, source.kind)
         except KeyboardInterrupt:
             loop.stats.end = "interrupted"
         finally:
@@ -126,6 +209,8 @@ def run(args: argparse.Namespace) -> int:
         data = summary(counters_of.counters.as_dict(), loop.stats, observer, model=str(args.model),
                        log=str(args.log), realtime=bool(args.realtime), host_seconds=seconds,
                        device_seconds=(loop.stats.samples + loop.stats.filled) / model.fs_hz)
+        if control is not None:
+            data["commands"] = control
         if args.json:
             write_summary(args.json, data)
     finally:
@@ -138,4 +223,13 @@ def run(args: argparse.Namespace) -> int:
           f"time) in {seconds:.2f} s; received {data['received']} lost {data['lost']} crc_errors "
           f"{data['crc_errors']}; {data['estimates']} estimates"
           + (f"; NIS mean {o['nis_mean']:.3g}" if o["nis_mean"] is not None else ""))
-    return 130 if loop.stats.end == "interrupted" else 0
+    if loop.stats.end == "interrupted":
+        return 130
+    if control is not None:
+        if not control["identical"]:
+            print(f"rtlift replay: the controller's commands differ from the log at {control['first_difference']}",
+                  file=sys.stderr)
+            return 1
+        print(f"rtlift replay: controller rerun: {control['replayed']} commands, identical to the "
+              f"{control['logged']} logged; tracking RMSE {control['tracking_rmse']}")
+    return 0
