@@ -5,9 +5,9 @@ flushed), stream at 400 Hz until SIGINT or SIGTERM.
 ``--serial`` emulates the DAQ's serial link (open the path with ``--serial PATH``);
 ``--slcan`` emulates a USB–CAN adapter with the DAQ behind it (``--can slcan:PATH``).
 Effects are plant effects (``hil_sim.effects.parse_effect``); faults are link faults
-(:mod:`hil_sim.devices.faults`, e.g. ``corrupt:rate=1e-3``, ``disconnect:after_s=30``) and, on
-``--serial``, command faults (``cmd_drop:rate=0.05``, ``cmd_corrupt:rate=0.05``,
-``cmd_late:rate=0.05,delay_ms=50``).
+(:mod:`hil_sim.devices.faults`, e.g. ``corrupt:rate=1e-3``, ``disconnect:after_s=30``) and
+command faults (``cmd_drop:rate=0.05``, ``cmd_corrupt:rate=0.05``,
+``cmd_late:rate=0.05,delay_ms=50``), on both devices.
 
 The device is a protocol-version-2 device and a real-time HIL plant (:mod:`hil_sim.hil`): it
 streams the experiment as version 1 until the first command, then the simulated plant follows

@@ -7,6 +7,12 @@ or slcan), runs ``rtlift control`` on it in its own process, and scores the plan
 
     RMSE = sqrt(mean((LP ΔCL_true − LP r)²))   over the tracking time.
 
+Step response, on the same truth averaged over one burst period (the burst ripple's period,
+trailing, so causal): after each step of a piecewise-constant reference, the settling time is
+the time until that average stays within ``SETTLE_TOL`` of the new level up to the next step
+(``None`` if it never does: a level beyond the actuator's reach). After an unreachable level,
+the next step's settling time is the recovery time (windup shows there).
+
 Tracking starts after the host's settle and tare (``rtlift.closed_loop``): 3 s on the default
 calibration, counted in device samples (none lost, the host received from sample 0). Several
 runs can go side by side: :meth:`BenchTracking.start` them all, then :meth:`~BenchTracking.finish`.
@@ -43,6 +49,33 @@ def reference_values(spec: str, n: int, fs_hz: float = FS_HZ) -> np.ndarray:
 def lowpass(x: np.ndarray, fs_hz: float = FS_HZ) -> np.ndarray:
     """``x`` low-passed at 1 Hz, zero phase (2nd-order Butterworth, forward and back)."""
     return signal.sosfiltfilt(signal.butter(2, LOWPASS_HZ, fs=fs_hz, output="sos"), x)
+
+
+SETTLE_TOL = 0.01
+RIPPLE_SAMPLES = 50
+"""One burst period at the lift-optimal 8 Hz (``rtlift.control.BURST_PERIOD_SAMPLES``)."""
+
+
+def settling_times(truth: np.ndarray, reference: np.ndarray, fs_hz: float = FS_HZ, tol: float = SETTLE_TOL,
+                   window: int = RIPPLE_SAMPLES) -> list[float | None]:
+    """Seconds after each step of ``reference`` until ``truth``'s trailing ``window`` mean stays
+    within ``tol`` of the new level up to the next step; ``None`` if it never does (module docstring)."""
+    truth = np.asarray(truth, dtype=float)
+    c = np.concatenate([[0.0], np.cumsum(truth)])
+    k = np.arange(truth.size)
+    lo = np.maximum(0, k + 1 - window)
+    mean = (c[k + 1] - c[lo]) / (k + 1 - lo)
+    edges = np.flatnonzero(np.abs(np.diff(reference)) > 1e-12) + 1
+    out: list[float | None] = []
+    for a, b in zip(edges, [*edges[1:], truth.size], strict=True):
+        bad = np.flatnonzero(np.abs(mean[a:b] - reference[a]) > tol)
+        if bad.size == 0:
+            out.append(0.0)
+        elif bad[-1] == b - a - 1:
+            out.append(None)
+        else:
+            out.append(float((bad[-1] + 1) / fs_hz))
+    return out
 
 
 def truth_rmse(truth: np.ndarray, reference: np.ndarray, fs_hz: float = FS_HZ) -> float:
@@ -98,9 +131,11 @@ class BenchTracking:
         idx, truth = self.stream.truth_array()
         n = int(round(self.seconds * FS_HZ))
         y = truth[(idx >= TRACKING_STARTS) & (idx < TRACKING_STARTS + n)]
+        r = reference_values(self.reference, len(y))
         st = self.device.stats
         return {"feedback": "on" if self.feedback else "off",
-                "rmse_truth": truth_rmse(y, reference_values(self.reference, len(y))),
+                "rmse_truth": truth_rmse(y, r),
+                "settling_s": settling_times(y, r) if self.reference.startswith("steps:") else None,
                 "rmse_estimate": s["tracking_rmse"], "lost": s["lost"], "received": s["received"],
                 "commands_sent": s["commands_sent"], "commands_applied": s["commands_applied"],
                 "superseded": st.commands_superseded, "device_applied": st.commands_applied,

@@ -6,11 +6,13 @@ twice; independently, with probability ``garbage``, a burst of junk precedes it.
 ``disconnect_after_s`` closes the device (the pseudo-terminal) after that much streaming.
 Only samples with index in ``[start, stop)`` are eligible, so a test can keep a clean tail.
 
-Command faults (protocol version 2, the serial DAQ): one decision per command packet the
-host writes, with probabilities ``cmd_drop``, ``cmd_corrupt`` and ``cmd_late`` (exclusive),
-from a random stream of their own (the samples' faults are unchanged by them). A dropped
-command never reaches the firmware; a corrupted one has one COBS data byte replaced (its
-CRC-16 always fails: counted in ``cmd_errors``, never applied, never echoed); a late one
+Command faults (protocol version 2, both devices; :class:`.host_control.HostControl`): one
+decision per command the host writes (a serial packet or a CAN ``CMD`` frame), with
+probabilities ``cmd_drop``, ``cmd_corrupt`` and ``cmd_late`` (exclusive), from a random stream
+of their own (the samples' faults are unchanged by them). A dropped command never reaches the
+firmware; a corrupted one is invalid when it does (serial: one COBS data byte replaced, so its
+CRC-16 always fails; CAN: truncated to 4 data bytes) — counted in ``cmd_errors``, never
+applied, never echoed; a late one
 reaches the firmware ``cmd_delay_ms`` later (device clock), where it is applied, superseded
 or ignored like any other. Eligible while the device's sample index is in ``[start, stop)``.
 

@@ -10,6 +10,12 @@ command arrived for ``watchdog_ms`` (counted in samples of the device clock) aft
 control began, the watchdog fires: status bit5, bit4 cleared, envelope 0 and the actuator off
 until the next applied command.
 
+Command faults (:mod:`.faults`: dropped, corrupted, late) sit in front of it, the same for
+both devices: :meth:`HostControl.arrive` takes a command as its wire carries it, decides its
+fault from a random stream of its own (the samples' faults are unchanged by it), corrupts it
+with the device's own corruption if so, decodes it, and hands it on now or, if late,
+``cmd_delay_ms`` of the device clock later (:meth:`HostControl.step` delivers it).
+
 This is the framing level only. The plant hook: :attr:`HostControl.envelope_cv`,
 :attr:`HostControl.enabled`, :attr:`HostControl.burst_period_ms` and
 :attr:`HostControl.applied` say what the firmware would drive now; applying them to the
@@ -20,9 +26,15 @@ the experiment's drive and forces, with the commanded envelope in ``envelope_cv`
 
 from __future__ import annotations
 
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
 from firmware_io.commands import DEFAULT_WATCHDOG_MS, ENVELOPE_LIMIT_CV, WATCHDOG_STEP_MS, Command, is_newer
 from firmware_io.samples import STATUS_HOST_CONTROL, STATUS_WATCHDOG
-from hil_sim.devices.faults import DeviceStats
+from hil_sim.devices.faults import DeviceStats, FaultPlan
 
 
 class HostControl:
@@ -30,8 +42,13 @@ class HostControl:
     (``commands_valid``, ``commands_applied``, ``commands_superseded``, ``commands_ignored``,
     ``cmd_errors``, ``watchdog_trips``)."""
 
-    def __init__(self, stats: DeviceStats, cmd_seq_modulus: int, fs_hz: float) -> None:
+    def __init__(self, stats: DeviceStats, cmd_seq_modulus: int, fs_hz: float,
+                 faults: FaultPlan | None = None, seed: int = 0) -> None:
         self.stats = stats
+        self.faults = faults or FaultPlan()
+        self._rng = np.random.default_rng((seed, 1))
+        self._late: deque[tuple[int, Command | None]] = deque()
+        self._delay_samples = max(1, int(round(self.faults.cmd_delay_ms * fs_hz / 1000.0)))
         self.modulus = cmd_seq_modulus
         self.fs_hz = fs_hz
         self.applied: Command | None = None
@@ -54,6 +71,27 @@ class HostControl:
     def version(self) -> int:
         return 1 if self.applied is None else 2
 
+    def arrive(self, wire: Any, index: int, decode: Callable[[Any], Command | None],
+               corrupt: Callable[[Any, np.random.Generator], Any]) -> None:
+        """A command as its wire carries it arrived before sample ``index``, through the
+        command faults: dropped (never decoded), corrupted by ``corrupt`` (so ``decode`` fails:
+        a ``cmd_errors``), late (held ``cmd_delay_ms``), or handed to :meth:`receive`."""
+        st = self.stats
+        f = self.faults
+        fault = f.command_fault(index, float(self._rng.random())) if f.any_command else None
+        if fault == "drop":
+            st.commands_dropped += 1
+            return
+        if fault == "corrupt":
+            wire = corrupt(wire, self._rng)
+            st.commands_corrupted += 1
+        command = decode(wire)
+        if fault == "late":
+            st.commands_delayed += 1
+            self._late.append((index + self._delay_samples, command))
+            return
+        self.receive(command, index)
+
     def receive(self, command: Command | None, index: int) -> None:
         """A command arrived before sample ``index`` (``None``: an invalid one)."""
         st = self.stats
@@ -74,6 +112,9 @@ class HostControl:
         """Sample ``index`` with the experiment's ``status`` and ``envelope_cv``: returns the
         ``cmd_seq`` to echo (``None``: stream version 1), the status with bits 4 and 5, and the
         envelope to report."""
+        late = self._late
+        while late and late[0][0] <= index:
+            self.receive(late.popleft()[1], index)
         cmd = self._pending
         if cmd is not None:
             self._pending = None

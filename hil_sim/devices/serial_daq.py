@@ -18,7 +18,6 @@ before the firmware sees it, and counted in ``stats``.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Iterable
 
 import numpy as np
@@ -72,12 +71,9 @@ class SerialDaq(PtyDevice):
         self._started = False
         self._in_error = False
         self._events: list[str] = []
-        self.control = HostControl(self.stats, SERIAL_CMD_SEQ_MODULUS, self.fs_hz)
+        self.control = HostControl(self.stats, SERIAL_CMD_SEQ_MODULUS, self.fs_hz, self.faults, seed)
         """What the host commanded (version 2): the applied command, envelope and watchdog."""
         self._input = bytearray()
-        self._cmd_rng = np.random.default_rng((seed, 1))
-        self._late: deque[tuple[int, object]] = deque()
-        self._delay_samples = max(1, int(round(self.faults.cmd_delay_ms * self.fs_hz / 1000.0)))
         self._samples_per_report = max(1, int(round(self.fs_hz)))
 
     def send_event(self, text: str) -> None:
@@ -91,30 +87,11 @@ class SerialDaq(PtyDevice):
         *packets, rest = bytes(buf).split(b"\x00")
         for chunk in packets:
             if chunk:
-                self._command_packet(chunk)
+                self.control.arrive(chunk, self.stats.samples, decode_command, corrupt_one_byte)
         buf[:] = rest
         if len(buf) > MAX_PACKET_BYTES:
             buf.clear()
             self.control.receive(None, self.stats.samples)
-
-    def _command_packet(self, chunk: bytes) -> None:
-        """One command packet from the host, through the command faults to the firmware."""
-        st = self.stats
-        index = st.samples
-        f = self.faults
-        fault = f.command_fault(index, float(self._cmd_rng.random())) if f.any_command else None
-        if fault == "drop":
-            st.commands_dropped += 1
-            return
-        if fault == "corrupt":
-            chunk = corrupt_one_byte(chunk, self._cmd_rng)
-            st.commands_corrupted += 1
-        command = decode_command(chunk)
-        if fault == "late":
-            st.commands_delayed += 1
-            self._late.append((index + self._delay_samples, command))
-            return
-        self.control.receive(command, index)
 
     def _packet(self, data: bytes, valid: bool) -> None:
         self.write(data)
@@ -130,8 +107,6 @@ class SerialDaq(PtyDevice):
             self._started = True
             self.write(b"\x00")
         volt_cv, envelope_cv, status, counts = sample
-        while self._late and self._late[0][0] <= index:
-            self.control.receive(self._late.popleft()[1], index)
         cmd_seq, status, envelope_cv = self.control.step(index, status, envelope_cv)
         if st.cmd_errors and index % self._samples_per_report == 0:
             self.send_event(f"cmd_errors={st.cmd_errors}")

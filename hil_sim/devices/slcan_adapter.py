@@ -18,7 +18,10 @@ applied command and envelope are exposed in :attr:`SlcanAdapter.control` (the pl
 
 Faults per frame (see :mod:`.faults`): drop, duplicate, corrupt (the frame arrives
 truncated to 4 data bytes, which the host counts as invalid), garbage (a junk line before
-the frame that is no frame command, which the driver ignores).
+the frame that is no frame command, which the driver ignores). Command faults, per ``CMD``
+frame the host transmits, as on the serial DAQ (:meth:`.host_control.HostControl.arrive`):
+dropped (the adapter acknowledges the transmit, the DAQ never gets it), corrupted (it reaches
+the DAQ truncated to 4 data bytes: DLC ≠ 8, a ``cmd_errors``), or late.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from collections.abc import Iterable
 from firmware_io.calibration import Calibration
 from firmware_io.can_codec import CMD_ID, DLC, decode_command_frame, encode_sample_frames, load_dbc
 from firmware_io.commands import CAN_CMD_SEQ_MODULUS
-from hil_sim.devices.faults import FaultPlan, FaultSpecError
+from hil_sim.devices.faults import FaultPlan
 from hil_sim.devices.host_control import HostControl
 from hil_sim.devices.pty_device import FS_HZ, PtyDevice
 from hil_sim.devices.source import can_wire, wire_samples
@@ -40,6 +43,11 @@ GARBAGE_ALPHABET = b"0123456789ABCDEFGHIJKLMNOPQSUVWXYZaceghijklmnopqsuvwyz !#$%
 """Printable junk that never starts a frame line the driver would parse (no t T r R d D b B x)."""
 
 
+def _truncated(cmd: str, rng: object) -> str:
+    """A ``t100…`` line as a corrupted frame reaches the DAQ: its first 4 data bytes, DLC 4."""
+    return f"{cmd[:4]}4{cmd[5:13]}"
+
+
 class SlcanAdapter(PtyDevice):
     """Emulated SLCAN adapter: ``SlcanAdapter(chunks).start()``, then
     ``can.Bus(interface="slcan", channel=adapter.path, bitrate=500000, sleep_after_open=0)``."""
@@ -47,9 +55,6 @@ class SlcanAdapter(PtyDevice):
     def __init__(self, chunks: Iterable[object], *, fs_hz: float = FS_HZ, faults: FaultPlan | None = None,
                  seed: int = 0, max_samples: int | None = None, keep_sent: bool = False,
                  first_seq: int = 0, calibration: Calibration | None = None) -> None:
-        if faults is not None and faults.any_command:
-            raise FaultSpecError("command faults (cmd_drop, cmd_corrupt, cmd_late) are emulated on the "
-                                 "serial DAQ only")
         cal = calibration or Calibration()
         super().__init__(wire_samples(chunks, lambda c: can_wire(c, cal)), fs_hz=fs_hz, faults=faults,
                          seed=seed, max_samples=max_samples, keep_sent=keep_sent)
@@ -63,7 +68,7 @@ class SlcanAdapter(PtyDevice):
         self._line = bytearray()
         self._db = load_dbc()
         self._t10_per_sample = int(round(1e5 / fs_hz))
-        self.control = HostControl(self.stats, CAN_CMD_SEQ_MODULUS, self.fs_hz)
+        self.control = HostControl(self.stats, CAN_CMD_SEQ_MODULUS, self.fs_hz, self.faults, seed)
         """What the host commanded (version 2): the applied command, envelope and watchdog."""
 
     def streaming(self) -> bool:
@@ -115,15 +120,16 @@ class SlcanAdapter(PtyDevice):
         self.write(reply)
 
     def _cmd_frame(self, cmd: str) -> None:
-        """``t100Ldd…``: the host's command to the DAQ behind the adapter."""
+        """``t100Ldd…``: the host's command to the DAQ behind the adapter, through the command faults."""
+        self.control.arrive(cmd, self.stats.samples, self._decode_cmd, _truncated)
+
+    def _decode_cmd(self, cmd: str):
         try:
             dlc = int(cmd[4])
             data = bytes.fromhex(cmd[5:])
         except (ValueError, IndexError):
-            data = b""
-            dlc = -1
-        frame = decode_command_frame(data, self._db) if dlc == DLC == len(data) else None
-        self.control.receive(frame, self.stats.samples)
+            return None
+        return decode_command_frame(data, self._db) if dlc == DLC == len(data) else None
 
     # -- the DAQ side ------------------------------------------------------------------------
     def _emit(self, index: int, sample: tuple[int, int, int, tuple[int, ...]]) -> None:

@@ -28,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="experiment program the DAQ streams, repeated (default random)")
     serve.add_argument("--fault", action="append", default=[], metavar="NAME:k=v",
                        help="link fault: corrupt|drop|duplicate|garbage:rate=R or disconnect:after_s=S; "
-                            "command fault (--serial): cmd_drop|cmd_corrupt:rate=R or "
+                            "command fault: cmd_drop|cmd_corrupt:rate=R or "
                             "cmd_late:rate=R[,delay_ms=MS]")
     _common(serve)
     serve.set_defaults(func=_serve)

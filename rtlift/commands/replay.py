@@ -151,7 +151,7 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibr
     if switched_off:
         closed.switch_off(wait_echo=False)
     replayed = recorder.sent
-    first = next((i for i, (a, b) in enumerate(zip(logged, replayed)) if a != b), None)
+    first = next((i for i, (a, b) in enumerate(zip(logged, replayed, strict=False)) if a != b), None)
     if first is None and len(logged) != len(replayed):
         first = min(len(logged), len(replayed))
     difference = None
