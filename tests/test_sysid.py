@@ -20,9 +20,9 @@ from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.cli import main
 from rtlift.errors import RecordError
 from rtlift.records import SisoRecord, read_siso_record, write_siso_record
-from rtlift.sysid.diagnose import diagnose_siso
+from rtlift.sysid.diagnose import clip_levels, diagnose_siso
 from rtlift.sysid.identify import SisoOptions, identify_siso
-from rtlift.sysid.model import FeedbackModel, SisoModel, model_from_dict
+from rtlift.sysid.model import FeedbackModel, SaturatedModel, SisoModel, model_from_dict
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -82,6 +82,73 @@ def test_the_feedback_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
     np.testing.assert_array_equal(m1.get_state(), m2.get_state())
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4))
+def test_a_saturated_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
+    rng = np.random.default_rng(seed)
+    inner = random_model(rng, bool(seed % 2))
+    inner.reset()
+    lo, hi = np.quantile(inner.simulate(rng.normal(size=300) * 3), [0.2, 0.8])
+    inner.reset()
+    u = rng.normal(size=sum(cuts)) * 3
+    m1 = SaturatedModel(inner, lo if seed % 3 else -np.inf, hi)
+    m2 = model_from_dict(json.loads(json.dumps(m1.to_dict())))
+    stepped = np.array([m1.step(v) for v in u])
+    assert np.max(stepped) <= hi
+    parts, i = [], 0
+    for c in cuts:
+        parts.append(m2.simulate(u[i:i + c]))
+        i += c
+    scale = max(1.0, float(np.max(np.abs(stepped))))
+    np.testing.assert_allclose(np.concatenate(parts), stepped, atol=1e-12 * scale, rtol=0)
+    np.testing.assert_allclose(m1.get_state(), m2.get_state(), atol=1e-12 * scale, rtol=1e-9)
+
+
+def test_clip_levels_are_where_the_measurement_piles_up():
+    rng = np.random.default_rng(3)
+    y = np.sin(np.linspace(0, 60, 4000)) + 0.01 * rng.normal(size=4000)
+    assert clip_levels(y)[0] == (-np.inf, np.inf)               # a maximum reached once is no limit
+    (lo, hi), detail = clip_levels(np.clip(y, -2.0, 0.7))
+    assert (lo, hi) == (-np.inf, 0.7) and "at the maximum 0.7" in detail
+    assert clip_levels(np.clip(y, -0.9, 0.7))[0] == (-0.9, 0.7)
+    few = y.copy()
+    few[:4] = 5.0                                                  # 4 samples: below the 5-sample floor
+    assert clip_levels(few)[0] == (-np.inf, np.inf)
+
+
+def test_a_clipped_wiener_hammerstein_system_is_diagnosed_as_saturation(tmp_path):
+    """u → G₁ → tanh → G₂ → clip at its 90th percentile (+ sensor noise before the clip): from a
+    Wiener model, the diagnosis finds the level the output piles up at, re-identifies each form
+    with the clip in place and accepts the saturated Wiener–Hammerstein model."""
+    rng = np.random.default_rng(7)
+    p = 0.9 * np.exp(0.3j)
+    x = np.linspace(-3, 3, 7)
+    true = SisoModel(HighPassFilter.from_ba([0.05, 0.05], np.real(np.poly([p, p.conjugate()]))),
+                     OutputNonlinearity(x, np.tanh(x)), HighPassFilter.from_ba([0.3], [1.0, -0.7]), 100.0)
+    u = np.zeros(3000)
+    for k in range(1, u.size):                                     # AR(1) input, coloured like the benchmarks'
+        u[k] = 0.5 * u[k - 1] + rng.normal()
+    free = true.simulate(u)
+    level = float(np.quantile(free, 0.9))
+    y = np.minimum(free + 1e-3 * np.std(free) * rng.normal(size=u.size), level)
+
+    def rec(lo: int, hi: int, name: str) -> SisoRecord:
+        return SisoRecord(np.arange(hi - lo) / 100.0, u[lo:hi], y[lo:hi], {}, name)
+    opt = SisoOptions(orders=(3,), feedback_orders=(2,), max_nfev=100)
+    train, val = rec(0, 2000, "train"), rec(2000, 3000, "val")
+    wiener = identify_siso(train, "wiener", options=opt)
+    report, augmented = diagnose_siso(wiener, train, [val], skip=50, options=opt)
+    assert [e["name"] for e in report["effects"] if e["accepted"]] == ["saturation"]
+    sat = report["effects"][2]
+    assert sat["params"]["upper"] == level and sat["params"]["lower"] is None
+    assert sat["params"]["model"] == "wiener_hammerstein"
+    assert sat["validation_rmse_after"] < 0.15 * sat["validation_rmse_before"]   # 0.041 -> 0.0034
+    assert isinstance(augmented, SaturatedModel) and augmented.upper == level
+    (tmp_path / "m.json").write_text(json.dumps(augmented.to_dict()))
+    back = model_from_dict(json.loads((tmp_path / "m.json").read_text()))
+    np.testing.assert_array_equal(back.simulate(val.u), augmented.simulate(val.u))
+
+
 def test_a_generic_record_round_trips_and_a_bad_one_is_one_line(tmp_path):
     rec = SisoRecord(np.arange(5) / 10.0, np.arange(5.0), -np.arange(5.0), {"fs_hz": "10"}, "r")
     write_siso_record(tmp_path / "r.csv", rec)
@@ -127,6 +194,7 @@ def test_on_wh2009_the_residual_leads_from_a_wiener_model_to_the_output_block_it
     report, augmented = diagnose_siso(wiener, est, [val], skip=50, options=opt)
     entry = report["effects"][0]
     assert (entry["name"], entry["kind"], entry["accepted"]) == ("output_dynamics", "structure", True)
+    assert report["effects"][2]["evidence"].startswith("not tried: no clipping level")  # nothing piles up
     assert "bv_u2_e (significant)" in entry["evidence"]           # Billings-Voon pointed there
     rmse = {}
     for name, model in (("wiener", wiener), ("wh", augmented)):
@@ -156,7 +224,14 @@ def test_the_command_line_identifies_diagnoses_and_validates_a_generic_record(tm
                  "--skip", "50", "--json", str(tmp_path / "v.json")]) == 0
     scored = json.loads((tmp_path / "v.json").read_text())["records"]["val"]
     assert scored["rmse"] == pytest.approx(report["augmented"]["records"]["val"]["rmse"], rel=1e-12)
-    assert [e["name"] for e in report["effects"]] == ["output_dynamics", "nonlinear_feedback"]
+    names = [e["name"] for e in report["effects"]]
+    assert names == ["output_dynamics", "nonlinear_feedback", "saturation"]
+    sat = report["effects"][2]
+    # the sensor's 10 V ceiling is found, and the clipped model lowers the validation error by
+    # about two thirds; but 205 validation samples make 3 blocks of 50, too few for t >= 3
+    assert sat["params"]["upper"] == 10.0 and sat["params"]["lower"] is None
+    assert sat["validation_rmse_after"] < 0.5 * sat["validation_rmse_before"]
+    assert not sat["accepted"] and "over 3 blocks" in sat["evidence"]
     assert main(["identify", "--record", str(tmp_path / "est.csv"), "--static", "x.csv", "-o", "m.json"]) == 2
     assert main(["identify", "-o", "m.json"]) == 2
     assert capsys.readouterr().err.count("rtlift: error:") == 2

@@ -13,13 +13,20 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
   refined jointly (:func:`rtlift.sysid.identify.identify_siso`).
 - ``nonlinear_feedback`` — the output fed back through a static map into the linear block's
   input (an amplitude-dependent resonance, Duffing-like), identified jointly from the ARX fit.
+- ``saturation`` — a hard limit on the output, y = min(max(M(u), lower), upper): tried only
+  where the evidence points to it, a measured output that piles up at a level (its maximum or
+  minimum taken by ≥ 0.5 % and ≥ 5 of the training samples, which a continuous sensor reading a
+  signal that only passes through its extremes does not do). M is re-identified jointly with the
+  limit in place (censored samples, :func:`rtlift.sysid.identify.identify_siso`) in each of the
+  three forms (Wiener, Wiener–Hammerstein, nonlinear feedback); the one with the lowest
+  validation error stands for ``saturation``, its form in ``params.model``.
 
 Of the candidates that pass, the one with the lower validation error is added.
 
 It is accepted only if it lowers the pooled error on the validation records significantly
 (:func:`rtlift.diagnose.selection.significant_gain`, the rule the lift diagnosis uses: ≥ 1.5 %
 RMSE, Diebold–Mariano t ≥ 3 over blocks, no record worse by more than 1 %).
-``saturation`` is named in INTERFACES.md but not built here yet.
+Only an output limit is built (``where`` ``output``); a limit on the input or on a state is not.
 """
 
 from __future__ import annotations
@@ -32,19 +39,47 @@ from rtlift.diagnose.residual import higher_order, input_crosscorr, whiteness
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
 from rtlift.metrics import scores
 from rtlift.records import SisoRecord
-from rtlift.sysid.identify import SisoOptions, identify_siso
-from rtlift.sysid.model import SisoModel
+from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
+from rtlift.sysid.model import SaturatedModel, SisoModel
 
 HOW = {"output_dynamics": "Wiener-Hammerstein re-identified jointly from the best linear approximation's "
                           "pole/zero splits",
        "nonlinear_feedback": "the output fed back through k2 y^2 + k3 y^3 into a strictly proper linear "
-                             "block, all refined jointly from the ARX fit"}
+                             "block, all refined jointly from the ARX fit",
+       "saturation": "the output clipped at the level the measurement piles up at, the model re-identified "
+                     "jointly with the clip in place (censored samples) in each form"}
+CLIP_MIN_FRACTION = 0.005
+CLIP_MIN_SAMPLES = 5
+FORMS = (("output_dynamics", "wiener_hammerstein"), ("nonlinear_feedback", "nonlinear_feedback"))
+
+
+def clip_levels(y: np.ndarray, e: np.ndarray | None = None) -> tuple[Limits, str]:
+    """The levels the measured output piles up at (module docstring): (lower, upper), ±inf where
+    there is none, and what the evidence says (with the residual ``e`` at and off the levels)."""
+    y = np.asarray(y, dtype=float)
+    tol = 1e-9 * max(float(np.ptp(y)), 1e-300)
+    need = max(CLIP_MIN_SAMPLES, int(np.ceil(CLIP_MIN_FRACTION * y.size)))
+    at_hi, at_lo = y >= y.max() - tol, y <= y.min() + tol
+    lo = float(y.min()) if at_lo.sum() >= need else -np.inf
+    hi = float(y.max()) if at_hi.sum() >= need else np.inf
+    detail = (f"{int(at_hi.sum())} of {y.size} training samples at the maximum {y.max():.6g}, "
+              f"{int(at_lo.sum())} at the minimum {y.min():.6g} (a limit needs {need})")
+    at = (at_hi if np.isfinite(hi) else False) | (at_lo if np.isfinite(lo) else False)
+    if e is not None and np.any(at) and not np.all(at):
+        rms = lambda v: float(np.sqrt(np.mean(v**2)))   # noqa: E731
+        detail += f"; residual RMS {rms(e[at]):.4g} at the limit, {rms(e[~at]):.4g} elsewhere"
+    return (lo, hi), detail
 
 
 def _structure_params(model) -> dict[str, Any]:
+    if isinstance(model, SaturatedModel):
+        return {**model.limits(), "model": model.structure, "model_params": _structure_params(model.inner)}
     if model.structure == "nonlinear_feedback":
         return {"feedback": {"k2": float(model.k[0]), "k3": float(model.k[1])}, "order": model.n,
                 "poles": [[float(p.real), float(p.imag)] for p in np.roots(np.concatenate([[1.0], model.a]))]}
+    if model.structure == "wiener":
+        b1, a1 = model.g1.ba
+        return {"poles": [[float(p.real), float(p.imag)] for p in np.roots(a1)], "order": int(a1.size - 1)}
     b2, a2 = model.g2.ba
     return {"poles": [[float(p.real), float(p.imag)] for p in np.roots(a2)],
             "zeros": [[float(z.real), float(z.imag)] for z in np.roots(b2)], "order": int(a2.size - 1)}
@@ -80,25 +115,36 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
     rb = float(np.sqrt(np.mean(np.concatenate(before) ** 2)))
     effects = []
     augmented = model
-    if model.structure == "wiener":
+    not_built = ["saturation (on the input or a state)"]
+    if model.structure == "wiener" and not isinstance(model, SaturatedModel):
         measured = np.concatenate([r.y[skip:] for r in validate])
+        limits, clip_evidence = clip_levels(train.y, e)
+        candidates = [(name, lambda structure=structure: identify_siso(train, structure, options=options))
+                      for name, structure in FORMS]
+        if limits != NO_LIMITS:
+            candidates.append(("saturation", lambda: _best_saturated(train, validate, skip, options, limits)))
         tried = []
-        for name, structure in (("output_dynamics", "wiener_hammerstein"), ("nonlinear_feedback",
-                                                                            "nonlinear_feedback")):
-            candidate = identify_siso(train, structure, options=options)
+        for name, fit in candidates:
+            candidate = fit()
             after = [(r.y - predict(candidate, r))[skip:] for r in validate]
             ok, why = significant_gain(before, after, measured, block, DiagnoseOptions())
             ra = float(np.sqrt(np.mean(np.concatenate(after) ** 2)))
             tried.append((ok, ra, candidate))
             effects.append({"name": name, "kind": "structure", "accepted": False,
                             "params": _structure_params(candidate),
-                            "evidence": f"{evidence}; {HOW[name]}; {why}",
+                            "evidence": (f"{clip_evidence}; {HOW[name]} (best form: {candidate.structure}); {why}"
+                                         if name == "saturation" else f"{evidence}; {HOW[name]}; {why}"),
                             "validation_rmse_before": rb, "validation_rmse_after": ra})
         admissible = [i for i, (ok, _, _) in enumerate(tried) if ok]
         if admissible:                                    # the better of the admissible structures
             k = min(admissible, key=lambda i: tried[i][1])
             effects[k]["accepted"] = True
             augmented = tried[k][2]
+        if limits == NO_LIMITS:
+            effects.append({"name": "saturation", "kind": "structure", "accepted": False,
+                            "params": {"lower": None, "upper": None, "where": "output"},
+                            "evidence": f"not tried: no clipping level ({clip_evidence})",
+                            "validation_rmse_before": rb, "validation_rmse_after": rb})
     unexplained = [f"{k}: {t.detail}" for k, t in tests.items() if t.significant] if augmented is model else []
     records = [train, *validate]
     report = {
@@ -109,6 +155,19 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
         "unexplained": unexplained,
         "scoring": f"free run from rest over whole records, the first {skip} samples unscored "
                    "(rtlift validate --skip)",
-        "not_built": ["saturation"],
+        "not_built": not_built,
     }
     return report, augmented
+
+
+def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: int, options: SisoOptions | None,
+                    limits: Limits) -> SaturatedModel:
+    """The ``saturation`` candidate: each form re-identified with the clip in place; the one with
+    the lowest pooled validation RMSE."""
+    best = None
+    for structure in ("wiener", "wiener_hammerstein", "nonlinear_feedback"):
+        m = identify_siso(train, structure, options=options, limits=limits)
+        err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r))[skip:] for r in validate]) ** 2)))
+        if best is None or err < best[0]:
+            best = (err, m)
+    return best[1]

@@ -15,6 +15,13 @@
    with the lowest held-out RMSE is kept (M. Schoukens, Pintelon & Rolain 2014 initialise the
    same way from a nonparametric BLA).
 
+4. **Saturation** (``limits=(lower, upper)``, the ``saturation`` structure on any of the above):
+   the output is clipped at the limits, y = min(max(M(u), lower), upper). Samples measured at
+   a limit are censored: they say only that M's output is at or beyond it, so f's values are
+   fitted on the other samples, and every refinement cost is the simulation error of the
+   clipped model, min(max(ŷ, lower), upper) − y, which for a censored sample is nonzero only
+   while ŷ has not reached the limit (the censored least squares of a Tobit model).
+
 Refinement costs are evaluated on at most ``cost_samples`` samples of the estimation part
 (simulation over them, from rest; the first ``skip`` samples left out as the initial state is
 unknown); f is refitted on the whole estimation part at the end.
@@ -33,7 +40,7 @@ from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.identify.pem import denominator_from_theta, theta_from_poles
 from rtlift.records import SisoRecord
-from rtlift.sysid.model import STRUCTURES, FeedbackModel, SisoModel
+from rtlift.sysid.model import STRUCTURES, FeedbackModel, SaturatedModel, SisoModel
 
 
 @dataclass(frozen=True)
@@ -104,8 +111,21 @@ def _simulate_basis(dims: _Dims, th: np.ndarray, u: np.ndarray, knots: np.ndarra
 KNOTS_DEFAULT = 16
 
 
-def _fit_values(phi: np.ndarray, y: np.ndarray, skip: int) -> np.ndarray:
-    c, *_ = np.linalg.lstsq(phi[skip:], y[skip:], rcond=None)
+Limits = tuple[float, float]
+NO_LIMITS: Limits = (-np.inf, np.inf)
+
+
+def _uncensored(y: np.ndarray, limits: Limits) -> np.ndarray:
+    """Samples not measured at a limit (module docstring, 4)."""
+    lo, hi = limits
+    tol = 1e-9 * max(float(np.ptp(y)), 1e-300)
+    return (y > lo + tol) & (y < hi - tol)
+
+
+def _fit_values(phi: np.ndarray, y: np.ndarray, skip: int, limits: Limits = NO_LIMITS) -> np.ndarray:
+    keep = _uncensored(y, limits)
+    keep[:skip] = False
+    c, *_ = np.linalg.lstsq(phi[keep], y[keep], rcond=None)
     return c
 
 
@@ -156,21 +176,27 @@ def _splits(b: np.ndarray, a: np.ndarray):
 
 
 def _refine(dims: _Dims, th0: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int, max_nfev: int,
-            knots: int) -> np.ndarray:
+            knots: int, limits: Limits = NO_LIMITS) -> np.ndarray:
     def res(th: np.ndarray) -> np.ndarray:
         phi, _ = _simulate_basis(dims, th, u)
-        r = (phi @ _fit_values(phi, y, skip) - y)[skip:]
+        r = (np.clip(phi @ _fit_values(phi, y, skip, limits), *limits) - y)[skip:]
         return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3)
 
     return optimize.least_squares(res, th0, x_scale="jac", max_nfev=max_nfev, ftol=1e-10, xtol=1e-10).x
 
 
-def _model(dims: _Dims, th: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int, fs: float) -> SisoModel:
+def _model(dims: _Dims, th: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int, fs: float,
+           limits: Limits = NO_LIMITS) -> SisoModel | SaturatedModel:
     phi, knots = _simulate_basis(dims, th, u)
-    c = _fit_values(phi, y, skip)
+    c = _fit_values(phi, y, skip, limits)
     b1, a1, b2, a2 = dims.build(th)
     g2 = None if b2 is None else HighPassFilter.from_ba(b2, a2)
-    return SisoModel(HighPassFilter.from_ba(b1, a1), OutputNonlinearity(knots, c), g2, fs)
+    return _limited(SisoModel(HighPassFilter.from_ba(b1, a1), OutputNonlinearity(knots, c), g2, fs), limits)
+
+
+def _limited(model, limits: Limits):
+    """``model`` with its output clipped at ``limits`` (unchanged when there are none)."""
+    return model if limits == NO_LIMITS else SaturatedModel(model, *limits)
 
 
 def _rmse(model: SisoModel | FeedbackModel, u: np.ndarray, y: np.ndarray, skip: int) -> float:
@@ -181,8 +207,9 @@ def _rmse(model: SisoModel | FeedbackModel, u: np.ndarray, y: np.ndarray, skip: 
 
 
 def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None = None,
-                  options: SisoOptions | None = None) -> SisoModel:
-    """The model of ``structure`` for one record (module docstring); ValueError on unusable data."""
+                  options: SisoOptions | None = None, limits: Limits = NO_LIMITS) -> SisoModel:
+    """The model of ``structure`` for one record (module docstring), its output clipped at
+    ``limits`` if given (4); ValueError on unusable data."""
     opt = options or SisoOptions()
     if structure not in STRUCTURES:
         raise ValueError(f"unknown structure {structure!r}; expected one of {', '.join(STRUCTURES)}")
@@ -195,7 +222,7 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
     ue, ye = u[:n_est], y[:n_est]
     cost = slice(0, min(n_est, opt.cost_samples))
     if structure == "nonlinear_feedback":
-        model = identify_feedback(ue[cost], ye[cost], u, y, n_est, skip, fs, opt)
+        model = identify_feedback(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits)
         model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout,
                                 identify_seconds=time.perf_counter() - t0)
         model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
@@ -218,13 +245,13 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
                 continue
             th = _Dims.theta(b1, a1, b2, a2)
             phi, _ = _simulate_basis(dims, th, ue[cost])
-            r = (phi @ _fit_values(phi, ye[cost], skip) - ye[cost])[skip:]
+            r = (np.clip(phi @ _fit_values(phi, ye[cost], skip, limits), *limits) - ye[cost])[skip:]
             starts.append((float(np.sum(r**2)), dims, (b1, a1, b2, a2)))
         starts = [(d, bb) for _, d, bb in sorted(starts, key=lambda s: s[0])[:opt.keep]]
     best = None
     for dims, (b1, a1, b2, a2) in starts:
-        th = _refine(dims, _Dims.theta(b1, a1, b2, a2), ue[cost], ye[cost], skip, opt.max_nfev, opt.knots)
-        model = _model(dims, th, ue, ye, skip, fs)
+        th = _refine(dims, _Dims.theta(b1, a1, b2, a2), ue[cost], ye[cost], skip, opt.max_nfev, opt.knots, limits)
+        model = _model(dims, th, ue, ye, skip, fs, limits)
         held = _rmse(model, u, y, n_est)
         if best is None or held < best[0]:
             best = (held, model)
@@ -237,7 +264,8 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
 
 
 def identify_feedback(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np.ndarray, n_est: int,
-                      skip: int, fs: float, opt: SisoOptions) -> FeedbackModel:
+                      skip: int, fs: float, opt: SisoOptions,
+                      limits: Limits = NO_LIMITS) -> FeedbackModel | SaturatedModel:
     """The ``nonlinear_feedback`` model (module docstring, 4): fitted on (u, y), order chosen by the
     held-out RMSE of (u_all, y_all) from ``n_est`` on."""
     best = None
@@ -249,12 +277,12 @@ def identify_feedback(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np
         def res(p: np.ndarray, n: int = n) -> np.ndarray:
             m = FeedbackModel(p[:n], p[n:2 * n], p[2 * n:], fs)
             with np.errstate(all="ignore"):
-                r = (m.simulate(u) - y)[skip:]
+                r = (np.clip(m.simulate(u), *limits) - y)[skip:]
             return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3)
 
         sol = optimize.least_squares(res, np.concatenate([th, [0.0, 0.0]]), method="lm", x_scale="jac",
                                      max_nfev=opt.max_nfev, ftol=1e-13, xtol=1e-13)
-        model = FeedbackModel(sol.x[:n], sol.x[n:2 * n], sol.x[2 * n:], fs)
+        model = _limited(FeedbackModel(sol.x[:n], sol.x[n:2 * n], sol.x[2 * n:], fs), limits)
         with np.errstate(all="ignore"):
             held = _rmse(model, u_all, y_all, n_est)
         if np.isfinite(held) and (best is None or held < best[0]):

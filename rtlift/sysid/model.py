@@ -154,14 +154,89 @@ class FeedbackModel:
         return model_from_dict(self.to_dict())
 
 
-SISO_MODELS = (SisoModel, FeedbackModel)
+class SaturatedModel:
+    """A hard limit on a model's output (``saturation``, where ``output``): a sensor or a stage
+    that clips (Cascaded Tanks: the level sensor reads 10 V while the tank overflows):
+
+        y(k) = min(max(M(u)(k), lower), upper)
+
+    M any single-input model here (its ``structure`` is the model's); ``lower``/``upper`` may
+    be infinite (no limit on that side). State and file form are M's, plus
+    ``"saturation": {"lower", "upper", "where": "output"}`` (infinite limits as ``null``).
+    """
+
+    where = "output"
+
+    def __init__(self, inner: SisoModel | FeedbackModel, lower: float, upper: float) -> None:
+        lower, upper = float(lower), float(upper)
+        if np.isnan(lower) or np.isnan(upper) or not lower < upper:
+            raise ValueError(f"saturation needs lower < upper, got {lower}, {upper}")
+        self.inner, self.lower, self.upper = inner, lower, upper
+
+    structure = property(lambda self: self.inner.structure)
+    fs_hz = property(lambda self: self.inner.fs_hz)
+    state_size = property(lambda self: self.inner.state_size)
+
+    @property
+    def provenance(self) -> dict[str, Any]:
+        return self.inner.provenance
+
+    @provenance.setter
+    def provenance(self, value: dict[str, Any]) -> None:
+        self.inner.provenance = value
+
+    @property
+    def metrics(self) -> dict[str, Any]:
+        return self.inner.metrics
+
+    @metrics.setter
+    def metrics(self, value: dict[str, Any]) -> None:
+        self.inner.metrics = value
+
+    def step(self, u: float) -> float:
+        return min(max(self.inner.step(u), self.lower), self.upper)
+
+    def simulate(self, u: np.ndarray) -> np.ndarray:
+        return np.clip(self.inner.simulate(u), self.lower, self.upper)
+
+    def reset(self) -> None:
+        self.inner.reset()
+
+    def get_state(self) -> np.ndarray:
+        return self.inner.get_state()
+
+    def set_state(self, state: np.ndarray) -> None:
+        self.inner.set_state(state)
+
+    def limits(self) -> dict[str, Any]:
+        finite = lambda v: float(v) if np.isfinite(v) else None   # noqa: E731
+        return {"lower": finite(self.lower), "upper": finite(self.upper), "where": self.where}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.inner.to_dict(), "saturation": self.limits()}
+
+    def copy(self) -> SaturatedModel:
+        return model_from_dict(self.to_dict())
+
+
+SISO_MODELS = (SisoModel, FeedbackModel, SaturatedModel)
 """The single-input model classes (``isinstance(model, SISO_MODELS)``: a generic model)."""
 
 
-def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | FeedbackModel:
+def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | FeedbackModel | SaturatedModel:
     """Build and check a model from its file form; :class:`ModelFileError` (one line) if wrong."""
     if d.get("format") != FORMAT or d.get("version") != VERSION:
         raise ModelFileError(f"{source}: not an rtlift single-input model file of version {VERSION}")
+    if d.get("saturation") is not None:
+        sat = d["saturation"]
+        inner = model_from_dict({k: v for k, v in d.items() if k != "saturation"}, source)
+        try:
+            if sat.get("where", "output") != "output":
+                raise ValueError(f"saturation where {sat.get('where')!r} is not built (output only)")
+            lo, hi = sat.get("lower"), sat.get("upper")
+            return SaturatedModel(inner, -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi))
+        except (AttributeError, TypeError, ValueError) as exc:
+            raise ModelFileError(f"{source}: {exc}") from None
     if d.get("structure") == "nonlinear_feedback":
         try:
             return FeedbackModel(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"),
@@ -184,7 +259,7 @@ def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | Fee
     return SisoModel(g1, f, g2, fs, dict(d.get("provenance") or {}), dict(d.get("metrics") or {}))
 
 
-def save_siso_model(model: SisoModel | FeedbackModel, path: str | os.PathLike) -> None:
+def save_siso_model(model: SisoModel | FeedbackModel | SaturatedModel, path: str | os.PathLike) -> None:
     tmp = f"{path}.tmp"
     with open(tmp, "w", encoding="utf-8") as fh:
         json.dump(model.to_dict(), fh, indent=1, allow_nan=False)
