@@ -231,7 +231,7 @@ def main() -> None:
         tmp.cleanup()
     result = {
         **loop_figures(runs["off"]),
-        "state_dim": observer.structure.d,
+        "state_dim": observer.layout.dim_x,
         **{k: v for k, v in counters.items() if k != "lost"},
         **allocation(model),
     }

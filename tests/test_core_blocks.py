@@ -10,7 +10,7 @@ from scipy import signal
 
 from rtlift.blocks import HighPassFilter, LTIBlock, RingConvolution, to_statespace
 from rtlift.blocks.stages import Delay
-from tests.conftest import burst_input, make_model, random_stable_A
+from testkit.synthetic import burst_input, make_model, random_stable_A
 
 TOL = 1e-12
 
