@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from rtlift.blocks.compiled import _table, hybrid_step
+from rtlift.blocks.compiled import _segment, _table, hybrid_step
 from rtlift.observer.config import (
     FLAG_BAD_INPUT,
     FLAG_GATE_RELEASED,
@@ -239,15 +239,7 @@ def _table_offset(mpar, n_taps, n_sections, n):
 def _slope(xs, slopes, y):
     """df/dy of the table at y: the slope of the segment holding y, the end ones beyond the grid
     (``OutputNonlinearity.slope_at``)."""
-    lo, hi = 0, xs.shape[0]
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if y < xs[mid]:
-            hi = mid
-        else:
-            lo = mid + 1
-    j = min(max(lo - 1, 0), xs.shape[0] - 2)
-    return slopes[j]
+    return slopes[min(max(_segment(xs, y), 0), xs.shape[0] - 2)]
 
 
 @njit(cache=True)
