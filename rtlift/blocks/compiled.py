@@ -126,8 +126,8 @@ def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, buf, pos, z, x):
 def fir_scatter(ext, taps, out):
     """``out = np.convolve(ext, taps, 'valid')`` by scattering each non-zero input over the
     outputs it reaches (``out[i − L + 1 + j] += ext[i] · taps[j]``): nnz(ext)·L multiply-adds
-    instead of N·L. The same products as the ring buffer's dot, summed in input order. Cost
-    for the burst-modulated Cμ, zero between bursts, is a fraction of an FFT's."""
+    instead of N·L. The same products as the ring buffer's dot, summed in input order; for the
+    burst-modulated Cμ, zero between bursts, ≈ 0.6 of an overlap-add FFT's time."""
     n_taps = taps.shape[0]
     n_out = out.shape[0]
     out[:] = 0.0
