@@ -22,14 +22,7 @@ import numpy as np
 from numba import njit
 
 from rtlift.blocks.compiled import _segment, _table, hybrid_step
-from rtlift.observer.config import (
-    FLAG_BAD_INPUT,
-    FLAG_GATE_RELEASED,
-    FLAG_MISSING,
-    FLAG_REJECTED,
-    GATE_LEAK,
-    NIS_BAND,
-)
+from rtlift.observer import config
 
 # slots of the scalar state s
 REJECTED_RUN, GATE_OPEN, LAST_CMU, LAST_ENV, RIPPLE_ON, SAMPLE = 0, 1, 2, 3, 4, 5
@@ -38,7 +31,7 @@ TABLE_PERIOD = 13          # the burst period whose basis rows ``tab`` holds (0:
 PHASE = 14                 # [Cμ(k−1), φ(k), P(k)] of the BurstPhase: s[14:17]
 SCALAR_STATE_SIZE = 17
 
-NIS_LOW, NIS_HIGH = NIS_BAND
+NIS_LOW, NIS_HIGH = config.NIS_BAND
 
 # slots of the integer parameters ipar
 DIM_X, N_WIENER, BIAS, GAIN_H, RIPPLE_START, HARMONICS, POWERS, MAX_PERIOD, FORM, NNZ = range(10)
@@ -74,7 +67,7 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, buf, pos, z, xm,
         s[LAST_ENV] = env
     else:
         cmu, env, dcl = s[LAST_CMU], s[LAST_ENV], math.nan
-        flags = FLAG_BAD_INPUT
+        flags = config.FLAG_BAD_INPUT
         s[BAD_INPUTS] += 1
     if d_cmu.shape[0] > 0:              # what the model's delay stage hands on: Cμ′, Cμ_env′
         c_in, e_in = d_cmu[d_pos[0]], d_env[d_pos[0]]
@@ -163,7 +156,7 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, buf, pos, z, xm,
     innovation = math.nan
     nis = math.nan
     if not -math.inf < dcl < math.inf:
-        flags |= FLAG_MISSING
+        flags |= config.FLAG_MISSING
         s[MISSING] += 1
     else:
         nu = dcl - zhat
@@ -180,16 +173,16 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, buf, pos, z, xm,
         innovation = nu
         outside = nis > gate
         if outside and s[GATE_OPEN] == 0.0 and s[REJECTED_RUN] < max_rej:
-            flags |= FLAG_REJECTED
+            flags |= config.FLAG_REJECTED
             s[REJECTED] += 1
             s[REJECTED_RUN] += 1
         else:
             if outside:
-                flags |= FLAG_GATE_RELEASED
+                flags |= config.FLAG_GATE_RELEASED
                 s[GATE_OPEN] = 1.0
                 s[REJECTED_RUN] = max_rej
             elif s[REJECTED_RUN] != 0.0:
-                s[REJECTED_RUN] = max(s[REJECTED_RUN] - GATE_LEAK, 0.0)
+                s[REJECTED_RUN] = max(s[REJECTED_RUN] - config.GATE_LEAK, 0.0)
                 s[GATE_OPEN] = 1.0 if (s[GATE_OPEN] != 0.0 and s[REJECTED_RUN] > 0) else 0.0
             s[UPDATES] += 1
             s[NIS_SUM] += nis
