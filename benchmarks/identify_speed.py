@@ -16,8 +16,8 @@ import time
 from pathlib import Path
 
 from hil_sim.experiments import EXPERIMENTS, run_experiment
+from rtlift.core.records import read_record, write_record
 from rtlift.identify.campaign import identify_hybrid
-from rtlift.records import read_record, write_record
 from rtlift.validation import validate_record
 
 

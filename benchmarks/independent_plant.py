@@ -39,7 +39,7 @@ FS = 400.0
 
 def compose(data: Path, parts: tuple[str, ...], out: Path) -> Path:
     """``clean`` plus each part's imprint (case − clean, same noise seed) as a new case folder."""
-    from rtlift.records import read_record, write_record
+    from rtlift.core.records import read_record, write_record
 
     case = out / "+".join(parts)
     case.mkdir(parents=True, exist_ok=True)

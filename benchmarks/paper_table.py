@@ -24,9 +24,9 @@ import time
 from dataclasses import replace
 
 from hil_sim.experiments import run_experiment
+from rtlift.core.metrics import scores
 from rtlift.identify.campaign import IdentifyOptions, convolution_output, identify_hybrid
 from rtlift.identify.pem import fit_wiener
-from rtlift.metrics import scores
 from rtlift.validation import validate_record
 
 PAPER_CORR = {"sine_k0125": 0.9596, "sine_k025": 0.8654, "random": 0.9277}

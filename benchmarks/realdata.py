@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rtlift.records import SisoRecord, write_siso_record
+from rtlift.core.records import SisoRecord, write_siso_record
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._common import run_cli  # noqa: E402

@@ -51,7 +51,7 @@ from hil_sim.devices.source import can_wire, serial_wire, wire_samples  # noqa: 
 from hil_sim.experiments import daq_stream  # noqa: E402
 from rtlift.live import ObserverLoop  # noqa: E402
 from rtlift.observer import Observer, ObserverConfig  # noqa: E402
-from tests.conftest import make_model  # noqa: E402
+from testkit.synthetic import make_model  # noqa: E402
 
 FS = 400
 PERIOD_US = 2500

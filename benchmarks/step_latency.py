@@ -21,7 +21,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit, percentiles_us  # noqa: E402
-from tests.conftest import burst_input, make_model  # noqa: E402
+from testkit.synthetic import burst_input, make_model  # noqa: E402
 
 
 def _latency(step, cmu: np.ndarray, env: np.ndarray) -> tuple[float, float]:

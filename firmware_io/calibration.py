@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 try:
     import tomllib

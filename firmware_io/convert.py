@@ -1,5 +1,5 @@
 """Samples → what the observer needs: ``(cmu, cmu_envelope, dcl)`` with a
-:class:`~firmware_io.calibration.Calibration`, and samples → a :class:`rtlift.records.Record`.
+:class:`~firmware_io.calibration.Calibration`, and samples → a :class:`rtlift.core.records.Record`.
 
 Per sample (the calibration's equations, evaluated in scalar arithmetic for the 400 Hz loop):
 
@@ -22,9 +22,9 @@ import numpy as np
 
 from firmware_io.calibration import Calibration, CalibrationError
 from firmware_io.samples import STATUS_FLAGGED, Sample
-from rtlift.records import Record
+from rtlift.core.rate import FS_HZ
+from rtlift.core.records import Record
 
-FS_HZ = 400.0
 RECORD_EXTRA = ("seq", "t_device", "volts", "envelope_volts", "status",
                 "fx", "fy", "fz", "tx", "ty", "tz", "host_time")
 

@@ -1,8 +1,8 @@
-"""Errors of the firmware I/O layer; all are :class:`rtlift.errors.UserError` (one line)."""
+"""Errors of the firmware I/O layer; all are :class:`rtlift.core.errors.UserError` (one line)."""
 
 from __future__ import annotations
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 class FirmwareIOError(UserError):

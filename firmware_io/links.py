@@ -46,6 +46,7 @@ from firmware_io.logs import CommandLog, LoggedCommand, commands_path, open_link
 from firmware_io.samples import Counters, Sample
 from firmware_io.serial_codec import SEQ_MODULUS as SERIAL_SEQ_MODULUS
 from firmware_io.serial_codec import SerialDecoder, encode_command
+from rtlift.core.rate import FS_HZ
 
 SERIAL_BAUD = 921_600
 CAN_BITRATE = 500_000
@@ -70,7 +71,7 @@ class Reconnect:
     first_delay_s: float = 0.05
     max_delay_s: float = 1.0
     also: tuple[str, ...] = ()
-    fs_hz: float = 400.0
+    fs_hz: float = FS_HZ
 
     @classmethod
     def from_config(cls, value: Any) -> Reconnect | None:

@@ -8,8 +8,7 @@ emulators in ``hil_sim.devices``.
 
 from __future__ import annotations
 
-FS_HZ = 400.0
-"""Bench sample rate (Hz): PROTOCOL.md's 400 Hz DAQ."""
+from rtlift.core.rate import FS_HZ as FS_HZ  # the bench samples at the DAQ's rate
 
 CHORD_M = 0.245
 U_INF_M_S = 3.0

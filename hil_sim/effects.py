@@ -16,9 +16,9 @@ name                      stage      what it does (SI units; ΔCL-valued amplitu
                                      sampled, e.g. 420 Hz mains aliased to 20 Hz)
 ========================  =========  =====================================================
 
-``EFFECTS[name]`` holds the bench stage and the shared schema of :mod:`rtlift.effects` (defaults,
+``EFFECTS[name]`` holds the bench stage and the shared schema of :mod:`rtlift.core.effects` (defaults,
 documented ranges ``ranges[param] = (lo, hi)``, ``draw(rng)``); ``parse_effect(spec)`` raises
-:class:`~rtlift.errors.UserError` on a bad spec.
+:class:`~rtlift.core.errors.UserError` on a bad spec.
 """
 
 from __future__ import annotations
@@ -31,14 +31,14 @@ from types import MappingProxyType
 import numpy as np
 from scipy import signal
 
-from rtlift.effects import SCHEMAS, EffectSchema
-from rtlift.errors import UserError
+from rtlift.core.effects import SCHEMAS, EffectSchema
+from rtlift.core.errors import UserError
 
 
 @dataclass(frozen=True)
 class EffectInfo:
     """One effect kind on the bench: where it acts here, and its shared parameter schema
-    (:data:`rtlift.effects.SCHEMAS`: meaning, defaults, documented ranges)."""
+    (:data:`rtlift.core.effects.SCHEMAS`: meaning, defaults, documented ranges)."""
 
     stage: str
     schema: EffectSchema

@@ -49,8 +49,8 @@ from hil_sim.sensors import (
     coefficients,
     transducer,
 )
-from rtlift.errors import UserError
-from rtlift.records import Record
+from rtlift.core.errors import UserError
+from rtlift.core.records import Record
 
 TARE_S = 2.0
 TARE_SAMPLES = int(TARE_S * FS_HZ)
@@ -263,7 +263,7 @@ def daq_stream(name: str, seed: int = 0, effects: Iterable[Effect | str] = (),
 
 def write_bench_record(run: BenchRun, path: str | os.PathLike) -> None:
     """Write ``run.to_record()`` as a record CSV; :class:`UserError` if the path is unwritable."""
-    from rtlift.records import write_record
+    from rtlift.core.records import write_record
 
     try:
         write_record(path, run.to_record())

@@ -22,7 +22,7 @@ import sys
 import threading
 
 from hil_sim.devices import SerialDaq, SlcanAdapter, parse_faults
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 DEFAULT_EXPERIMENT = "random"
 

@@ -1,7 +1,22 @@
-"""rtlift: a real-time hybrid Wiener–convolution lift model and observer for burst-actuated flow control."""
+"""rtlift: a real-time hybrid Wiener–convolution lift model and observer for burst-actuated flow control.
 
-from rtlift.hybrid import HybridModel, HybridOutput
-from rtlift.modelfile import load_model, save_model
-from rtlift.observer import Observer as Observer
+The top-level names are imported on first use (PEP 562), so that ``import rtlift.core.errors``
+(what ``firmware_io`` and ``hil_sim`` do) does not load the model, scipy or the observer.
+"""
 
-__all__ = ["HybridModel", "HybridOutput", "load_model", "save_model"]
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+_EXPORTS = {"HybridModel": "rtlift.hybrid", "HybridOutput": "rtlift.hybrid",
+            "load_model": "rtlift.modelfile", "save_model": "rtlift.modelfile",
+            "Observer": "rtlift.observer"}
+
+__all__ = ["HybridModel", "HybridOutput", "Observer", "load_model", "save_model"]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'rtlift' has no attribute {name!r}")
+    return getattr(import_module(_EXPORTS[name]), name)

@@ -2,7 +2,7 @@
 
 Each command module exposes ``register(subparsers)``, which adds its parser and sets
 ``func`` to a callable ``func(args) -> int``. Exit status: 0 success, 2 bad input
-(:class:`~rtlift.errors.UserError`, printed as one line), 1 internal failure (one line;
+(:class:`~rtlift.core.errors.UserError`, printed as one line), 1 internal failure (one line;
 set ``RTLIFT_DEBUG=1`` for the traceback), 130 on Ctrl-C.
 """
 
@@ -14,7 +14,7 @@ import os
 import sys
 import traceback
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 COMMANDS = ("demo", "bench", "identify", "validate", "diagnose", "observe", "control", "replay")
 

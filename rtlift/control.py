@@ -46,9 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
+from rtlift.core.rate import FS_HZ
 
-FS_HZ = 400.0
 BURST_PERIOD_SAMPLES = 50
 """The lift-optimal 8 Hz burst rate at 400 Hz: the envelope changes once per period."""
 DEFAULT_CMU_MAX = 0.022

@@ -29,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.records import Record, write_record
+from rtlift.core.rate import FS_HZ
+from rtlift.core.records import Record, write_record
 
 CAMPAIGN = ("static", "single_burst", "train_T1p75", "train_T3p5", "train_T7", "sine_k0125", "sine_k025",
             "random")
@@ -87,7 +88,7 @@ def record_through_link(name: str, seed: int, effects: tuple[str, ...], speedup:
     n = len(run)
     cal = Calibration()
     samples = []
-    with SerialDaq([run], fs_hz=400.0 * speedup, period_us=2500, max_samples=n) as device:
+    with SerialDaq([run], fs_hz=FS_HZ * speedup, period_us=2500, max_samples=n) as device:
         with open_link({"kind": "serial", "port": device.path, "calibration": cal}) as link:
             device.start()
             with progress.bar(n, f"recording {name}") as bar:
@@ -103,7 +104,7 @@ def record_through_link(name: str, seed: int, effects: tuple[str, ...], speedup:
     meta = {"experiment": name, "seed": str(seed), "effects": ";".join(effects) or "none",
             "source": "simulated bench over a serial pty through firmware_io"}
     rec = record_from_samples(samples, cal, name=name, meta=meta)
-    index = np.rint(rec.t * 400.0).astype(int)
+    index = np.rint(rec.t * FS_HZ).astype(int)
     rec.extra["dcl_true"] = run.dcl_true[index]
     return rec, counters
 
@@ -132,7 +133,7 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
         write_record(os.path.join(out, "records", f"{name}.csv"), rec)
         for k, v in counters.items():
             link_totals[k] = link_totals.get(k, 0) + int(v)
-    summary["campaign"] = {"records": list(CAMPAIGN), "seconds": sum(len(r) for r in records.values()) / 400.0,
+    summary["campaign"] = {"records": list(CAMPAIGN), "seconds": sum(len(r) for r in records.values()) / FS_HZ,
                            "link": link_totals}
     prog.say(f"    {link_totals.get('received', 0)} samples received, {link_totals.get('lost', 0)} lost, "
              f"{link_totals.get('crc_errors', 0)} bad frames")
@@ -200,7 +201,7 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
 
 def _validate(idf, records: dict[str, Record], out: str, validate_record, plot_validation) -> dict[str, Any]:
     """The paper's table: hybrid, convolution only, Wiener only; ρ, NRMSE, RMSE per record."""
-    from rtlift.metrics import scores
+    from rtlift.core.metrics import scores
 
     model = idf.model
     table: dict[str, Any] = {}
@@ -230,7 +231,7 @@ def _live(model_path: str, opt: DemoOptions, out: str, prog: _Progress) -> dict[
     from rtlift.observer import Observer
 
     model = load_model(model_path)
-    n = int(round(opt.live_seconds * 400.0))
+    n = int(round(opt.live_seconds * FS_HZ))
     truth: list[np.ndarray] = []
 
     def chunks():
@@ -241,6 +242,7 @@ def _live(model_path: str, opt: DemoOptions, out: str, prog: _Progress) -> dict[
     cal = Calibration()
     cols = np.full((n, 3), np.nan)          # measured ΔCL, observer ΔĈL, open-loop model
     observer = Observer.from_model(model)
+    observer.warm_up()                      # compile before the link opens, not on its first sample
     with SerialDaq(chunks(), max_samples=n) as device:
         with open_link({"kind": "serial", "port": device.path, "calibration": cal,
                         "log": os.path.join(out, "live_frames.bin")}) as link:
@@ -348,7 +350,7 @@ def _live_report(cols: np.ndarray, true: np.ndarray, counters: dict[str, int], p
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from rtlift.metrics import rmse
+    from rtlift.core.metrics import rmse
 
     skip = 1200                   # 2 s of tare (no ΔCL yet) and 1 s for the observer to settle
     ok = ~np.isnan(cols[:, 0])
@@ -356,8 +358,8 @@ def _live_report(cols: np.ndarray, true: np.ndarray, counters: dict[str, int], p
     meas, hat, model = cols[ok, 0], cols[ok, 1], cols[ok, 2]
     tru = true[ok]
     result = {
-        "seconds": len(cols) / 400.0,
-        "scored_from_s": skip / 400.0,
+        "seconds": len(cols) / FS_HZ,
+        "scored_from_s": skip / FS_HZ,
         "link": counters,
         "rmse_vs_truth": {"measurement": rmse(tru, meas), "open_loop_model": rmse(tru, model),
                           "observer": rmse(tru, hat)},
@@ -366,7 +368,7 @@ def _live_report(cols: np.ndarray, true: np.ndarray, counters: dict[str, int], p
         "observer_step_p99_us": float(np.percentile(step_us, 99)) if step_us.size else None,
         "figure": "figures/live_observer.png",
     }
-    t = np.arange(len(cols)) / 400.0
+    t = np.arange(len(cols)) / FS_HZ
     fig, axes = plt.subplots(2, 1, figsize=(10, 6.5))
     windows = ((0, len(cols)), (len(cols) // 2, min(len(cols), len(cols) // 2 + 1200)))
     for ax, (a, b) in zip(axes, windows, strict=True):

@@ -30,8 +30,8 @@ import numpy as np
 from scipy import signal
 
 from rtlift.closed_loop import LOWPASS_HZ, SETTLE_S
+from rtlift.core.rate import FS_HZ
 
-FS_HZ = 400
 TRACKING_STARTS = int(round((SETTLE_S + 2.0) * FS_HZ))
 """Device sample where tracking starts: settle (1 s) and the default tare (2 s)."""
 FADE = "actuator_fade:final_fraction=0.75,time_constant_s=0.4"

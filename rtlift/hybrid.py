@@ -24,6 +24,7 @@ inside a block (``model.wiener.nonlinearity = ...``) is not seen: build a new mo
 from __future__ import annotations
 
 import time
+from copy import deepcopy
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -179,11 +180,16 @@ class HybridModel:
             b.set_state(s[i:i + b.state_size])
             i += b.state_size
 
+    def copy(self) -> HybridModel:
+        """An independent copy at rest: the same parameters, stages and settings, state arrays
+        of its own (reset), the compiled step bound again on its first step."""
+        model = deepcopy(self)
+        model.reset()
+        return model
+
     def with_stages(self, input_stages=(), output_stages=()) -> HybridModel:
         """A copy of this model (fresh state) with extra stages appended."""
-        from rtlift.modelfile import model_from_dict, model_to_dict
-
-        m = model_from_dict(model_to_dict(self), allow_unstable=not self.stable)
+        m = self.copy()
         m.input_stages = (*m.input_stages, *input_stages)
         m.output_stages = (*m.output_stages, *output_stages)
         m.__post_init__()

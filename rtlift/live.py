@@ -29,9 +29,9 @@ from typing import Any
 from firmware_io.latency import LatencyRecorder
 from firmware_io.logs import FlushedFile
 from firmware_io.samples import Sample
+from rtlift.core.rate import FS_HZ
 from rtlift.observer import Observer
 
-FS_HZ = 400.0
 MAX_FILL = 400
 """At most this many predict-only steps for one gap in ``seq`` (1 s); a longer gap is a
 device restart or an ambiguity of the wrapping counter, not something to extrapolate over."""
@@ -216,7 +216,7 @@ def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,
 
 
 def write_summary(path: str | os.PathLike, data: dict[str, Any]) -> None:
-    from rtlift.errors import UserError
+    from rtlift.core.errors import UserError
 
     tmp = f"{path}.tmp"
     try:

@@ -5,7 +5,7 @@ coefficients and design, A B C, the nonlinearity table, augmentation stages), th
 rate and units, the observer's noise settings, provenance, fit metrics and the residual
 fingerprint of the identification campaign (what the diagnosis compares later records with). Loading checks
 dimensions, finiteness and stability — the spectral radius of A must be < 1 — and fails
-with one line naming the problem (:class:`~rtlift.errors.ModelFileError`).
+with one line naming the problem (:class:`~rtlift.core.errors.ModelFileError`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.lti import spectral_radius
 from rtlift.blocks.stages import stage_from_spec
 from rtlift.blocks.wiener import NONLINEARITIES, WienerBlock
-from rtlift.errors import ModelFileError
+from rtlift.core.errors import ModelFileError
 from rtlift.hybrid import HybridModel
 
 FORMAT = "rtlift-model"

@@ -11,7 +11,7 @@ import os
 from bisect import bisect_right
 from dataclasses import dataclass
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 @dataclass(frozen=True)

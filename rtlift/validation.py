@@ -3,7 +3,7 @@
 Per record the model is run open loop from rest over the whole record (the same
 ``HybridModel.simulate`` a controller's prediction uses) and scored against the measured
 ΔCL with ρ (the paper's correlation coefficient), NRMSE = RMSE/σ(ΔCL) and RMSE
-(:func:`rtlift.metrics.scores`). :func:`predict_record` is the one prediction every score in
+(:func:`rtlift.core.metrics.scores`). :func:`predict_record` is the one prediction every score in
 rtlift comes from (``rtlift validate`` and ``rtlift diagnose`` alike): a pickup's phases are
 a property of the record, not of the pickup, and it estimates them on the record itself.
 The JSON layout is INTERFACES.md's:
@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from rtlift.blocks.stages import PeriodicDisturbance
+from rtlift.core.metrics import scores
+from rtlift.core.records import Record
 from rtlift.hybrid import HybridModel, HybridOutput
-from rtlift.metrics import scores
-from rtlift.records import Record
 
 VALIDATE_VERSION = 1
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rtlift.cli import build_parser, main
-from rtlift.records import read_record
+from rtlift.core.records import read_record
 
 
 def test_record_sine_k0125_writes_a_valid_record_in_under_5_seconds(tmp_path):

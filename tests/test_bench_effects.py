@@ -10,7 +10,7 @@ from scipy import signal
 
 from hil_sim.effects import EFFECTS, Effect, parse_effect
 from hil_sim.experiments import TARE_SAMPLES, run_experiment
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 FS = 400.0
 SEED = 5

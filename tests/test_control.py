@@ -18,7 +18,7 @@ import pytest
 from scipy import signal
 
 from rtlift.control import ControlConfig, LiftController, static_map
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 from rtlift.modelfile import load_model
 from rtlift.observer import Observer
 from rtlift.reference import parse_reference

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import control
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
 from rtlift.blocks import HighPassFilter, LTIBlock, RingConvolution, to_statespace
 from rtlift.blocks.stages import Delay
-from tests.conftest import burst_input, make_model, random_stable_A
+from testkit.synthetic import burst_input, make_model, random_stable_A
 
 TOL = 1e-12
 
@@ -78,6 +79,23 @@ def test_convolution_is_the_papers_eq1_for_a_single_burst():
     y = conv.simulate(u)
     expect = 2.0 * 0.0022 * np.array([h[max(0, k - 3):k + 1].sum() for k in range(50)])
     np.testing.assert_allclose(y[:50], expect, atol=TOL)
+
+
+@pytest.mark.parametrize("duty", [0.08, 1.0], ids=["bursts_scattered", "dense_fft"])
+def test_long_batch_convolution_equals_the_ring_buffer_from_a_mid_record_state(duty):
+    """20 000 samples × 300 taps (past the direct-sum size): bursts (8 % of samples non-zero)
+    take the scatter path, a dense input the FFT; both equal the streamed ring buffer to 1e-12
+    and hand on the same state."""
+    rng = np.random.default_rng(7)
+    h = rng.normal(size=300) * np.exp(-np.arange(300) / 60.0)
+    u = np.where(rng.random(20_500) < duty, rng.uniform(0.0, 0.02, 20_500), 0.0)
+    streamed, batch = RingConvolution(h, phi=1.3), RingConvolution(h, phi=1.3)
+    for v in u[:500]:
+        streamed.step(v)
+    batch.set_state(streamed.get_state())
+    expect = np.array([streamed.step(v) for v in u[500:]])
+    np.testing.assert_allclose(batch.simulate(u[500:]), expect, atol=TOL, rtol=0)
+    np.testing.assert_array_equal(batch.get_state(), streamed.get_state())
 
 
 @settings(max_examples=30, deadline=None)

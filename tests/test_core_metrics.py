@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rtlift.metrics import corr, fit_percent, nrmse, rmse, scores
+from rtlift.core.metrics import corr, fit_percent, nrmse, rmse, scores
 
 
 def test_metrics_match_their_definitions():

@@ -10,9 +10,9 @@ import pytest
 
 from rtlift.blocks.lti import LTIBlock, spectral_radius
 from rtlift.blocks.stages import Delay
-from rtlift.errors import ModelFileError
+from rtlift.core.errors import ModelFileError
 from rtlift.modelfile import load_model, model_to_dict, save_model
-from tests.conftest import burst_input, make_model
+from testkit.synthetic import burst_input, make_model
 
 PAPER = files("rtlift") / "data" / "paper_model.json"
 

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtlift.errors import RecordError
-from rtlift.records import Record, read_record, write_record
+from rtlift.core.errors import RecordError
+from rtlift.core.records import Record, read_record, write_record
 
 GOOD = ("# experiment: test\n# fs_hz: 400\nt,cmu,cmu_envelope,dcl,volts\n"
         "0,0,0,0.1,0\n0.0025,0.001,0.001,0.2,5\n0.005,0,0.001,0.15,0\n")

@@ -13,6 +13,7 @@ import pytest
 from scipy import signal
 
 from rtlift.blocks.stages import resonance_ba
+from rtlift.core.records import Record
 from rtlift.diagnose.catalog import Context, _spectral_mode
 from rtlift.diagnose.fingerprint import (
     Z_DEPART,
@@ -23,7 +24,6 @@ from rtlift.diagnose.fingerprint import (
     summarize,
 )
 from rtlift.diagnose.residual import run_all
-from rtlift.records import Record
 
 FS = 400.0
 N = 16000                                           # 40 s

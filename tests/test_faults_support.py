@@ -23,7 +23,7 @@ from hil_sim.devices import synthetic_stream
 from hil_sim.devices.source import can_wire, serial_wire, wire_samples
 from rtlift.cli import main
 from rtlift.modelfile import save_model
-from tests.conftest import make_model
+from testkit.synthetic import make_model
 
 FS = 400
 SENSOR_NOISE_N = 0.02

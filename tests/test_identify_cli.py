@@ -8,8 +8,8 @@ import pytest
 
 from hil_sim.experiments import run_experiment
 from rtlift.cli import main
+from rtlift.core.records import write_record
 from rtlift.modelfile import load_model
-from rtlift.records import write_record
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import pytest
 from firmware_io.calibration import Calibration, CalibrationError
 from firmware_io.convert import Converter, record_from_samples, unwrap_seq
 from firmware_io.samples import STATUS_ADC_SATURATED, STATUS_SENSOR_FAULT, Sample
-from rtlift.records import read_record, write_record
+from rtlift.core.records import read_record, write_record
 
 
 def samples_for(rng, n=1200, seq0=65000, off=400, modulus=65536):

@@ -12,7 +12,7 @@ from firmware_io import LinkError, open_link
 from firmware_io.can_codec import encode_sample_frames
 from firmware_io.links import link_config, parse_can_spec
 from firmware_io.serial_codec import encode_sample
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 NO_GAPS = {k: 0 for k in ("reconnects", "gap_lost", "gaps_unknown", "gap_lost_estimated")}
 """The reconnect counters of a link that never lost its device."""

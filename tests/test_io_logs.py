@@ -17,7 +17,7 @@ import pytest
 from firmware_io import LogError, RecordWriter, open_link, read_log
 from firmware_io.logs import graceful_exit
 from hil_sim.devices import FaultPlan, SerialDaq, SlcanAdapter, synthetic_stream
-from rtlift.records import read_record
+from rtlift.core.records import read_record
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -22,7 +22,7 @@ import pytest
 
 from hil_sim.devices import SerialDaq
 from hil_sim.experiments import daq_stream
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 from rtlift.view import LiveView
 from rtlift.view.browser import HEADLESS_FLAGS, find_chromium
 from rtlift.view.server import COUNTER_KEYS

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from hil_sim.experiments import run_experiment
+from rtlift.core.records import Record
 from rtlift.hybrid import HybridModel
 from rtlift.identify.campaign import identify_hybrid
 from rtlift.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, tune_observer
-from rtlift.records import Record
 
 TARE = 800                                          # the bench's 2 s actuator-off start
 TRAINS = ("train_T1p75", "train_T3p5", "train_T7")

@@ -23,11 +23,9 @@ from rtlift.observer import (
     Observer,
     ObserverConfig,
     ObserverError,
-    batch_nis,
     fit_noise,
 )
-from rtlift.records import Record
-from tests.conftest import burst_input, make_model
+from testkit.synthetic import burst_input, make_model
 
 CFG = ObserverConfig(R=1.6e-5, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4)
 FULL = ObserverConfig(R=8e-6, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4, noise_ar=(1.82, -0.85), q_noise=7e-8,
@@ -42,28 +40,32 @@ def noisy_measurement(model, cmu, env, sigma, rng, offset=0.0):
     return truth, truth + rng.normal(0.0, sigma, truth.size)
 
 
+@pytest.mark.parametrize("path", ["compiled", "reference"])
 @pytest.mark.parametrize(("output_form", "cfg"), [(False, CFG), (True, CFG), (False, FULL), (True, FULL)],
                          ids=["input_gain", "output_nonlinearity", "input_gain_all_states", "output_all_states"])
-def test_step_is_filterpy_predict_then_joseph_update_with_the_time_varying_H(rng, output_form, cfg):
-    """The in-place BLAS step equals filterpy's predict + Joseph update on the same row
-    H(k) = [N C, 1, h_noise, ΔCL_H(k), Cμ_env(k)·basis(φ(k))] to 1e-12 relative, every sample."""
+def test_step_is_filterpy_predict_then_joseph_update_with_the_time_varying_H(rng, output_form, cfg, path):
+    """The compiled step and the in-place BLAS reference step each equal filterpy's predict +
+    Joseph update on the same row H(k) = [N C, 1, h_noise, ΔCL_H(k), Cμ_env(k)·basis(φ(k))] to
+    1e-12 relative, every sample."""
     model = make_model(rng, output_form=output_form)
     cmu, env = burst_input(rng, 600)
     _, z = noisy_measurement(model, cmu, env, 0.004, rng)
     cfg = dataclasses.replace(cfg, gate_probability=1.0)    # every sample updates: compare all of them
     obs = Observer(model, cfg)
-    st = obs.structure
+    assert obs.compiled
+    step = obs.step if path == "compiled" else obs.reference_step
+    st = obs.layout
     ref_model = obs.model.with_stages()                # same parameters, fresh state
     phase = BurstPhase(cfg.ripple_harmonics, st.max_period)
-    kf = KalmanFilter(dim_x=st.d, dim_z=1, dim_u=1)
+    kf = KalmanFilter(dim_x=st.dim_x, dim_z=1, dim_u=1)
     kf.F, kf.B, kf.Q, kf.R = st.F, st.G.reshape(-1, 1), st.Q(cfg), np.array([[cfg.R]])
-    kf.x, kf.P = np.zeros(st.d), st.P0(cfg)
-    nl, n = ref_model.wiener.nonlinearity, st.n
+    kf.x, kf.P = np.zeros(st.dim_x), st.P0(cfg)
+    nl, n = ref_model.wiener.nonlinearity, st.n_wiener
     worst = 0.0
     for k in range(cmu.size):
         _, high, _ = ref_model.step(cmu[k], env[k])
         kf.predict(u=np.array([env[k]]))
-        H = st.h.copy()
+        H = st.h_fixed.copy()
         if output_form:
             y = float(st.C @ kf.x[:n])
             g = nl.slope_at(y)
@@ -71,20 +73,20 @@ def test_step_is_filterpy_predict_then_joseph_update_with_the_time_varying_H(rng
         else:
             g, c = nl.gain_at(env[k]), 0.0
         H[:n] = g * st.C
-        if st.ig >= 0:
-            H[st.ig] = high
+        if st.gain_h >= 0:
+            H[st.gain_h] = high
         row = phase.step(cmu[k]) if cfg.ripple_harmonics else None
         if row is not None:
-            H[st.r0:] = env[k] * row
+            H[st.ripple_start:] = env[k] * row
         kf.update(np.array([z[k] - high - c]), H=H.reshape(1, -1))
-        est = obs.step(cmu[k], env[k], z[k])
+        est = step(cmu[k], env[k], z[k])
         assert est.flags == 0
         scale_x, scale_p = np.max(np.abs(kf.x)), np.max(np.abs(kf.P))
         np.testing.assert_allclose(obs.kf.x, kf.x, rtol=1e-12, atol=1e-12 * scale_x)
         np.testing.assert_allclose(obs.kf.P, kf.P, rtol=1e-12, atol=1e-12 * scale_p)
         worst = max(worst, np.max(np.abs(obs.kf.P - kf.P)) / scale_p)
-    lift = kf.x[n] + (H[st.r0:] @ kf.x[st.r0:] if cfg.ripple_harmonics else 0.0) + \
-        (high * kf.x[st.ig] if st.ig >= 0 else 0.0)
+    lift = kf.x[n] + (H[st.ripple_start:] @ kf.x[st.ripple_start:] if cfg.ripple_harmonics else 0.0) + \
+        (high * kf.x[st.gain_h] if st.gain_h >= 0 else 0.0)
     assert est.dcl == pytest.approx(high + nl.step(env[-1], float(st.C @ kf.x[:n])) + lift, abs=1e-12)
     assert worst < 1e-12
 
@@ -96,7 +98,11 @@ def test_the_burst_phase_is_read_from_the_cmu_column():
     cmu = np.zeros(1000)
     for start in (10, 60, 110, 510, 560, 564):
         cmu[start:start + 2] = 0.01
-    rows = ph.rows(cmu)
+    rows = np.zeros((cmu.size, 6))
+    for k, c in enumerate(cmu):
+        row = ph.step(c)
+        if row is not None:
+            rows[k] = row
     defined = np.any(rows != 0, axis=1)
     assert not defined[:60].any()                   # one onset only: period unknown
     assert defined[60:160].all() and not defined[160:560].any()   # φ < 50 after the 2nd and 3rd
@@ -177,7 +183,7 @@ def test_a_missing_sample_is_predict_only_and_grows_the_covariance(rng):
         obs.step(cmu[k], env[k], z[k])
     x_before, p_before = obs.kf.x.copy(), np.trace(obs.kf.P)
     est = obs.step(cmu[299], env[299], None)
-    st = obs.structure
+    st = obs.layout
     np.testing.assert_allclose(obs.kf.x, st.F @ x_before + st.G * env[299], rtol=1e-12, atol=1e-15)
     assert np.trace(obs.kf.P) > p_before
     assert est.flags == FLAG_MISSING and math.isnan(est.innovation) and math.isnan(est.nis)
@@ -237,7 +243,7 @@ def test_from_model_reads_the_stored_settings(rng):
     model.observer_config = CFG.to_dict()
     obs = Observer.from_model(model)
     assert obs.config.R == CFG.R and obs.kf.R[0, 0] == CFG.R
-    np.testing.assert_array_equal(obs.kf.Q, obs.structure.Q(CFG))
+    np.testing.assert_array_equal(obs.kf.Q, obs.layout.Q(CFG))
 
 
 def test_the_bias_state_tracks_a_sensor_offset_the_model_lacks(rng):
@@ -262,51 +268,33 @@ def test_nis_is_consistent_when_the_model_is_right(rng):
     assert NIS_BAND[0] < 0.01 and 5.0 < NIS_BAND[1] < 5.05
 
 
-def test_batch_nis_runs_the_same_filter_as_step(rng):
-    model = make_model(rng)
-    cmu, env = burst_input(rng, 1500)
-    _, z = noisy_measurement(model, cmu, env, 0.004, rng, offset=0.01)
-    z[100] += 1.0                                             # one gated sample
-    rec = Record(np.arange(z.size) / 400.0, cmu, env, z)
-    for cfgs in ([CFG, ObserverConfig(R=1e-5, q_x=1e-7, q_bias=1e-7, p0_bias=1e-4)],
-                 [FULL, dataclasses.replace(FULL, q_ripple=1e-6, R=1e-5, q_gain_h=1e-4)]):
-        _check_batch(model, rec, cfgs, cmu, env, z)
-
-
-def _check_batch(model, rec, cfgs, cmu, env, z):
-    batch = batch_nis(model, rec, cfgs)
-    for i, cfg in enumerate(cfgs):
-        obs = Observer(model, cfg)
-        obs.run(cmu, env, z)
-        assert batch["nis_mean"][i] == pytest.approx(obs.nis_mean, rel=1e-9)
-        assert batch["nis_band_fraction"][i] == pytest.approx(obs.nis_band_fraction, rel=1e-12)
-        assert batch["rejected"][i] == obs.rejected >= 1
-
-
+@pytest.mark.parametrize("path", ["compiled", "reference"])
 @pytest.mark.parametrize("cfg", [CFG, FULL], ids=["plain", "all_states"])
-def test_a_step_allocates_nothing_that_stays(rng, cfg):
+def test_a_step_allocates_nothing_that_stays(rng, cfg, path):
     """tracemalloc: after warm-up, steps retain only the few floats of the reused Estimate
-    (not growing with the number of steps) and their transient peak is a few hundred bytes."""
+    (not growing with the number of steps) and their transient peak is a few hundred bytes
+    (the reference step builds a burst period's basis table when the period changes)."""
     model = make_model(rng, kernel_len=300)
     cmu, env = burst_input(rng, 5000)
     _, z = noisy_measurement(model, cmu, env, 0.004, rng)
     cmu, env, z = cmu.tolist(), env.tolist(), z.tolist()
     obs = Observer(model, cfg)
-    first = obs.step(cmu[0], env[0], z[0])
+    step = obs.step if path == "compiled" else obs.reference_step
+    first = step(cmu[0], env[0], z[0])
     for k in range(1, 1000):
-        obs.step(cmu[k], env[k], z[k])
+        step(cmu[k], env[k], z[k])
     retained = []
     tracemalloc.start()
     for stop in (2000, 5000):
         tracemalloc.reset_peak()
         start = len(retained) and 2000 or 1000
         for k in range(start, stop):
-            est = obs.step(cmu[k], env[k], z[k] if k % 7 else None)
+            est = step(cmu[k], env[k], z[k] if k % 7 else None)
         current, peak = tracemalloc.get_traced_memory()
         retained.append(current)
     tracemalloc.stop()
     assert est is first
-    period, rows = obs.phase._period_rows     # the current burst period's basis table, if any
+    period, rows = obs.phase._period_rows     # the reference step's basis table, if any
     table = rows[0].base.nbytes + sum(sys.getsizeof(r) for r in rows) + sys.getsizeof(rows) if rows else 0
     assert max(retained) <= 512 + 1.2 * table    # a leak of one object per step would be > 50 kB
     assert peak - current <= 2048 + 4 * table     # + building the basis table when the burst period changes
@@ -354,7 +342,7 @@ def test_an_accepted_periodic_disturbance_adds_oscillator_states_that_remove_the
     cfg = ObserverConfig(R=0.004**2, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4)
     plain = Observer(model, cfg)
     with_states = Observer(augmented, cfg)
-    assert with_states.structure.d == plain.structure.d + 2
+    assert with_states.layout.dim_x == plain.layout.dim_x + 2
     e_plain = plain.run(cmu, env, z)["dcl"][2000:] - truth[2000:]
     e_aug = with_states.run(cmu, env, z)["dcl"][2000:] - truth[2000:]
     rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
@@ -373,7 +361,7 @@ def test_a_pickup_with_harmonics_adds_two_oscillator_states_per_line_that_remove
     augmented = model.with_stages(output_stages=(pickup,))
     cfg = ObserverConfig(R=0.004**2, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4)
     plain, with_states = Observer(model, cfg), Observer(augmented, cfg)
-    assert with_states.structure.d == plain.structure.d + 4
+    assert with_states.layout.dim_x == plain.layout.dim_x + 4
     rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
     e_plain = plain.run(cmu, env, z)["dcl"][2000:] - truth[2000:]
     e_aug = with_states.run(cmu, env, z)["dcl"][2000:] - truth[2000:]

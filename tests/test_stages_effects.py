@@ -24,7 +24,7 @@ from rtlift.blocks.stages import (
 )
 from rtlift.blocks.wiener import NONLINEARITIES, HysteresisGain, OutputHysteresis
 from rtlift.modelfile import model_from_dict, model_to_dict
-from tests.conftest import burst_input, make_model
+from testkit.synthetic import burst_input, make_model
 
 FS = 400.0
 

@@ -18,8 +18,8 @@ from hypothesis import strategies as st
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.cli import main
-from rtlift.errors import RecordError
-from rtlift.records import SisoRecord, read_siso_record, write_siso_record
+from rtlift.core.errors import RecordError
+from rtlift.core.records import SisoRecord, read_siso_record, write_siso_record
 from rtlift.sysid.diagnose import clip_levels, diagnose_siso
 from rtlift.sysid.identify import SisoOptions, identify_siso
 from rtlift.sysid.model import FeedbackModel, SaturatedModel, SisoModel, model_from_dict

@@ -9,9 +9,9 @@ import pytest
 
 from hil_sim.experiments import run_experiment
 from rtlift.cli import main
-from rtlift.metrics import scores
+from rtlift.core.metrics import scores
+from rtlift.core.records import read_record, write_record
 from rtlift.modelfile import load_model
-from rtlift.records import read_record, write_record
 
 
 @pytest.fixture(scope="module")

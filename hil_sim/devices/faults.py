@@ -26,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, fields, replace
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 RATE_FAULTS = ("corrupt", "drop", "duplicate", "garbage")
 COMMAND_FAULTS = ("cmd_drop", "cmd_corrupt", "cmd_late")

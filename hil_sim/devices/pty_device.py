@@ -21,8 +21,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from hil_sim.devices.faults import DeviceStats, FaultPlan
+from rtlift.core.rate import FS_HZ
 
-FS_HZ = 400.0
 MAX_LATE_S = 0.5
 """A device later than this behind its schedule (host not reading) restarts its clock
 instead of bursting out the backlog."""

@@ -15,7 +15,12 @@ import numpy as np
 from scipy import signal
 
 _DIRECT_MAX = 4_000_000
-"""Above this many multiply-adds the batch twin convolves by FFT (overlap-add) instead."""
+"""Above this many multiply-adds the batch twin convolves by scattering the non-zero inputs
+(a burst-modulated Cμ is zero between bursts) or, for a dense input, by FFT (overlap-add)."""
+_SCATTER_PER_SAMPLE = 32
+"""Scatter while nnz(u)·L ≤ this × N. Measured here (240 000 samples, 300 taps): a scattered
+multiply-add ≈ 1.7 ns, overlap-add FFT ≈ 60 ns per output sample, so they break even near
+36 N; a burst record (7 % non-zero) scatters in ≈ 9 ms against ≈ 14 ms by FFT."""
 
 
 class RingConvolution:
@@ -56,8 +61,14 @@ class RingConvolution:
             return np.empty(0)
         past = self.get_state()[::-1]                 # u(k−L+1) … u(k), oldest first
         ext = np.concatenate([past[1:], u])           # length L−1+N ≥ L
-        if u.size * self._n > _DIRECT_MAX:            # overlap-add FFT: same sums to ~1e-16 relative
-            y = signal.oaconvolve(ext, self._taps, mode="valid")
+        if u.size * self._n > _DIRECT_MAX:            # same sums to ~1e-16 relative
+            if np.count_nonzero(ext) * self._n <= _SCATTER_PER_SAMPLE * u.size:
+                from rtlift.blocks.compiled import fir_scatter
+
+                y = np.empty(u.size)
+                fir_scatter(ext, self._taps, y)
+            else:
+                y = signal.oaconvolve(ext, self._taps, mode="valid")
         else:
             y = np.convolve(ext, self._taps, mode="valid")
         self.set_state(ext[::-1][: self._n])

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

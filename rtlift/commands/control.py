@@ -19,7 +19,7 @@ import argparse
 import sys
 import time
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -132,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
 def _warm_up(observer, controller) -> None:
     """Run the compiled steps once (and reset them) before the link opens: loading the JIT
     cache mid-loop would delay the first commands' echoes by hundreds of milliseconds."""
+    observer.warm_up()
     for k in range(100):
         est = observer.step(0.002 if k % 50 < 4 else 0.0, 0.002, 0.01)
         controller.step(est, 0.01)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -36,9 +36,9 @@ def run(args: argparse.Namespace) -> int:
     if isinstance(model, SISO_MODELS):
         return run_generic(args, model)
 
+    from rtlift.core.records import read_record
     from rtlift.diagnose import DiagnoseOptions, diagnose
     from rtlift.diagnose.report import write
-    from rtlift.records import read_record
 
     opt = DiagnoseOptions()
     need = int(12 * model.fs_hz)          # 2 s from rest left out of the residual tests, 10 s tested
@@ -78,7 +78,7 @@ def run_generic(args: argparse.Namespace, model) -> int:
     import json
     import os
 
-    from rtlift.records import read_siso_record, record_kind
+    from rtlift.core.records import read_siso_record, record_kind
     from rtlift.sysid.diagnose import diagnose_siso
     from rtlift.sysid.model import save_siso_model
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -49,10 +49,10 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         raise UserError(f"{', '.join(missing)} missing: give --static, --single-burst and --train (a lift "
                         "campaign) or --record (a generic t,u,y record)")
+    from rtlift.core.records import read_record
     from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
     from rtlift.modelfile import save_model
     from rtlift.observer import tune_observer
-    from rtlift.records import read_record
 
     if args.order is not None and not 1 <= args.order <= 8:
         raise UserError(f"--order {args.order}: must be between 1 and 8")
@@ -113,7 +113,7 @@ def summary(idf, out_path: str, seconds: float) -> str:
 
 def run_generic(args: argparse.Namespace) -> int:
     """``rtlift identify --record F --structure S``: a generic single-input record."""
-    from rtlift.records import read_siso_record
+    from rtlift.core.records import read_siso_record
     from rtlift.sysid.identify import identify_siso
     from rtlift.sysid.model import save_siso_model
 

@@ -15,7 +15,7 @@ import argparse
 import sys
 import time
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -49,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
     if args.seconds is not None and not args.seconds > 0:
         raise UserError(f"--seconds must be positive, got {args.seconds}")
     model = load_model(args.model)
-    compiled = f"model step compiled in {model.warm_up():.2f} s" if model.compiled else "model step not compiled"
     observer = Observer.from_model(model)
+    compiled = (f"observer step compiled in {observer.warm_up():.2f} s" if observer.compiled
+                else "observer step not compiled: the model carries stages the compiled step lacks")
     calibration = Calibration.load(args.calibration)
     link = open_link(link_config_from_args(args, log=args.log, calibration=calibration))
     where = args.serial or args.can

@@ -20,7 +20,7 @@ import sys
 import time
 from collections.abc import Iterator
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -174,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
 
     model = load_model(args.model)
     observer = Observer.from_model(model)
+    observer.warm_up()                      # compile before the first frame (matters with --realtime)
     calibration = Calibration.load(args.calibration)
     source = read_log(args.log, calibration)
     commands = None if args.no_control else read_command_log(args.log)

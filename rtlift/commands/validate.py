@@ -6,7 +6,7 @@ import argparse
 import json
 import os
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -25,8 +25,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from rtlift.core.records import read_record, read_siso_record, record_kind
     from rtlift.modelfile import load_any_model
-    from rtlift.records import read_record, read_siso_record, record_kind
     from rtlift.sysid.model import SISO_MODELS
     from rtlift.validation import RecordValidation, plot_validation, validate_record, validation_json
 

@@ -46,6 +46,8 @@ from rtlift.blocks.stages import (
     resonance_ba,
 )
 from rtlift.blocks.wiener import HysteresisGain, InputGain, OutputHysteresis, OutputNonlinearity
+from rtlift.core.effects import SCHEMAS, EffectSchema
+from rtlift.core.records import Record
 from rtlift.diagnose.fingerprint import (
     Departure,
     coef_departure,
@@ -54,10 +56,8 @@ from rtlift.diagnose.fingerprint import (
     psd_departure,
 )
 from rtlift.diagnose.residual import TestResult
-from rtlift.effects import SCHEMAS, EffectSchema
 from rtlift.hybrid import HybridModel, HybridOutput
 from rtlift.modelfile import model_from_dict, model_to_dict
-from rtlift.records import Record
 from rtlift.validation import predict_record
 
 MAX_LAG = 100                      # samples the delay search reaches (0.25 s at 400 Hz)
@@ -530,7 +530,7 @@ def evidence_output_nonlinearity(tests: dict[str, TestResult], fp: dict | None, 
 # ------------------------------------------------------------------ the catalog
 @dataclass(frozen=True)
 class Effect:
-    """One effect: its shared schema (:data:`rtlift.effects.SCHEMAS`: meaning, parameters and
+    """One effect: its shared schema (:data:`rtlift.core.effects.SCHEMAS`: meaning, parameters and
     their documented ranges), how it is fitted, what in the residual points at it, how many
     parameters it spends (from its fitted parameters) and which effects it cannot join."""
 

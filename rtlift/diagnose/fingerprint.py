@@ -33,9 +33,9 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.core.records import Record
 from rtlift.diagnose.residual import TestResult, run_all
 from rtlift.hybrid import HybridModel
-from rtlift.records import Record
 from rtlift.validation import predict_record
 
 FINGERPRINT_VERSION = 1

@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.core.effects import SCHEMAS
 from rtlift.diagnose.residual import welch_psd
 from rtlift.diagnose.selection import Diagnosis
-from rtlift.effects import SCHEMAS
 from rtlift.modelfile import save_model
 
 

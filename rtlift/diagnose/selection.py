@@ -44,6 +44,8 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.core.metrics import scores
+from rtlift.core.records import Record
 from rtlift.diagnose.catalog import CATALOG, EFFECT_NAMES, EFFECTS, Context, Fitted, predict, reestimate
 from rtlift.diagnose.fingerprint import (
     FINGERPRINT_START_S,
@@ -59,8 +61,6 @@ from rtlift.diagnose.fingerprint import (
 )
 from rtlift.diagnose.residual import TestResult, cluster_ols
 from rtlift.hybrid import HybridModel
-from rtlift.metrics import scores
-from rtlift.records import Record
 
 REPORT_VERSION = 1
 

@@ -25,7 +25,7 @@
 6. the residual fingerprint of the final model on the three records
    (:mod:`rtlift.diagnose.fingerprint`), stored in the model file for later diagnoses.
 
-Pure: takes :class:`~rtlift.records.Record` objects, returns an :class:`Identification`
+Pure: takes :class:`~rtlift.core.records.Record` objects, returns an :class:`Identification`
 holding the :class:`~rtlift.hybrid.HybridModel` and plain dicts for the model file.
 """
 
@@ -40,14 +40,14 @@ from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.stages import Delay
 from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
+from rtlift.core.metrics import scores
+from rtlift.core.records import Record
 from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
 from rtlift.hybrid import HybridModel
 from rtlift.identify.highpass import HighPassChoice, choose_highpass, wiener_fit_for_highpass
 from rtlift.identify.kernel import SingleBurstKernel, burst_onsets, fit_kernel
 from rtlift.identify.pem import OrderChoice, PEMResult, choose_order, fit_wiener
 from rtlift.identify.static_map import StaticMap, fit_static_map
-from rtlift.metrics import scores
-from rtlift.records import Record
 
 WIENER_FORMS = ("input_gain", "output_map")
 

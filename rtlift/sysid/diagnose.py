@@ -35,10 +35,10 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.core.metrics import scores
+from rtlift.core.records import SisoRecord
 from rtlift.diagnose.residual import higher_order, input_crosscorr, whiteness
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
-from rtlift.metrics import scores
-from rtlift.records import SisoRecord
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
 from rtlift.sysid.model import SaturatedModel, SisoModel
 

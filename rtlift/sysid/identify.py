@@ -38,8 +38,8 @@ from scipy import optimize, signal
 
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
+from rtlift.core.records import SisoRecord
 from rtlift.identify.pem import denominator_from_theta, theta_from_poles
-from rtlift.records import SisoRecord
 from rtlift.sysid.model import STRUCTURES, FeedbackModel, SaturatedModel, SisoModel
 
 

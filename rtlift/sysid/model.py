@@ -24,7 +24,7 @@ import numpy as np
 
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
-from rtlift.errors import ModelFileError
+from rtlift.core.errors import ModelFileError
 
 FORMAT = "rtlift-siso-model"
 VERSION = 1

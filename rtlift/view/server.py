@@ -28,7 +28,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from rtlift.errors import UserError
+from rtlift.core.errors import UserError
+from rtlift.core.rate import FS_HZ
 
 DEFAULT_PORT = 8765
 HOST = "127.0.0.1"
@@ -52,7 +53,7 @@ class LiveView:
     as the last word on every page, then stops the server.
     """
 
-    def __init__(self, port: int = DEFAULT_PORT, *, title: str = "rtlift", fs_hz: float = 400.0,
+    def __init__(self, port: int = DEFAULT_PORT, *, title: str = "rtlift", fs_hz: float = FS_HZ,
                  counters: Callable[[], dict[str, Any]] | None = None, rate_hz: float = 25.0,
                  decimate: int = 4, window_s: float = 30.0) -> None:
         if not 0 <= port <= 65535:

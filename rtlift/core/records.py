@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rtlift.errors import RecordError
+from rtlift.core.errors import RecordError
 
 REQUIRED = ("t", "cmu", "cmu_envelope", "dcl")
 SISO_REQUIRED = ("t", "u", "y")

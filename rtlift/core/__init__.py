@@ -1,0 +1,11 @@
+"""The core layer: what every other layer may import, and which imports nothing else of ours.
+
+- :mod:`rtlift.core.errors`  the exceptions a user can act on (exit status 2);
+- :mod:`rtlift.core.records` the record file (CSV with ``# key: value`` metadata) and :class:`Record`;
+- :mod:`rtlift.core.metrics` ρ, NRMSE, RMSE;
+- :mod:`rtlift.core.effects` one parameter schema per effect (shared by the model and the bench);
+- :mod:`rtlift.core.rate`    the 400 Hz sample rate.
+
+``firmware_io`` and ``hil_sim`` depend on this layer only (and on each other's codecs), never on
+the model, the observer or the applications above it (``tests/test_layers.py`` checks it).
+"""

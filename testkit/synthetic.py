@@ -1,0 +1,52 @@
+"""Small random hybrid models and amplitude-modulated burst inputs, for tests and benchmarks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rtlift.blocks import HighPassFilter, InputGain, OutputNonlinearity, RingConvolution, WienerBlock
+from rtlift.hybrid import HybridModel
+
+
+def random_stable_A(rng: np.random.Generator, n: int, radius: float = 0.995) -> np.ndarray:
+    """Controllable-canonical A with physical low-frequency poles: time constants from a few
+    samples to ~200 samples (0.5 s at 400 Hz), real or lightly damped conjugate pairs."""
+    poles: list[complex] = []
+    while len(poles) < n:
+        r = rng.uniform(0.3, radius)
+        if n - len(poles) >= 2 and rng.random() < 0.5:
+            th = rng.uniform(0.01, 0.3)
+            poles += [r * np.exp(1j * th), r * np.exp(-1j * th)]
+        else:
+            poles.append(r)
+    coeffs = np.real(np.poly(poles))
+    A = np.zeros((n, n))
+    A[0, :] = -coeffs[1:]
+    A[1:, :-1] += np.eye(n - 1)
+    return A
+
+
+def make_model(rng: np.random.Generator, *, kernel_len: int = 30, order: int = 2, hp_order: int = 2,
+               output_form: bool = False, fs_hz: float = 400.0) -> HybridModel:
+    kernel = rng.normal(size=kernel_len) * np.exp(-np.arange(kernel_len) / 10.0)
+    A = random_stable_A(rng, order)
+    B = np.zeros(order)
+    B[0] = 1.0
+    C = rng.normal(size=order)
+    C /= C @ np.linalg.solve(np.eye(order) - A, B)            # unit DC gain: y ≈ Cμ in steady state, as identified
+    if output_form:
+        y = np.sort(rng.normal(size=6)) * 0.01
+        nl = OutputNonlinearity(np.unique(y), np.cumsum(rng.uniform(0.1, 1, size=np.unique(y).size)))
+    else:
+        nl = InputGain(np.linspace(0, 0.022, 8), 10 + rng.uniform(0, 5, size=8))
+    return HybridModel(RingConvolution(kernel, phi=rng.uniform(0.5, 2.0)),
+                       HighPassFilter.design(hp_order, rng.uniform(0.3, 20.0), fs_hz),
+                       WienerBlock(A, B, C, nl), fs_hz)
+
+
+def burst_input(rng: np.random.Generator, n: int, period: int = 50, width: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Amplitude-modulated bursts: (cmu, cmu_envelope) as on the bench."""
+    env = np.clip(0.011 + 0.011 * np.sin(np.arange(n) * 2 * np.pi / rng.uniform(80, 400))
+                  + rng.normal(0, 0.002, n), 0, 0.025)
+    gate = (np.arange(n) % period) < width
+    return np.where(gate, env, 0.0), env

@@ -1,0 +1,168 @@
+"""The layers point one way: no import cycle between modules or between packages, and the
+bottom layers import only the core.
+
+Edges are the imports a module runs when it is imported: its top-level ``import`` and
+``from … import`` statements (also inside a top-level ``if``/``try``; not under
+``if TYPE_CHECKING``). An import inside a function runs when the function is called, after
+both modules are loaded, so it cannot create an import-time cycle; those lazy imports are
+excluded, and the ones that would close a cycle are listed in ``LAZY_CYCLES`` (each says why).
+
+Package level: every top-level package is a node (``firmware_io``, ``hil_sim``, ``testkit``,
+``tests``, ``benchmarks``), except ``rtlift``, whose sub-packages (``rtlift.core``,
+``rtlift.blocks``, ``rtlift.observer`` …) and top-level modules (``rtlift.hybrid``,
+``rtlift.live`` …) are nodes of their own: ``rtlift`` holds every layer from the core to the
+applications, and ``hil_sim`` sits between its core and its demo.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("rtlift", "firmware_io", "hil_sim", "testkit", "tests", "benchmarks")
+LAZY_CYCLES: dict[tuple[str, str], str] = {}
+"""(importer, imported) of function-level imports that would close a cycle, with the reason."""
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in (ROOT / pkg).rglob("*.py"):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            out[".".join(parts)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _target(name: str) -> str | None:
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def _imported(statements) -> set[str]:
+    out = set()
+    for node in statements:
+        if isinstance(node, ast.Import):
+            out |= {_target(a.name) for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out |= {_target(f"{node.module}.{a.name}") for a in node.names}
+    return out - {None}
+
+
+def _top_level(tree: ast.Module):
+    for node in tree.body:
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            continue
+        if isinstance(node, (ast.If, ast.Try)):
+            yield from (n for n in ast.walk(node) if isinstance(n, (ast.Import, ast.ImportFrom)))
+        else:
+            yield node
+
+
+def _graphs() -> tuple[dict[str, set[str]], dict[str, set[str]]]:
+    eager, lazy = defaultdict(set), defaultdict(set)
+    for name, path in MODULES.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        top = _imported(_top_level(tree)) - {name}
+        eager[name] |= top
+        lazy[name] |= _imported(ast.walk(tree)) - top - {name}
+    return eager, lazy
+
+
+EAGER, LAZY = _graphs()
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one node (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _node(module: str) -> str:
+    parts = module.split(".")
+    if parts[0] != "rtlift" or len(parts) == 1:
+        return parts[0]
+    return ".".join(parts[:2])
+
+
+def _package_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    out = defaultdict(set)
+    for a, targets in graph.items():
+        out[_node(a)] |= {_node(b) for b in targets if _node(b) != _node(a)}
+    return out
+
+
+def test_no_import_cycle_between_modules():
+    assert _cycles(EAGER) == []
+
+
+def test_no_import_cycle_between_packages():
+    assert _cycles(_package_graph(EAGER)) == []
+
+
+def test_lazy_imports_close_no_cycle_but_the_listed_ones():
+    """With the function-level imports added, every cycle goes through a listed lazy import."""
+    both = {m: EAGER[m] | {t for t in LAZY[m] if (m, t) not in LAZY_CYCLES} for m in MODULES}
+    assert _cycles(both) == []
+
+
+@pytest.mark.parametrize("package", ["firmware_io", "hil_sim"])
+def test_the_io_and_bench_packages_import_only_the_core_of_rtlift(package):
+    used = {t for m, targets in EAGER.items() if _node(m) == package for t in targets | LAZY[m]
+            if t.startswith("rtlift")}
+    assert used and all(t.startswith("rtlift.core") for t in used), sorted(used)
+
+
+def test_the_core_imports_nothing_of_ours():
+    ours = {t for m in MODULES if m.startswith("rtlift.core") for t in EAGER[m] | LAZY[m]}
+    assert all(t.startswith("rtlift.core") for t in ours), sorted(ours)
+
+
+def test_tests_and_benchmarks_share_helpers_through_testkit_only():
+    bench = {t for m in MODULES if m.startswith("benchmarks") for t in EAGER[m] | LAZY[m]}
+    assert not any(t.startswith("tests") for t in bench), sorted(bench)
+
+
+def test_importing_firmware_io_loads_neither_scipy_nor_the_model():
+    code = ("import sys, firmware_io, firmware_io.links; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            "{'scipy', 'filterpy', 'numba'} or m in {'rtlift.hybrid', 'rtlift.observer'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=ROOT, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert out.stdout.strip() == "[]"
