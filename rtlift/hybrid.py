@@ -94,7 +94,8 @@ class HybridModel:
         stages = self.input_stages
         delay = stages[0].kernel_arrays()[1] if len(stages) == 1 and type(stages[0]) is Delay else None
         wiener = self.wiener.kernel_arrays()
-        if (delay is not None or not stages) and not self.output_stages and wiener is not None:
+        plain = type(self.convolution) is RingConvolution       # not the interaction structure's
+        if (delay is not None or not stages) and not self.output_stages and wiener is not None and plain:
             from rtlift.blocks.compiled import hybrid_step, pack_parameters
 
             (taps,), conv_state = self.convolution.kernel_arrays()

@@ -1,0 +1,115 @@
+"""Burst–burst interaction: the streaming blocks of the ``interaction`` structure (issue 18).
+
+The structure (identified by :mod:`rtlift.identify.interaction`)::
+
+    c(k)    = φ Σ_j h(j) Cμ(k−j)                              convolution (paper eq. 1)
+    m(k)    = λ m(k−1) + (1 − λ) Cμ(k) / d,   λ = exp(−1/(τ fs))  delivered momentum
+    ΔCL_H(k) = β_H HF(c)(k) + G(m(k)) · (c − HF(c))(k)          burst part
+    ΔCL_L(k) = N(m(k)) · C x(k),   x(k) = A x(k−1) + B m(k)       Wiener part, driven by m
+    ΔCL(k)  = ΔCL_H(k) + ΔCL_L(k)
+
+``m`` is the momentum the actuators delivered recently (a first-order memory of time constant
+τ of the burst-modulated Cμ), scaled by the duty ``d`` of lift-optimal bursting (Δt_b / T_opt)
+so that at 8 Hz bursting m equals the envelope: N and the static map keep their meaning, but
+isolated bursts and sparse trains drive the Wiener part by what they deliver, not by the
+commanded envelope. G (piecewise linear in m, held beyond its knots) is the per-burst gain of
+the slow part of each burst's response: 1-ish for an isolated burst, smaller when recent
+bursts have already moved the flow (the interaction the convolution alone over-predicts).
+
+Blocks, so that a :class:`~rtlift.hybrid.HybridModel` — and the Kalman observer, which steps
+the model's blocks one by one — runs the structure unchanged:
+
+- :class:`~rtlift.blocks.stages.DeliveredMomentum`, an input stage ``(Cμ, Cμ_env) → (Cμ, m)``: the Wiener part and
+  its gain see m instead of the envelope;
+- :class:`InteractionConvolution`, in the model's ``convolution`` slot: ΔCL_H above (its own
+  HF inside), with the model's ``highpass`` the identity. ΔCL_H depends on the input only, so
+  the observer takes it as its known input, as it does the paper's HF(convolution).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from rtlift.blocks.convolution import RingConvolution
+from rtlift.blocks.highpass import HighPassFilter
+from rtlift.blocks.stages import DeliveredMomentum
+from rtlift.blocks.wiener import _check_table, _Table
+
+IDENTITY_SOS = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
+"""The model's ``highpass`` slot for this structure: y = x (HF lives inside ΔCL_H)."""
+
+
+class InteractionConvolution:
+    """``ΔCL_H(k) = β_H HF(c)(k) + G(m(k)) (c − HF(c))(k)`` (module docstring), streaming, with a
+    batch twin. ``kernel``/``phi`` as :class:`RingConvolution`; ``highpass`` the HF; ``knots``
+    and ``gains`` the G table (m in Cμ, held beyond the ends); ``momentum`` the m recursion."""
+
+    def __init__(self, kernel: np.ndarray, phi: float, highpass: HighPassFilter, beta_h: float,
+                 knots: np.ndarray, gains: np.ndarray, momentum: DeliveredMomentum) -> None:
+        if not math.isfinite(beta_h):
+            raise ValueError("interaction beta_h must be finite")
+        self.conv = RingConvolution(kernel, phi)
+        self.highpass = highpass
+        self.beta_h = float(beta_h)
+        self.gain = _Table(*_check_table(knots, gains, "interaction gain"), extrapolate=False)
+        self.momentum = momentum
+        self.kernel, self.phi = self.conv.kernel, self.conv.phi
+
+    @property
+    def blocks(self) -> tuple[Any, ...]:
+        return (self.conv, self.highpass, self.momentum)
+
+    @property
+    def state_size(self) -> int:
+        return sum(b.state_size for b in self.blocks)
+
+    def step(self, u: float) -> float:
+        """Push Cμ(k), return ΔCL_H(k). No array allocation."""
+        c = self.conv.step(u)
+        hf = self.highpass.step(c)
+        return self.beta_h * hf + self.gain(self.momentum.momentum(u)) * (c - hf)
+
+    def simulate(self, u: np.ndarray) -> np.ndarray:
+        """Batch twin of :meth:`step`; starts from and advances the current state."""
+        u = np.asarray(u, dtype=float)
+        c = self.conv.simulate(u)
+        hf = self.highpass.simulate(c)
+        return self.beta_h * hf + self.gain.batch(self.momentum.momentum_batch(u)) * (c - hf)
+
+    def params(self) -> dict[str, Any]:
+        """The model file's ``convolution.interaction`` entry."""
+        hp = self.highpass
+        return {"beta_h": self.beta_h, "knots": self.gain.x.tolist(), "gains": self.gain.f.tolist(),
+                "highpass": {"order": hp.order, "cutoff_hz": hp.cutoff_hz, "sos": hp.sos.tolist()},
+                "momentum": self.momentum.params()}
+
+    @classmethod
+    def from_params(cls, kernel: np.ndarray, phi: float, params: dict[str, Any],
+                    fs_hz: float) -> InteractionConvolution:
+        """Inverse of :meth:`params` (``KeyError``/``ValueError`` on a bad entry)."""
+        hp = params["highpass"]
+        return cls(kernel, phi, HighPassFilter(np.asarray(hp["sos"], dtype=float), order=hp.get("order"),
+                                               cutoff_hz=hp.get("cutoff_hz")),
+                   float(params["beta_h"]), np.asarray(params["knots"], dtype=float),
+                   np.asarray(params["gains"], dtype=float),
+                   DeliveredMomentum.from_params(params["momentum"], fs_hz))
+
+    def reset(self) -> None:
+        for b in self.blocks:
+            b.reset()
+
+    def get_state(self) -> np.ndarray:
+        """[convolution state (last L inputs, newest first), HF state, m]."""
+        return np.concatenate([np.atleast_1d(b.get_state()) for b in self.blocks])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (self.state_size,):
+            raise ValueError(f"interaction state must have shape ({self.state_size},), got {s.shape}")
+        i = 0
+        for b in self.blocks:
+            b.set_state(s[i:i + b.state_size])
+            i += b.state_size
