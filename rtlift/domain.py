@@ -16,6 +16,7 @@ Onsets are the samples where Cμ turns positive (a burst is on where ``cmu`` > 0
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -129,3 +130,13 @@ class WatchedConverter:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._converter, name)
+
+
+def watch_domain(loop: Any, model: Any, command: str) -> None:
+    """Make an observer loop's converter (``loop.converter``) say on stderr, once, when the live
+    stream leaves ``model``'s domain (a model file without one: nothing is watched)."""
+    domain = model.provenance.get("domain")
+    if domain:
+        loop.converter = WatchedConverter(
+            loop.converter, DomainWatch(domain, model.fs_hz),
+            lambda line: print(f"{command}: warning: {line}", file=sys.stderr, flush=True))
