@@ -2,7 +2,7 @@
 
 Holds every parameter of a :class:`~rtlift.hybrid.HybridModel` (kernel, φ, HPF
 coefficients and design, A B C, the nonlinearity table, augmentation stages; for the
-``interaction`` structure ``convolution.interaction``: β_H, the G table, its HF and the
+``interaction`` structure ``convolution.interaction``: the G_H and G tables, its HF and the
 delivered-momentum memory, :mod:`rtlift.blocks.interaction`), the sample
 rate and units, the observer's noise settings, provenance, fit metrics and the residual
 fingerprint of the identification campaign (what the diagnosis compares later records with). Loading checks

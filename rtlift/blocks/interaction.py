@@ -4,7 +4,7 @@ The structure (identified by :mod:`rtlift.identify.interaction`)::
 
     c(k)    = φ Σ_j h(j) Cμ(k−j)                              convolution (paper eq. 1)
     m(k)    = λ m(k−1) + (1 − λ) Cμ(k) / d,   λ = exp(−1/(τ fs))  delivered momentum
-    ΔCL_H(k) = β_H HF(c)(k) + G(m(k)) · (c − HF(c))(k)          burst part
+    ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k)      burst part
     ΔCL_L(k) = N(m(k)) · C x(k),   x(k) = A x(k−1) + B m(k)       Wiener part, driven by m
     ΔCL(k)  = ΔCL_H(k) + ΔCL_L(k)
 
@@ -12,9 +12,10 @@ The structure (identified by :mod:`rtlift.identify.interaction`)::
 τ of the burst-modulated Cμ), scaled by the duty ``d`` of lift-optimal bursting (Δt_b / T_opt)
 so that at 8 Hz bursting m equals the envelope: N and the static map keep their meaning, but
 isolated bursts and sparse trains drive the Wiener part by what they deliver, not by the
-commanded envelope. G (piecewise linear in m, held beyond its knots) is the per-burst gain of
-the slow part of each burst's response: 1-ish for an isolated burst, smaller when recent
-bursts have already moved the flow (the interaction the convolution alone over-predicts).
+commanded envelope. G and G_H (piecewise linear in m on the same knots, held beyond them) are
+the per-burst gains of the slow and of the fast (high-passed) part of each burst's response:
+those of an isolated burst at m ≈ 0, smaller when recent bursts have already moved the flow
+(the interaction the convolution alone over-predicts).
 
 Blocks, so that a :class:`~rtlift.hybrid.HybridModel` — and the Kalman observer, which steps
 the model's blocks one by one — runs the structure unchanged:
@@ -28,7 +29,6 @@ the model's blocks one by one — runs the structure unchanged:
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -43,17 +43,16 @@ IDENTITY_SOS = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
 
 
 class InteractionConvolution:
-    """``ΔCL_H(k) = β_H HF(c)(k) + G(m(k)) (c − HF(c))(k)`` (module docstring), streaming, with a
-    batch twin. ``kernel``/``phi`` as :class:`RingConvolution`; ``highpass`` the HF; ``knots``
-    and ``gains`` the G table (m in Cμ, held beyond the ends); ``momentum`` the m recursion."""
+    """``ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k)`` (module docstring), streaming,
+    with a batch twin. ``kernel``/``phi`` as :class:`RingConvolution`; ``highpass`` the HF;
+    ``knots`` (m, in Cμ), ``gains_h`` and ``gains`` the G_H and G tables (held beyond the
+    ends); ``momentum`` the m recursion."""
 
-    def __init__(self, kernel: np.ndarray, phi: float, highpass: HighPassFilter, beta_h: float,
-                 knots: np.ndarray, gains: np.ndarray, momentum: DeliveredMomentum) -> None:
-        if not math.isfinite(beta_h):
-            raise ValueError("interaction beta_h must be finite")
+    def __init__(self, kernel: np.ndarray, phi: float, highpass: HighPassFilter, knots: np.ndarray,
+                 gains_h: np.ndarray, gains: np.ndarray, momentum: DeliveredMomentum) -> None:
         self.conv = RingConvolution(kernel, phi)
         self.highpass = highpass
-        self.beta_h = float(beta_h)
+        self.gain_h = _Table(*_check_table(knots, gains_h, "interaction fast gain"), extrapolate=False)
         self.gain = _Table(*_check_table(knots, gains, "interaction gain"), extrapolate=False)
         self.momentum = momentum
         self.kernel, self.phi = self.conv.kernel, self.conv.phi
@@ -70,19 +69,21 @@ class InteractionConvolution:
         """Push Cμ(k), return ΔCL_H(k). No array allocation."""
         c = self.conv.step(u)
         hf = self.highpass.step(c)
-        return self.beta_h * hf + self.gain(self.momentum.momentum(u)) * (c - hf)
+        m = self.momentum.momentum(u)
+        return self.gain_h(m) * hf + self.gain(m) * (c - hf)
 
     def simulate(self, u: np.ndarray) -> np.ndarray:
         """Batch twin of :meth:`step`; starts from and advances the current state."""
         u = np.asarray(u, dtype=float)
         c = self.conv.simulate(u)
         hf = self.highpass.simulate(c)
-        return self.beta_h * hf + self.gain.batch(self.momentum.momentum_batch(u)) * (c - hf)
+        m = self.momentum.momentum_batch(u)
+        return self.gain_h.batch(m) * hf + self.gain.batch(m) * (c - hf)
 
     def params(self) -> dict[str, Any]:
         """The model file's ``convolution.interaction`` entry."""
         hp = self.highpass
-        return {"beta_h": self.beta_h, "knots": self.gain.x.tolist(), "gains": self.gain.f.tolist(),
+        return {"knots": self.gain.x.tolist(), "gains_h": self.gain_h.f.tolist(), "gains": self.gain.f.tolist(),
                 "highpass": {"order": hp.order, "cutoff_hz": hp.cutoff_hz, "sos": hp.sos.tolist()},
                 "momentum": self.momentum.params()}
 
@@ -93,7 +94,7 @@ class InteractionConvolution:
         hp = params["highpass"]
         return cls(kernel, phi, HighPassFilter(np.asarray(hp["sos"], dtype=float), order=hp.get("order"),
                                                cutoff_hz=hp.get("cutoff_hz")),
-                   float(params["beta_h"]), np.asarray(params["knots"], dtype=float),
+                   np.asarray(params["knots"], dtype=float), np.asarray(params["gains_h"], dtype=float),
                    np.asarray(params["gains"], dtype=float),
                    DeliveredMomentum.from_params(params["momentum"], fs_hz))
 

@@ -126,10 +126,10 @@ def run_interaction(args: argparse.Namespace, static, burst, trains, train) -> i
     st, w, dom = idf.provenance["structure"], idf.provenance["wiener"], idf.provenance["domain"]
     lines = [f"identified interaction model in {seconds:.2f} s -> {args.out}",
              f"  high-pass of the burst part: Butterworth order {st['highpass']['order']}, cutoff "
-             f"{st['highpass']['cutoff_hz']:g} Hz; beta_H {st['beta_h']:.4g}; delivered-momentum memory "
+             f"{st['highpass']['cutoff_hz']:g} Hz; delivered-momentum memory "
              f"tau {st['time_constant_s']:g} s at duty {st['duty']:.4g}",
-             "  per-burst gain G(m) of the slow part: " + ", ".join(
-                 f"{g:.3g}@{k:.3g}" for k, g in zip(st["knots"], st["gains"], strict=True)),
+             "  per-burst gains G_H(m) / G(m) of the fast / slow part: " + ", ".join(
+                 f"{gh:.3g}/{g:.3g}@{k:.3g}" for k, gh, g in zip(st["knots"], st["gains_h"], st["gains"], strict=True)),
              f"  Wiener LTI (driven by m): order {w['order']}, DC gain {w['dc_gain']:.4g}",
              "  domain: burst periods " + ", ".join(f"{p:.3g}" for p in dom["burst_periods_s"]) + " s"
              + (" and isolated bursts" if dom["isolated_bursts"] else "") + f", Cmu up to {dom['cmu_max']:.4g}"]
