@@ -22,6 +22,7 @@ import argparse
 import os
 
 from benchmarks._common import emit
+from benchmarks.independent_plant import DEFAULT_DATA as DEFAULT_PLANT
 from rtlift.identify.campaign import identify_hybrid
 from rtlift.identify.interaction import identify_interaction
 from rtlift.records import Record, read_record
@@ -30,7 +31,6 @@ from rtlift.validation import validate_record
 RECORDS = ("static", "single_burst", "train_T1p75", "train_T3p5", "train_T7", "sine_k0125", "sine_k025", "random")
 TRAINS = ("train_T1p75", "train_T3p5", "train_T7")
 GOAL_CORR, GOAL_NRMSE = 0.9, 0.5
-DEFAULT_PLANT = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "independent_plant")
 
 
 def bench_records(seed: int) -> dict[str, Record]:

@@ -29,6 +29,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.stages import Delay, InputStage, OutputStage
@@ -45,7 +46,7 @@ class HybridOutput(NamedTuple):
 
 
 @dataclass(eq=False)
-class HybridModel:
+class HybridModel(BlockChain):
     convolution: RingConvolution
     highpass: HighPassFilter
     wiener: WienerBlock
@@ -159,26 +160,6 @@ class HybridModel:
         for s in self.output_stages:
             total = s.simulate(total)
         return HybridOutput(total, high, low)
-
-    def reset(self) -> None:
-        for b in self.blocks:
-            b.reset()
-
-    @property
-    def state_size(self) -> int:
-        return sum(b.state_size for b in self.blocks)
-
-    def get_state(self) -> np.ndarray:
-        return np.concatenate([np.atleast_1d(b.get_state()) for b in self.blocks])
-
-    def set_state(self, state: np.ndarray) -> None:
-        s = np.asarray(state, dtype=float)
-        if s.shape != (self.state_size,):
-            raise ValueError(f"model state must have shape ({self.state_size},), got {s.shape}")
-        i = 0
-        for b in self.blocks:
-            b.set_state(s[i:i + b.state_size])
-            i += b.state_size
 
     def with_stages(self, input_stages=(), output_stages=()) -> HybridModel:
         """A copy of this model (fresh state) with extra stages appended."""

@@ -14,7 +14,7 @@ from rtlift.blocks.stages import DeliveredMomentum
 from rtlift.hybrid import HybridModel
 from rtlift.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig
-from tests.conftest import burst_input, random_stable_A
+from tests.conftest import burst_input, model_steps, random_stable_A, run_in_chunks
 
 TOL = 1e-12
 FS = 400.0
@@ -40,10 +40,6 @@ def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int
                        input_stages=(DeliveredMomentum(tau, duty, FS),))
 
 
-def _steps(model, cmu, env):
-    return np.array([model.step(c, e) for c, e in zip(cmu, env, strict=True)]).T
-
-
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), kernel_len=st.integers(1, 60),
        order=st.integers(1, 3), period=st.integers(5, 300))
@@ -51,7 +47,7 @@ def test_interaction_model_step_equals_simulate(seed, n, kernel_len, order, peri
     rng = np.random.default_rng(seed)
     m = interaction_model(rng, kernel_len, order)
     cmu, env = burst_input(rng, n, period=period)
-    streamed = _steps(m, cmu, env)
+    streamed = model_steps(m, cmu, env)
     after_steps = m.get_state()
     m.reset()
     out = m.simulate(cmu, env)
@@ -68,17 +64,7 @@ def test_interaction_chunks_and_steps_carry_state_through_get_set(seed, cuts):
     cmu, env = burst_input(rng, 300, period=int(rng.integers(20, 200)))
     whole = m.simulate(cmu, env).total
     m.reset()
-    bounds = [0, *sorted(cuts), 300]
-    pieces = []
-    for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
-        saved = m.get_state()
-        m.reset()
-        m.set_state(saved)
-        if i % 2:
-            pieces.append(_steps(m, cmu[a:b], env[a:b])[0] if b > a else np.empty(0))
-        else:
-            pieces.append(m.simulate(cmu[a:b], env[a:b]).total)
-    np.testing.assert_allclose(np.concatenate(pieces), whole, atol=TOL, rtol=0)
+    np.testing.assert_allclose(run_in_chunks(m, cmu, env, cuts), whole, atol=TOL, rtol=0)
 
 
 def test_delivered_momentum_settles_at_the_envelope_for_bursts_at_the_duty():

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.stages import DeliveredMomentum
@@ -42,7 +43,7 @@ IDENTITY_SOS = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
 """The model's ``highpass`` slot for this structure: y = x (HF lives inside ΔCL_H)."""
 
 
-class InteractionConvolution:
+class InteractionConvolution(BlockChain):
     """``ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k)`` (module docstring), streaming,
     with a batch twin. ``kernel``/``phi`` as :class:`RingConvolution`; ``highpass`` the HF;
     ``knots`` (m, in Cμ), ``gains_h`` and ``gains`` the G_H and G tables (held beyond the
@@ -57,13 +58,12 @@ class InteractionConvolution:
         self.momentum = momentum
         self.kernel, self.phi = self.conv.kernel, self.conv.phi
 
-    @property
-    def blocks(self) -> tuple[Any, ...]:
-        return (self.conv, self.highpass, self.momentum)
+    state_name = "interaction"
 
     @property
-    def state_size(self) -> int:
-        return sum(b.state_size for b in self.blocks)
+    def blocks(self) -> tuple[Any, ...]:
+        """State order: [convolution (last L inputs, newest first), HF, m]."""
+        return (self.conv, self.highpass, self.momentum)
 
     def step(self, u: float) -> float:
         """Push Cμ(k), return ΔCL_H(k). No array allocation."""
@@ -97,20 +97,3 @@ class InteractionConvolution:
                    np.asarray(params["knots"], dtype=float), np.asarray(params["gains_h"], dtype=float),
                    np.asarray(params["gains"], dtype=float),
                    DeliveredMomentum.from_params(params["momentum"], fs_hz))
-
-    def reset(self) -> None:
-        for b in self.blocks:
-            b.reset()
-
-    def get_state(self) -> np.ndarray:
-        """[convolution state (last L inputs, newest first), HF state, m]."""
-        return np.concatenate([np.atleast_1d(b.get_state()) for b in self.blocks])
-
-    def set_state(self, state: np.ndarray) -> None:
-        s = np.asarray(state, dtype=float)
-        if s.shape != (self.state_size,):
-            raise ValueError(f"interaction state must have shape ({self.state_size},), got {s.shape}")
-        i = 0
-        for b in self.blocks:
-            b.set_state(s[i:i + b.state_size])
-            i += b.state_size

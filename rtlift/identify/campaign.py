@@ -289,12 +289,7 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
         "train": {"record": train_rec.name, **train_scores},
         "holdout": {"fraction": opt.holdout_fraction,
                     "rmse": fit.candidates[choice.order][1]},
-        "residual_std_train": float(np.std(resid[skip:])),
-        "residual_mean_train": float(np.mean(resid[skip:])),
-        "measurement_noise_std": noise_std,
-        "static_map_rmse": static.fit_rmse,
-        "kernel_reproduction_nrmse": kernel.reproduction_nrmse,
-        "pem_rmse": pem.rmse,
+        **fit_metrics(resid[skip:], noise_std, static, kernel, pem),
     }
     provenance = {
         "tool": "rtlift identify",
@@ -350,6 +345,15 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     observer = {"measurement_noise_std": noise_std,
                 "model_residual_std": metrics["residual_std_train"]}
     return Identification(model, static, kernel, hp, choice, pem, provenance, metrics, observer)
+
+
+def fit_metrics(resid: np.ndarray, noise_std: float, static: StaticMap, kernel: SingleBurstKernel,
+                pem: PEMResult) -> dict[str, float]:
+    """The fit metrics every lift model file holds: the residual on the training record (its
+    scored part), the sensor noise, and the static map's, kernel's and PEM's own errors."""
+    return {"residual_std_train": float(np.std(resid)), "residual_mean_train": float(np.mean(resid)),
+            "measurement_noise_std": noise_std, "static_map_rmse": static.fit_rmse,
+            "kernel_reproduction_nrmse": kernel.reproduction_nrmse, "pem_rmse": pem.rmse}
 
 
 def quiet_noise_std(rec: Record, fs: float) -> float:

@@ -61,7 +61,7 @@ from rtlift.blocks.wiener import InputGain, WienerBlock
 from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
 from rtlift.domain import domain_of
 from rtlift.hybrid import HybridModel
-from rtlift.identify.campaign import quiet_noise_std
+from rtlift.identify.campaign import fit_metrics, quiet_noise_std
 from rtlift.identify.kernel import SingleBurstKernel, fit_kernel
 from rtlift.identify.pem import PEMResult, fit_wiener
 from rtlift.identify.static_map import StaticMap, fit_static_map
@@ -227,12 +227,7 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
         "records": per_record,
         "holdout": {"fraction": opt.holdout_fraction, "mean_nrmse": float(min(g[0] for g in grid)),
                     "by_order": {str(k): v for k, v in by_order.items()}},
-        "residual_std_train": float(np.std(resid[skip:])),
-        "residual_mean_train": float(np.mean(resid[skip:])),
-        "measurement_noise_std": noise_std,
-        "static_map_rmse": static.fit_rmse,
-        "kernel_reproduction_nrmse": kernel.reproduction_nrmse,
-        "pem_rmse": pem.rmse,
+        **fit_metrics(resid[skip:], noise_std, static, kernel, pem),
     }
     provenance = {
         "tool": "rtlift identify",
