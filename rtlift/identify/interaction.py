@@ -27,7 +27,8 @@ structure is refitted on the whole records. G_H (the fast part's gain table of
 
 Why this structure. Candidates, each identified on the independent plant's campaign (static,
 single burst, the three trains, sine_k0125) and scored on its ``clean/`` records (another
-noise seed), worst ρ / worst NRMSE over the eight record types:
+noise seed; the first 0.5 s of each not scored), worst ρ / worst NRMSE over the eight record
+types:
 
 - per-burst gain only, ΔCL = h ∗ (G(a) Cμ), a a memory of recent Cμ, no Wiener part:
   0.88 / 0.56 (sine_k025 ρ 0.88: the plant's slow reattachment dynamics are missing);
@@ -41,8 +42,9 @@ Within it: records unweighted (τ 0.2 s, order 3) gave single_burst ρ 0.889 (we
 but sine_k025 0.973; a G_H table instead of a constant gave sine_k025 ρ 0.918 (constant
 0.930); a dead time of 2 samples changed nothing (±0.003). What it does not reach: on the
 sines and random the paper's hybrid (identified on sine_k0125 alone, textbook form, dead time
-2) keeps a higher ρ (0.960 and 0.978 against 0.932 and 0.951): weighting the sweep and the
-sine twice lifts them to 0.945 / 0.964 but drops single_burst to 0.888.
+2) keeps a higher ρ (whole records, ``benchmarks/burst_patterns.py``: clean sine_k025 0.960 and
+random 0.975 against 0.944 and 0.955); weighting the sweep and the sine twice lifts this
+structure's to 0.945 / 0.964 (0.5 s skipped) but drops single_burst to 0.888.
 
 Pure: takes :class:`~rtlift.records.Record` objects, returns an :class:`InteractionIdentification`.
 """
