@@ -30,6 +30,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.stages import Delay, InputStage, OutputStage
@@ -46,7 +47,7 @@ class HybridOutput(NamedTuple):
 
 
 @dataclass(eq=False)
-class HybridModel:
+class HybridModel(BlockChain):
     convolution: RingConvolution
     highpass: HighPassFilter
     wiener: WienerBlock
@@ -95,7 +96,8 @@ class HybridModel:
         stages = self.input_stages
         delay = stages[0].kernel_arrays()[1] if len(stages) == 1 and type(stages[0]) is Delay else None
         wiener = self.wiener.kernel_arrays()
-        if (delay is not None or not stages) and not self.output_stages and wiener is not None:
+        plain = type(self.convolution) is RingConvolution       # not the interaction structure's
+        if (delay is not None or not stages) and not self.output_stages and wiener is not None and plain:
             from rtlift.blocks.compiled import hybrid_step, pack_parameters
 
             (taps,), conv_state = self.convolution.kernel_arrays()
@@ -159,26 +161,6 @@ class HybridModel:
         for s in self.output_stages:
             total = s.simulate(total)
         return HybridOutput(total, high, low)
-
-    def reset(self) -> None:
-        for b in self.blocks:
-            b.reset()
-
-    @property
-    def state_size(self) -> int:
-        return sum(b.state_size for b in self.blocks)
-
-    def get_state(self) -> np.ndarray:
-        return np.concatenate([np.atleast_1d(b.get_state()) for b in self.blocks])
-
-    def set_state(self, state: np.ndarray) -> None:
-        s = np.asarray(state, dtype=float)
-        if s.shape != (self.state_size,):
-            raise ValueError(f"model state must have shape ({self.state_size},), got {s.shape}")
-        i = 0
-        for b in self.blocks:
-            b.set_state(s[i:i + b.state_size])
-            i += b.state_size
 
     def copy(self) -> HybridModel:
         """An independent copy at rest: the same parameters, stages and settings, state arrays

@@ -1,7 +1,9 @@
 """Versioned JSON model file (format ``rtlift-model``, version 1).
 
 Holds every parameter of a :class:`~rtlift.hybrid.HybridModel` (kernel, φ, HPF
-coefficients and design, A B C, the nonlinearity table, augmentation stages), the sample
+coefficients and design, A B C, the nonlinearity table, augmentation stages; for the
+``interaction`` structure ``convolution.interaction``: the G_H and G tables, its HF and the
+delivered-momentum memory, :mod:`rtlift.blocks.interaction`), the sample
 rate and units, the observer's noise settings, provenance, fit metrics and the residual
 fingerprint of the identification campaign (what the diagnosis compares later records with). Loading checks
 dimensions, finiteness and stability — the spectral radius of A must be < 1 — and fails
@@ -19,6 +21,7 @@ import numpy as np
 
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
+from rtlift.blocks.interaction import InteractionConvolution
 from rtlift.blocks.lti import spectral_radius
 from rtlift.blocks.stages import stage_from_spec
 from rtlift.blocks.wiener import NONLINEARITIES, WienerBlock
@@ -33,12 +36,15 @@ UNITS = {"t": "s", "cmu": "1 (momentum coefficient)", "dcl": "1 (lift coefficien
 
 def model_to_dict(model: HybridModel) -> dict[str, Any]:
     hp = model.highpass
+    conv = {"kernel": model.convolution.kernel.tolist(), "phi": model.convolution.phi}
+    if isinstance(model.convolution, InteractionConvolution):
+        conv["interaction"] = model.convolution.params()
     return {
         "format": FORMAT,
         "version": VERSION,
         "fs_hz": model.fs_hz,
         "units": UNITS,
-        "convolution": {"kernel": model.convolution.kernel.tolist(), "phi": model.convolution.phi},
+        "convolution": conv,
         "highpass": {"order": hp.order, "cutoff_hz": hp.cutoff_hz, "sos": hp.sos.tolist()},
         "wiener": {"A": model.wiener.A.tolist(), "B": model.wiener.B.tolist(),
                    "C": model.wiener.C.tolist(), "nonlinearity": model.wiener.nonlinearity.to_dict()},
@@ -107,7 +113,8 @@ def model_from_dict(d: dict[str, Any], allow_unstable: bool = False, source: str
                              f"{', '.join(sorted(NONLINEARITIES))}")
     try:
         model = HybridModel(
-            convolution=RingConvolution(kernel, float(phi)),
+            convolution=(RingConvolution(kernel, float(phi)) if "interaction" not in conv else
+                         InteractionConvolution.from_params(kernel, float(phi), conv["interaction"], float(fs))),
             highpass=HighPassFilter(sos, order=hp.get("order"), cutoff_hz=hp.get("cutoff_hz")),
             wiener=WienerBlock(A, B, C, NONLINEARITIES[form].from_dict(nl)),
             fs_hz=float(fs),

@@ -50,3 +50,24 @@ def burst_input(rng: np.random.Generator, n: int, period: int = 50, width: int =
                   + rng.normal(0, 0.002, n), 0, 0.025)
     gate = (np.arange(n) % period) < width
     return np.where(gate, env, 0.0), env
+
+
+def model_steps(model, cmu: np.ndarray, env: np.ndarray) -> np.ndarray:
+    """``model.step`` sample by sample: rows (total, high, low)."""
+    return np.array([model.step(c, e) for c, e in zip(cmu, env, strict=True)]).T
+
+
+def run_in_chunks(model, cmu: np.ndarray, env: np.ndarray, cuts: list[int]) -> np.ndarray:
+    """ΔCL of ``model`` over (cmu, env) cut at ``cuts``: batch and step-by-step chunks in turn,
+    the state checkpointed (get_state), reset and restored (set_state) between chunks."""
+    bounds = [0, *sorted(cuts), cmu.size]
+    pieces = []
+    for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+        saved = model.get_state()
+        model.reset()
+        model.set_state(saved)
+        if i % 2:
+            pieces.append(model_steps(model, cmu[a:b], env[a:b])[0] if b > a else np.empty(0))
+        else:
+            pieces.append(model.simulate(cmu[a:b], env[a:b]).total)
+    return np.concatenate(pieces)

@@ -11,13 +11,9 @@ from scipy import signal
 
 from rtlift.blocks import HighPassFilter, LTIBlock, RingConvolution, to_statespace
 from rtlift.blocks.stages import Delay
-from testkit.synthetic import burst_input, make_model, random_stable_A
+from testkit.synthetic import burst_input, make_model, model_steps, random_stable_A, run_in_chunks
 
 TOL = 1e-12
-
-
-def _steps(model, cmu, env):
-    return np.array([model.step(c, e) for c, e in zip(cmu, env, strict=True)]).T
 
 
 @settings(max_examples=40, deadline=None)
@@ -27,7 +23,7 @@ def test_hybrid_step_equals_simulate(seed, n, kernel_len, order, hp_order, outpu
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
     cmu, env = burst_input(rng, n)
-    streamed = _steps(m, cmu, env)
+    streamed = model_steps(m, cmu, env)
     state_after_steps = m.get_state()
     m.reset()
     out = m.simulate(cmu, env)
@@ -48,17 +44,7 @@ def test_chunked_batch_and_steps_carry_state(seed, cuts, kernel_len):
     cmu, env = burst_input(rng, 300)
     whole = m.simulate(cmu, env).total
     m.reset()
-    bounds = [0, *sorted(cuts), 300]
-    pieces = []
-    for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
-        saved = m.get_state()
-        m.reset()
-        m.set_state(saved)                                   # checkpoint / restore between chunks
-        if i % 2:
-            pieces.append(_steps(m, cmu[a:b], env[a:b])[0] if b > a else np.empty(0))
-        else:
-            pieces.append(m.simulate(cmu[a:b], env[a:b]).total)
-    np.testing.assert_allclose(np.concatenate(pieces), whole, atol=TOL, rtol=0)
+    np.testing.assert_allclose(run_in_chunks(m, cmu, env, cuts), whole, atol=TOL, rtol=0)
 
 
 def test_ring_buffer_wraps_many_times_without_drift():
@@ -188,6 +174,6 @@ def test_long_records_take_the_fft_path_and_still_equal_the_steps():
     rng = np.random.default_rng(7)
     m = make_model(rng, kernel_len=300)
     cmu, env = burst_input(rng, 20_000)
-    streamed = _steps(m, cmu, env)[0]
+    streamed = model_steps(m, cmu, env)[0]
     m.reset()
     np.testing.assert_allclose(m.simulate(cmu, env).total, streamed, atol=TOL, rtol=0)

@@ -13,6 +13,8 @@ Catalog (``name``: equation; k = 0 is the first sample after ``reset()``, t_k = 
 - ``actuator_fade`` (input): g(k) = f + (1 − f) exp(−E(k)/τ), Cμ′ = g Cμ, Cμ_env′ = g Cμ_env,
   E(k) the burst on-time (s) accumulated *before* sample k (E += 1/fs while Cμ(k) > 0), or
   the wall time (``clock`` "time").
+- ``delivered_momentum`` (input, part of the ``interaction`` structure, not an effect):
+  Cμ_env′(k) = m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d, λ = exp(−1/(τ fs)); Cμ′ = Cμ.
 - ``sensor_resonance`` (output, kind "filter"): the unity-DC-gain mode
   ω²/(s² + 2ζωs + ω²), bilinear with pre-warping at ω (as on the bench).
 - ``zero_drift`` (output, kind "additive"): d(k) = offset + rate · t_k, or
@@ -551,8 +553,67 @@ class PeriodicDisturbance(OutputStage):
         return self.simulate(np.zeros(n))
 
 
+class DeliveredMomentum(InputStage):
+    """``m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d``, ``λ = exp(−1/(τ fs))``; maps (Cμ, Cμ_env) to
+    (Cμ, m). ``time_constant_s`` = τ > 0, ``duty`` = d ∈ (0, 1]. State: [m(k)]."""
+
+    name = "delivered_momentum"
+    state_size = 1
+
+    def __init__(self, time_constant_s: float, duty: float, fs_hz: float) -> None:
+        tau, d, fs = float(time_constant_s), float(duty), float(fs_hz)
+        if not (math.isfinite(tau) and tau > 0):
+            raise ValueError(f"delivered_momentum time_constant_s must be positive, got {time_constant_s}")
+        if not (math.isfinite(d) and 0 < d <= 1):
+            raise ValueError(f"delivered_momentum duty must be in (0, 1], got {duty}")
+        if not (math.isfinite(fs) and fs > 0):
+            raise ValueError(f"fs_hz must be positive, got {fs_hz}")
+        self.time_constant_s, self.duty, self.fs_hz = tau, d, fs
+        self._lam = math.exp(-1.0 / (tau * fs))
+        self._b = 1.0 - self._lam
+        self._inv_d = 1.0 / d
+        self._m = 0.0
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> DeliveredMomentum:
+        return cls(float(params["time_constant_s"]), float(params["duty"]), fs_hz)
+
+    def params(self) -> dict[str, float]:
+        return {"time_constant_s": self.time_constant_s, "duty": self.duty}
+
+    def momentum(self, cmu: float) -> float:
+        """One sample of m (what :meth:`step` returns as the envelope)."""
+        self._m = self._b * (cmu * self._inv_d) + self._lam * self._m
+        return self._m
+
+    def step(self, cmu: float, env: float) -> tuple[float, float]:
+        return cmu, self.momentum(cmu)
+
+    def momentum_batch(self, cmu: np.ndarray) -> np.ndarray:
+        """Batch twin of :meth:`momentum` (``lfilter`` with the state as ``zi``)."""
+        cmu = np.asarray(cmu, dtype=float)
+        if cmu.size == 0:
+            return cmu.copy()
+        m, _ = signal.lfilter([self._b], [1.0, -self._lam], cmu * self._inv_d, zi=[self._lam * self._m])
+        self._m = float(m[-1])
+        return m
+
+    def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cmu = np.asarray(cmu, dtype=float)
+        return cmu.copy(), self.momentum_batch(cmu)
+
+    def get_state(self) -> np.ndarray:
+        return np.array([self._m])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (1,):
+            raise ValueError(f"delivered_momentum state must have shape (1,), got {s.shape}")
+        self._m = float(s[0])
+
+
 STAGES: dict[str, Any] = {c.name: c for c in (Delay, ActuatorFade, SensorResonance, ZeroDrift,
-                                               PeriodicDisturbance)}
+                                               PeriodicDisturbance, DeliveredMomentum)}
 
 
 def stage_from_spec(name: str, params: dict[str, Any], fs_hz: float) -> InputStage:

@@ -50,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.logs import graceful_exit
     from rtlift.closed_loop import SETTLE_S, ControlLoop
     from rtlift.control import ControlConfig, LiftController
+    from rtlift.domain import watch_domain
     from rtlift.live import ObserverLoop, summary, write_summary
     from rtlift.modelfile import load_model
     from rtlift.observer import Observer
@@ -73,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     fs = model.fs_hz
     loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs)
     link.on_gap = loop.bridge
+    watch_domain(loop, model, "rtlift control")
     tracking = None if args.seconds is None else int(round(args.seconds * fs))
     closed = ControlLoop(link, loop, controller, reference, calibration, fs, tracking)
     code = 0

@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 from rtlift.core.errors import UserError
+
+LIFT_STRUCTURES = ("paper", "interaction")
+GENERIC_STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback")
+DEFAULT_LIFT_STRUCTURE = "paper"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,11 +24,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--train", metavar="F", help="training record (the paper: sine_k0125)")
     p.add_argument("--record", metavar="F",
                    help="a generic single-input record (columns t,u,y) instead of the lift campaign")
-    p.add_argument("--structure", choices=("wiener", "wiener_hammerstein", "nonlinear_feedback"),
-                   default="wiener",
-                   help="with --record: the W block in textbook form (LTI then static map, default), "
-                        "Wiener-Hammerstein (a second LTI after the map) or nonlinear feedback (the "
-                        "output fed back through a cubic map into the LTI's input)")
+    p.add_argument("--trains", nargs="+", metavar="F",
+                   help="burst-train records (train_T1p75, train_T3p5, train_T7): the interaction "
+                        "structure learns burst-burst interaction from them")
+    p.add_argument("--structure", choices=(*LIFT_STRUCTURES, *GENERIC_STRUCTURES),
+                   help="lift campaign: paper (the paper's hybrid, default) or interaction (issue 18: "
+                        "slow part driven by the delivered momentum, per-burst gain of each burst's "
+                        "slow response; needs --trains to learn the interaction). With --record: the "
+                        "W block in textbook form (LTI then static map, default), Wiener-Hammerstein (a "
+                        "second LTI after the map) or nonlinear feedback (the output fed back through a "
+                        "cubic map into the LTI's input)")
     p.add_argument("--order", type=int, metavar="N",
                    help="Wiener LTI order (default: chosen from 1..4 by held-out error)")
     p.add_argument("--form", choices=("auto", "input_gain", "output_map"), default="auto",
@@ -41,17 +51,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.record:
-        if args.static or args.single_burst or args.train:
+        if args.static or args.single_burst or args.train or args.trains:
             raise UserError("--record identifies a generic record; give it alone, not with --static, "
-                            "--single-burst or --train")
+                            "--single-burst, --train or --trains")
+        if args.structure in LIFT_STRUCTURES:
+            raise UserError(f"--structure {args.structure} is a lift-campaign structure; with --record use "
+                            f"{', '.join(GENERIC_STRUCTURES)}")
+        args.structure = args.structure or GENERIC_STRUCTURES[0]
         return run_generic(args)
+    structure = args.structure or DEFAULT_LIFT_STRUCTURE
+    if structure not in LIFT_STRUCTURES:
+        raise UserError(f"--structure {structure} is for a generic --record; a lift campaign takes "
+                        f"{' or '.join(LIFT_STRUCTURES)}")
     missing = [f"--{k.replace('_', '-')}" for k in ("static", "single_burst", "train") if not getattr(args, k)]
     if missing:
         raise UserError(f"{', '.join(missing)} missing: give --static, --single-burst and --train (a lift "
                         "campaign) or --record (a generic t,u,y record)")
     from rtlift.core.records import read_record
     from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
-    from rtlift.modelfile import save_model
     from rtlift.observer import tune_observer
 
     if args.order is not None and not 1 <= args.order <= 8:
@@ -61,6 +78,12 @@ def run(args: argparse.Namespace) -> int:
     train = read_record(args.train, min_samples=200)
     if args.dead_time is not None and not 0 <= args.dead_time <= 80:
         raise UserError(f"--dead-time {args.dead_time}: must be between 0 and 80 samples")
+    trains = [read_record(f, min_samples=200) for f in args.trains or ()]
+    if structure == "interaction":
+        return run_interaction(args, static, burst, trains, train)
+    if trains:
+        print("rtlift identify: note: --trains are not fitted by --structure paper (the paper's hybrid); "
+              "use --structure interaction to learn from them", file=sys.stderr)
     options = IdentifyOptions(order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time)
     t0 = time.perf_counter()
     try:
@@ -73,13 +96,56 @@ def run(args: argparse.Namespace) -> int:
     idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
                                "train": str(args.train)}
     idf.provenance["identify_seconds"] = seconds
-    try:
-        save_model(idf.model, args.out, provenance=idf.provenance, metrics=idf.metrics,
-                   observer=observer)
-    except OSError as exc:
-        raise UserError(f"{args.out}: cannot write model file ({exc.strerror})") from None
+    _save(idf, args.out, observer)
     print(summary(idf, args.out, seconds))
     return 0
+
+
+def run_interaction(args: argparse.Namespace, static, burst, trains, train) -> int:
+    """``rtlift identify --structure interaction``: the campaign with the trains (issue 18)."""
+    from rtlift.identify.interaction import InteractionOptions, identify_interaction
+    from rtlift.observer import tune_observer
+
+    fixed = [f"--{k.replace('_', '-')}" for k, default in (("form", "auto"), ("phi", "auto"), ("dead_time", None))
+             if getattr(args, k) != default]
+    if fixed:
+        raise UserError(f"{', '.join(fixed)}: not choices of --structure interaction (the paper's N(Cmu)*y form, "
+                        "single-burst phi, no dead time)")
+    t0 = time.perf_counter()
+    try:
+        idf = identify_interaction(static, burst, trains, train, InteractionOptions(order=args.order))
+    except ValueError as exc:
+        names = ", ".join(str(f) for f in (args.static, args.single_burst, *(args.trains or ()), args.train))
+        raise UserError(f"cannot identify from {names}: {exc}") from None
+    seconds = time.perf_counter() - t0
+    observer = {**idf.observer, **tune_observer(idf.model, [train])}
+    idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
+                               "trains": [str(f) for f in args.trains or ()], "train": str(args.train)}
+    idf.provenance["identify_seconds"] = seconds
+    _save(idf, args.out, observer)
+    st, w, dom = idf.provenance["structure"], idf.provenance["wiener"], idf.provenance["domain"]
+    lines = [f"identified interaction model in {seconds:.2f} s -> {args.out}",
+             f"  high-pass of the burst part: Butterworth order {st['highpass']['order']}, cutoff "
+             f"{st['highpass']['cutoff_hz']:g} Hz; delivered-momentum memory "
+             f"tau {st['time_constant_s']:g} s at duty {st['duty']:.4g}",
+             "  per-burst gains G_H(m) / G(m) of the fast / slow part: " + ", ".join(
+                 f"{gh:.3g}/{g:.3g}@{k:.3g}" for k, gh, g in zip(st["knots"], st["gains_h"], st["gains"], strict=True)),
+             f"  Wiener LTI (driven by m): order {w['order']}, DC gain {w['dc_gain']:.4g}",
+             "  domain: burst periods " + ", ".join(f"{p:.3g}" for p in dom["burst_periods_s"]) + " s"
+             + (" and isolated bursts" if dom["isolated_bursts"] else "") + f", Cmu up to {dom['cmu_max']:.4g}"]
+    lines += [f"  {name:14s} corr {v['corr']:.4f}  NRMSE {v['nrmse']:.4f}"
+              for name, v in idf.metrics["records"].items()]
+    print("\n".join(lines))
+    return 0
+
+
+def _save(idf, out: str, observer: dict) -> None:
+    from rtlift.modelfile import save_model
+
+    try:
+        save_model(idf.model, out, provenance=idf.provenance, metrics=idf.metrics, observer=observer)
+    except OSError as exc:
+        raise UserError(f"{out}: cannot write model file ({exc.strerror})") from None
 
 
 def summary(idf, out_path: str, seconds: float) -> str:

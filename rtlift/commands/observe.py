@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.convert import Converter
     from firmware_io.links import link_config_from_args, open_link
     from firmware_io.logs import graceful_exit
+    from rtlift.domain import watch_domain
     from rtlift.live import EstimateWriter, ObserverLoop, summary, write_summary
     from rtlift.modelfile import load_model
     from rtlift.observer import Observer
@@ -68,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
                             fs_hz=model.fs_hz,
                             max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))
         link.on_gap = loop.bridge
+        watch_domain(loop, model, "rtlift observe")
         view = start_view(args, f"rtlift observe {where}", model.fs_hz,
                           lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates})
         loop.tap = None if view is None else view.tap

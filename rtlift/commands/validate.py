@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 
 from rtlift.core.errors import UserError
 
@@ -71,6 +72,13 @@ def run(args: argparse.Namespace) -> int:
                 f.write("\n")
         except OSError as exc:
             raise UserError(f"{args.json}: cannot write ({exc.strerror})") from None
+    if not generic:
+        from rtlift.domain import outside_domain
+
+        for r in records:
+            line = outside_domain(model.provenance.get("domain"), r.cmu, r.cmu_envelope, r.fs_hz)
+            if line:
+                print(f"rtlift validate: warning: {r.name}: {line}", file=sys.stderr)
     width = max(len(s) for s in stems)
     print(f"model {args.model}: {len(results)} record(s)")
     print(f"  {'record':<{width}}  {'corr':>7}  {'NRMSE':>7}  {'RMSE':>9}")

@@ -23,7 +23,8 @@
    from rest before the training record, thinned to weigh alike): the sine alone leaves
    the DC gain loose, the sweep pins it.
 6. the residual fingerprint of the final model on the three records
-   (:mod:`rtlift.diagnose.fingerprint`), stored in the model file for later diagnoses.
+   (:mod:`rtlift.diagnose.fingerprint`), stored in the model file for later diagnoses, and
+   the model's domain (burst periods and Cμ range of the three records, :mod:`rtlift.domain`).
 
 Pure: takes :class:`~rtlift.core.records.Record` objects, returns an :class:`Identification`
 holding the :class:`~rtlift.hybrid.HybridModel` and plain dicts for the model file.
@@ -43,6 +44,7 @@ from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
 from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
+from rtlift.domain import domain_of
 from rtlift.hybrid import HybridModel
 from rtlift.identify.highpass import HighPassChoice, choose_highpass, wiener_fit_for_highpass
 from rtlift.identify.kernel import SingleBurstKernel, burst_onsets, fit_kernel
@@ -280,19 +282,14 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     model.reset()
     dcl = train_rec.dcl
     resid = dcl - out.total
-    noise_std = _quiet_noise_std(burst_rec, fs)
+    noise_std = quiet_noise_std(burst_rec, fs)
 
     train_scores = scores(dcl[skip:], out.total[skip:])
     metrics = {
         "train": {"record": train_rec.name, **train_scores},
         "holdout": {"fraction": opt.holdout_fraction,
                     "rmse": fit.candidates[choice.order][1]},
-        "residual_std_train": float(np.std(resid[skip:])),
-        "residual_mean_train": float(np.mean(resid[skip:])),
-        "measurement_noise_std": noise_std,
-        "static_map_rmse": static.fit_rmse,
-        "kernel_reproduction_nrmse": kernel.reproduction_nrmse,
-        "pem_rmse": pem.rmse,
+        **fit_metrics(resid[skip:], noise_std, static, kernel, pem),
     }
     provenance = {
         "tool": "rtlift identify",
@@ -306,6 +303,7 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
                        "cmu_zero": "N(0) = limit slope of the map at the origin"},
         "kernel": kernel.to_dict(),
         "phi": phi,
+        "domain": domain_of([static_rec, burst_rec, train_rec], fs, kernel.kernel.size),
         "phi_choice": {
             "used": "train" if refine else "single_burst",
             "phi_single_burst": kernel.phi,
@@ -349,7 +347,16 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     return Identification(model, static, kernel, hp, choice, pem, provenance, metrics, observer)
 
 
-def _quiet_noise_std(rec: Record, fs: float) -> float:
+def fit_metrics(resid: np.ndarray, noise_std: float, static: StaticMap, kernel: SingleBurstKernel,
+                pem: PEMResult) -> dict[str, float]:
+    """The fit metrics every lift model file holds: the residual on the training record (its
+    scored part), the sensor noise, and the static map's, kernel's and PEM's own errors."""
+    return {"residual_std_train": float(np.std(resid)), "residual_mean_train": float(np.mean(resid)),
+            "measurement_noise_std": noise_std, "static_map_rmse": static.fit_rmse,
+            "kernel_reproduction_nrmse": kernel.reproduction_nrmse, "pem_rmse": pem.rmse}
+
+
+def quiet_noise_std(rec: Record, fs: float) -> float:
     """Std of ΔCL while no burst has fired for ≥ 2 s (sensor noise + buffeting at rest);
     falls back to the first 0.1 s of the record."""
     on = burst_onsets(rec.cmu)

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.errors import ModelFileError
@@ -32,7 +33,7 @@ STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback")
 
 
 @dataclass(eq=False)
-class SisoModel:
+class SisoModel(BlockChain):
     g1: HighPassFilter
     f: OutputNonlinearity
     g2: HighPassFilter | None
@@ -56,26 +57,6 @@ class SisoModel:
         """Batch twin of :meth:`step`; starts from and advances the current state."""
         v = self.f.simulate(None, self.g1.simulate(np.asarray(u, dtype=float)))
         return v if self.g2 is None else self.g2.simulate(v)
-
-    def reset(self) -> None:
-        for b in self.blocks:
-            b.reset()
-
-    @property
-    def state_size(self) -> int:
-        return sum(b.state_size for b in self.blocks)
-
-    def get_state(self) -> np.ndarray:
-        return np.concatenate([b.get_state() for b in self.blocks])
-
-    def set_state(self, state: np.ndarray) -> None:
-        s = np.asarray(state, dtype=float)
-        if s.shape != (self.state_size,):
-            raise ValueError(f"model state must have shape ({self.state_size},), got {s.shape}")
-        i = 0
-        for b in self.blocks:
-            b.set_state(s[i:i + b.state_size])
-            i += b.state_size
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,

@@ -1,0 +1,99 @@
+"""Burst–burst interaction: the streaming blocks of the ``interaction`` structure (issue 18).
+
+The structure (identified by :mod:`rtlift.identify.interaction`)::
+
+    c(k)    = φ Σ_j h(j) Cμ(k−j)                              convolution (paper eq. 1)
+    m(k)    = λ m(k−1) + (1 − λ) Cμ(k) / d,   λ = exp(−1/(τ fs))  delivered momentum
+    ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k)      burst part
+    ΔCL_L(k) = N(m(k)) · C x(k),   x(k) = A x(k−1) + B m(k)       Wiener part, driven by m
+    ΔCL(k)  = ΔCL_H(k) + ΔCL_L(k)
+
+``m`` is the momentum the actuators delivered recently (a first-order memory of time constant
+τ of the burst-modulated Cμ), scaled by the duty ``d`` of lift-optimal bursting (Δt_b / T_opt)
+so that at 8 Hz bursting m equals the envelope: N and the static map keep their meaning, but
+isolated bursts and sparse trains drive the Wiener part by what they deliver, not by the
+commanded envelope. G and G_H (piecewise linear in m on the same knots, held beyond them) are
+the per-burst gains of the slow and of the fast (high-passed) part of each burst's response:
+those of an isolated burst at m ≈ 0, smaller when recent bursts have already moved the flow
+(the interaction the convolution alone over-predicts).
+
+Blocks, so that a :class:`~rtlift.hybrid.HybridModel` — and the Kalman observer, which steps
+the model's blocks one by one — runs the structure unchanged:
+
+- :class:`~rtlift.blocks.stages.DeliveredMomentum`, an input stage ``(Cμ, Cμ_env) → (Cμ, m)``: the Wiener part and
+  its gain see m instead of the envelope;
+- :class:`InteractionConvolution`, in the model's ``convolution`` slot: ΔCL_H above (its own
+  HF inside), with the model's ``highpass`` the identity. ΔCL_H depends on the input only, so
+  the observer takes it as its known input, as it does the paper's HF(convolution).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rtlift.blocks.chain import BlockChain
+from rtlift.blocks.convolution import RingConvolution
+from rtlift.blocks.highpass import HighPassFilter
+from rtlift.blocks.stages import DeliveredMomentum
+from rtlift.blocks.wiener import _check_table, _Table
+
+IDENTITY_SOS = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
+"""The model's ``highpass`` slot for this structure: y = x (HF lives inside ΔCL_H)."""
+
+
+class InteractionConvolution(BlockChain):
+    """``ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k)`` (module docstring), streaming,
+    with a batch twin. ``kernel``/``phi`` as :class:`RingConvolution`; ``highpass`` the HF;
+    ``knots`` (m, in Cμ), ``gains_h`` and ``gains`` the G_H and G tables (held beyond the
+    ends); ``momentum`` the m recursion."""
+
+    def __init__(self, kernel: np.ndarray, phi: float, highpass: HighPassFilter, knots: np.ndarray,
+                 gains_h: np.ndarray, gains: np.ndarray, momentum: DeliveredMomentum) -> None:
+        self.conv = RingConvolution(kernel, phi)
+        self.highpass = highpass
+        self.gain_h = _Table(*_check_table(knots, gains_h, "interaction fast gain"), extrapolate=False)
+        self.gain = _Table(*_check_table(knots, gains, "interaction gain"), extrapolate=False)
+        self.momentum = momentum
+        self.kernel, self.phi = self.conv.kernel, self.conv.phi
+
+    state_name = "interaction"
+
+    @property
+    def blocks(self) -> tuple[Any, ...]:
+        """State order: [convolution (last L inputs, newest first), HF, m]."""
+        return (self.conv, self.highpass, self.momentum)
+
+    def step(self, u: float) -> float:
+        """Push Cμ(k), return ΔCL_H(k). No array allocation."""
+        c = self.conv.step(u)
+        hf = self.highpass.step(c)
+        m = self.momentum.momentum(u)
+        return self.gain_h(m) * hf + self.gain(m) * (c - hf)
+
+    def simulate(self, u: np.ndarray) -> np.ndarray:
+        """Batch twin of :meth:`step`; starts from and advances the current state."""
+        u = np.asarray(u, dtype=float)
+        c = self.conv.simulate(u)
+        hf = self.highpass.simulate(c)
+        m = self.momentum.momentum_batch(u)
+        return self.gain_h.batch(m) * hf + self.gain.batch(m) * (c - hf)
+
+    def params(self) -> dict[str, Any]:
+        """The model file's ``convolution.interaction`` entry."""
+        hp = self.highpass
+        return {"knots": self.gain.x.tolist(), "gains_h": self.gain_h.f.tolist(), "gains": self.gain.f.tolist(),
+                "highpass": {"order": hp.order, "cutoff_hz": hp.cutoff_hz, "sos": hp.sos.tolist()},
+                "momentum": self.momentum.params()}
+
+    @classmethod
+    def from_params(cls, kernel: np.ndarray, phi: float, params: dict[str, Any],
+                    fs_hz: float) -> InteractionConvolution:
+        """Inverse of :meth:`params` (``KeyError``/``ValueError`` on a bad entry)."""
+        hp = params["highpass"]
+        return cls(kernel, phi, HighPassFilter(np.asarray(hp["sos"], dtype=float), order=hp.get("order"),
+                                               cutoff_hz=hp.get("cutoff_hz")),
+                   np.asarray(params["knots"], dtype=float), np.asarray(params["gains_h"], dtype=float),
+                   np.asarray(params["gains"], dtype=float),
+                   DeliveredMomentum.from_params(params["momentum"], fs_hz))

@@ -1,0 +1,261 @@
+"""Identify the ``interaction`` structure (issue 18) from the standard campaign, trains included.
+
+The structure (equation and blocks: :mod:`rtlift.blocks.interaction`)::
+
+    ΔCL(k) = β_H HF(c)(k) + G(m(k)) (c − HF(c))(k) + N(m(k)) C x(k),   x(k) = A x(k−1) + B m(k)
+    c = φ h ∗ Cμ,   m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d,   λ = exp(−1/(τ fs))
+
+The paper's hybrid drives its slow part with the commanded envelope and high-passes the
+convolution: an isolated burst or a sparse train (whose envelope says "0.0022" between
+bursts that are seconds apart) gets the lift of 8 Hz bursting and loses its own slow lift.
+Here the slow part is driven by the momentum delivered recently (m, in envelope units at the
+lift-optimal duty d), and the slow part of each burst's own response is kept, scaled by a
+per-burst gain G(m) that falls as recent bursts have already moved the flow (burst–burst
+interaction) instead of being filtered away.
+
+Recipe: static map → N (:mod:`.static_map`), single bursts → h and φ (:mod:`.kernel`),
+d = burst length / median burst interval of the training record (lift-optimal bursting);
+then, for each HF (Butterworth order, cutoff) and τ of the grids, one output-error PEM
+(:func:`~rtlift.identify.pem.fit_wiener`, the paper's N(m)·y form) with β_H and the G knots
+as linear regressors, on every record laid end to end — static sweep (thinned), single
+bursts, each train, the training record — each record weighted by 1/(σ_r √n_r) so that every
+record type counts alike, fitted on the first 70 % of each and scored on the last 30 % (mean
+over the records of the held-out RMSE / the record's σ). The best (HF, τ), then the Wiener
+order (1 … 4, the smallest within 1 %), are chosen by that held-out error, and the chosen
+structure is refitted on the whole records. G_H (the fast part's gain table of
+:class:`~rtlift.blocks.interaction.InteractionConvolution`) is fitted as one constant β_H.
+
+Why this structure. Candidates, each identified on the independent plant's campaign (static,
+single burst, the three trains, sine_k0125) and scored on its ``clean/`` records (another
+noise seed; the first 0.5 s of each not scored), worst ρ / worst NRMSE over the eight record
+types:
+
+- per-burst gain only, ΔCL = h ∗ (G(a) Cμ), a a memory of recent Cμ, no Wiener part:
+  0.88 / 0.56 (sine_k025 ρ 0.88: the plant's slow reattachment dynamics are missing);
+- the hybrid with its Wiener part driven by the delivered momentum m instead of the envelope
+  (HF(c) + W(m)): 0.84 / 0.59 (single_burst and train_T7 ρ 0.84: one Wiener LTI cannot also
+  be the slow part of every single burst);
+- this structure (both): 0.905 / 0.44 (single_burst 0.906 / 0.44, train_T7 0.910 / 0.43,
+  sine_k025 0.932 / 0.40, random 0.951 / 0.41).
+
+Within it: records unweighted (τ 0.2 s, order 3) gave single_burst ρ 0.889 (weighted 0.906)
+but sine_k025 0.973; a G_H table instead of a constant gave sine_k025 ρ 0.918 (constant
+0.930); a dead time of 2 samples changed nothing (±0.003). What it does not reach: on the
+sines and random the paper's hybrid (identified on sine_k0125 alone, textbook form, dead time
+2) keeps a higher ρ (whole records, ``benchmarks/burst_patterns.py``: clean sine_k025 0.960 and
+random 0.975 against 0.944 and 0.955); weighting the sweep and the sine twice lifts this
+structure's to 0.945 / 0.964 (0.5 s skipped) but drops single_burst to 0.888.
+
+Pure: takes :class:`~rtlift.core.records.Record` objects, returns an :class:`InteractionIdentification`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+from rtlift.blocks.highpass import HighPassFilter
+from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
+from rtlift.blocks.stages import Delay, DeliveredMomentum
+from rtlift.blocks.wiener import InputGain, WienerBlock
+from rtlift.core.metrics import rmse, scores
+from rtlift.core.records import Record
+from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
+from rtlift.domain import domain_of
+from rtlift.hybrid import HybridModel
+from rtlift.identify.campaign import fit_metrics, quiet_noise_std
+from rtlift.identify.kernel import SingleBurstKernel, fit_kernel
+from rtlift.identify.pem import PEMResult, fit_wiener
+from rtlift.identify.static_map import StaticMap, fit_static_map
+
+
+@dataclass(frozen=True)
+class InteractionOptions:
+    """Choices of the identification (grids searched by held-out error)."""
+
+    order: int | None = None                      # Wiener LTI order; None: choose 1 … max_order
+    max_order: int = 4
+    search_order: int = 3                         # Wiener order while searching HF and τ
+    highpasses: tuple[tuple[int, float], ...] = ((2, 2.0), (4, 2.0), (2, 4.0))
+    taus_s: tuple[float, ...] = (0.1, 0.2, 0.3, 0.5)
+    dead_time: int = 0                            # samples the measured lift lags the actuation
+    knot_fractions: tuple[float, ...] = (0.0, 0.1, 0.25, 0.5, 1.0)   # G knots × the sweep's Cμ max
+    holdout_fraction: float = 0.3
+    skip_s: float = 0.5
+
+
+@dataclass
+class InteractionIdentification:
+    model: HybridModel
+    static: StaticMap
+    kernel: SingleBurstKernel
+    pem: PEMResult
+    provenance: dict = field(default_factory=dict)
+    metrics: dict = field(default_factory=dict)
+    observer: dict = field(default_factory=dict)
+
+
+def _hats(m: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """(N, K) weights of the piecewise-linear G at m (held beyond the ends): G(m) = W @ gains."""
+    x = np.clip(m, knots[0], knots[-1])
+    i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, knots.size - 2)
+    f = (x - knots[i]) / (knots[i + 1] - knots[i])
+    W = np.zeros((x.size, knots.size))
+    rows = np.arange(x.size)
+    W[rows, i] = 1.0 - f
+    W[rows, i + 1] = f
+    return W
+
+
+@dataclass(frozen=True)
+class _Laid:
+    """The records end to end: the Wiener input m, its gain N(m), the linear regressors
+    [HF(c), W_i(m)·(c − HF(c))], the target, and per record its slice."""
+
+    m: np.ndarray
+    gain: np.ndarray
+    X: np.ndarray
+    dcl: np.ndarray
+    parts: tuple[slice, ...]
+
+
+def _lay(records: list[Record], static: StaticMap, kernel: SingleBurstKernel, hp: tuple[int, float],
+         tau: float, duty: float, knots: np.ndarray, fs: float, dead_time: int) -> _Laid:
+    cmu = np.concatenate([np.zeros(dead_time)] + [r.cmu for r in records])[: sum(len(r) for r in records)]
+    mom = DeliveredMomentum(tau, duty, fs)
+    m = mom.momentum_batch(cmu)
+    c = kernel.phi * signal.lfilter(kernel.kernel, [1.0], cmu)
+    hf = HighPassFilter.design(hp[0], hp[1], fs).simulate(c)
+    X = np.column_stack([hf, _hats(m, knots) * (c - hf)[:, None]])
+    bounds = np.cumsum([0] + [len(r) for r in records])
+    parts = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True))
+    return _Laid(m, static.gain_at(m), X, np.concatenate([r.dcl for r in records]), parts)
+
+
+def _weights(laid: _Laid, cost: np.ndarray) -> np.ndarray:
+    """Per sample 1 / (σ_r √n_r) for record r (σ_r its ΔCL's std, n_r its samples in the
+    cost): every record weighs alike in the cost, as every record type counts alike in the
+    goal (NRMSE per record). The output is linear in N(m)·y and in the regressors, so
+    weighting the target, the gain and the regressors weights the output error exactly."""
+    w = np.zeros(laid.dcl.size)
+    for s in laid.parts:
+        n = np.count_nonzero((cost >= s.start) & (cost < s.stop))
+        w[s] = 1.0 / (np.std(laid.dcl[s]) * np.sqrt(max(n, 1)))
+    return w / np.max(w)
+
+
+def _fit(laid: _Laid, order: int, cost: np.ndarray, fs: float) -> tuple[PEMResult, np.ndarray]:
+    w = _weights(laid, cost)
+    res = fit_wiener(laid.m, w * laid.dcl, order, form="input_gain", fs_hz=fs, gain=w * laid.gain,
+                     extra=w[:, None] * laid.X, cost=cost)
+    return res, laid.gain * res.lti.simulate(laid.m) + laid.X @ res.extra_coef
+
+
+def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Record], train_rec: Record,
+                         options: InteractionOptions | None = None) -> InteractionIdentification:
+    """Identify the interaction structure (module docstring); ``ValueError`` on unusable data."""
+    opt = options or InteractionOptions()
+    records = [static_rec, burst_rec, *trains, train_rec]
+    fs = records[0].fs_hz
+    if any(abs(r.fs_hz - fs) > 1e-6 * fs for r in records):
+        raise ValueError("records have different sample rates")
+    static = fit_static_map(static_rec.cmu_envelope, static_rec.dcl, fs)
+    kernel = fit_kernel(burst_rec.cmu, burst_rec.dcl, fs)
+    on = np.diff(np.flatnonzero((train_rec.cmu[1:] > 0) & (train_rec.cmu[:-1] <= 0)))
+    if on.size == 0:
+        raise ValueError(f"no burst train in the training record {train_rec.name}")
+    duty = min(1.0, kernel.burst_samples / float(np.median(on)))
+    knots = np.asarray(opt.knot_fractions) * static.cmu_max
+    skip = int(round(opt.skip_s * fs))
+    stride = max(1, int(round(len(static_rec) / max(len(train_rec), 1))))
+
+    def costs(laid: _Laid) -> tuple[np.ndarray, np.ndarray, list[slice]]:
+        est, held, scored = [], [], []
+        for i, s in enumerate(laid.parts):
+            if i == 0:                                   # the sweep: thinned, estimation only
+                est.append(np.arange(s.start + skip, s.stop, stride))
+                continue
+            cut = s.start + int(round((1 - opt.holdout_fraction) * (s.stop - s.start)))
+            if cut - s.start <= skip:
+                raise ValueError(f"record {records[i].name} too short ({s.stop - s.start} samples)")
+            est.append(np.arange(s.start + skip, cut))
+            held.append(np.arange(cut, s.stop))
+            scored.append(slice(cut, s.stop))
+        return np.concatenate(est), np.concatenate(held), scored
+
+    def held_out(laid: _Laid, order: int) -> tuple[float, PEMResult]:
+        est, _, scored = costs(laid)
+        res, pred = _fit(laid, order, est, fs)
+        return float(np.mean([rmse(laid.dcl[s], pred[s]) / np.std(laid.dcl[p])
+                              for s, p in zip(scored, laid.parts[1:], strict=True)])), res
+
+    grid = []
+    for hp in opt.highpasses:
+        for tau in opt.taus_s:
+            laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time)
+            grid.append((held_out(laid, opt.order or opt.search_order)[0], hp, tau))
+    _, hp, tau = min(grid, key=lambda g: g[0])
+    laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time)
+    orders = [opt.order] if opt.order else list(range(1, opt.max_order + 1))
+    by_order = {k: held_out(laid, k)[0] for k in orders}
+    best = min(by_order.values())
+    order = min(k for k, v in by_order.items() if v <= 1.01 * best)      # the smallest within 1 %
+
+    est, held, _ = costs(laid)
+    pem, _ = _fit(laid, order, np.sort(np.concatenate([est, held])), fs)
+    beta = pem.extra_coef
+    lti = pem.lti
+    burst = InteractionConvolution(kernel.kernel, kernel.phi, HighPassFilter.design(hp[0], hp[1], fs),
+                                   knots, np.full(knots.size, beta[0]), beta[1:], DeliveredMomentum(tau, duty, fs))
+    model = HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(
+        lti.A, lti.B, lti.C, InputGain(static.gain_cmu, static.gain)), fs,
+        input_stages=(*((Delay(opt.dead_time / fs, fs),) if opt.dead_time else ()),
+                      DeliveredMomentum(tau, duty, fs)))
+
+    per_record = {}
+    for r in records:
+        model.reset()
+        out = model.simulate(r.cmu, r.cmu_envelope).total
+        per_record[r.name] = scores(r.dcl[skip:], out[skip:])
+    model.reset()
+    noise_std = quiet_noise_std(burst_rec, fs)
+    model.reset()
+    resid = train_rec.dcl - model.simulate(train_rec.cmu, train_rec.cmu_envelope).total
+    model.reset()
+    metrics = {
+        "train": {"record": train_rec.name, **per_record[train_rec.name]},
+        "records": per_record,
+        "holdout": {"fraction": opt.holdout_fraction, "mean_nrmse": float(min(g[0] for g in grid)),
+                    "by_order": {str(k): v for k, v in by_order.items()}},
+        **fit_metrics(resid[skip:], noise_std, static, kernel, pem),
+    }
+    provenance = {
+        "tool": "rtlift identify",
+        "records": {"static": static_rec.name, "single_burst": burst_rec.name,
+                    "trains": [t.name for t in trains], "train": train_rec.name},
+        "fs_hz": fs,
+        "structure": {"name": "interaction", "form": "input_gain", "dead_time_samples": opt.dead_time,
+                      "highpass": {"order": hp[0], "cutoff_hz": hp[1]}, "time_constant_s": tau,
+                      "duty": duty, "knots": knots.tolist(), "gains_h": [float(beta[0])] * knots.size,
+                      "gains": beta[1:].tolist(),
+                      "rule": f"HF and τ, then the Wiener order, by the mean held-out NRMSE of the last "
+                              f"{100 * opt.holdout_fraction:.0f} % of each record",
+                      "candidates": [{"highpass": list(g[1]), "time_constant_s": g[2],
+                                      "holdout_mean_nrmse": g[0]} for g in grid]},
+        "static_map": {"cmu_max": static.cmu_max, "limit_slope": static.limit_slope,
+                       "hysteresis": static.hysteresis.to_dict(), "notes": static.notes},
+        "kernel": kernel.to_dict(),
+        "phi": kernel.phi,
+        "wiener": {"form": "input_gain", "order": order,
+                   "poles": [[float(p.real), float(p.imag)] for p in lti.poles],
+                   "spectral_radius": lti.spectral_radius, "dc_gain": lti.dc_gain,
+                   "time_constants_s": [float(t) for t in lti.time_constants_s(fs)],
+                   "nfev": pem.nfev},
+        "domain": domain_of(records, fs, kernel.kernel.size),
+    }
+    model.fingerprint = fingerprint(model, [train_rec, static_rec, burst_rec],
+                                    int(round(FINGERPRINT_START_S * fs)))
+    observer = {"measurement_noise_std": noise_std, "model_residual_std": metrics["residual_std_train"]}
+    return InteractionIdentification(model, static, kernel, pem, provenance, metrics, observer)

@@ -1,0 +1,129 @@
+"""``rtlift identify --structure interaction`` (issue 18) on our bench: one model right for
+isolated bursts, close trains and amplitude-modulated bursts; its domain; the warnings."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hil_sim.experiments import EXPERIMENTS, run_experiment
+from rtlift.cli import main
+from rtlift.core.metrics import scores
+from rtlift.core.records import Record, write_record
+from rtlift.domain import DomainWatch, outside_domain
+from rtlift.identify.interaction import identify_interaction
+from rtlift.modelfile import load_model
+from rtlift.validation import validate_record
+
+TRAINS = ("train_T1p75", "train_T3p5", "train_T7")
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("campaign")
+    paths = {}
+    for name in EXPERIMENTS:
+        paths[name] = d / f"{name}.csv"
+        write_record(paths[name], run_experiment(name, seed=0).to_record(name))
+    return d, paths
+
+
+@pytest.fixture(scope="module")
+def model_file(campaign):
+    d, p = campaign
+    out = d / "interaction.json"
+    assert main(["identify", "--structure", "interaction", "--static", str(p["static"]), "--single-burst",
+                 str(p["single_burst"]), "--trains", *(str(p[t]) for t in TRAINS), "--train",
+                 str(p["sine_k0125"]), "-o", str(out)]) == 0
+    return out
+
+
+# Per record type, on records of another seed (seed 1): (ρ at least, NRMSE at most). Measured
+# ρ / NRMSE: static 0.998/0.07, single_burst 0.874/0.49, T1p75 0.963/0.27, T3p5 0.934/0.36,
+# T7 0.899/0.44, sines and random ≥ 0.994/≤ 0.12. The paper's hybrid on the same records:
+# single_burst 0.18/3.4, T3p5 0.80/1.14, T7 0.42/2.42. single_burst is at the bench's noise
+# ceiling: its measurement noise alone (σ 0.0039 of σ 0.0082) bounds ρ at 0.88.
+BOUNDS = {"static": (0.99, 0.15), "single_burst": (0.85, 0.53), "train_T1p75": (0.94, 0.33),
+          "train_T3p5": (0.91, 0.42), "train_T7": (0.87, 0.5), "sine_k0125": (0.99, 0.15),
+          "sine_k025": (0.985, 0.2), "random": (0.985, 0.18)}
+
+
+@pytest.mark.parametrize("name", list(BOUNDS))
+def test_interaction_model_fits_every_burst_pattern_on_records_it_never_saw(model_file, name):
+    rec = run_experiment(name, seed=1).to_record(name)
+    s = validate_record(load_model(model_file), rec).scores
+    corr, worst = BOUNDS[name]
+    assert s["corr"] >= corr and s["nrmse"] <= worst, s
+
+
+def test_model_file_records_the_structure_and_its_domain(model_file):
+    d = json.loads(model_file.read_text())
+    assert d["provenance"]["structure"]["name"] == "interaction"
+    assert "interaction" in d["convolution"]
+    dom = d["provenance"]["domain"]
+    # bursts every 51, 57, 114 and 229 samples (8 Hz and the three trains), and isolated ones
+    assert [round(p * 400) for p in dom["burst_periods_s"]] == [50, 57, 114, 229]
+    assert dom["isolated_bursts"] is True
+    assert dom["cmu_max"] == pytest.approx(0.022, rel=0.01)
+
+
+def test_identification_recovers_the_structure_from_its_own_noise_free_data(model_file):
+    """Known answer: records of the bench's programs whose ΔCL is a model of the structure itself
+    (the one identified on the bench, noise free): the identification picks its τ, HF and
+    Wiener order and reproduces every record type (measured NRMSE ≤ 0.033)."""
+    truth = load_model(model_file)
+    recs = {}
+    for name, exp in EXPERIMENTS.items():
+        env, gate = exp.program(np.random.default_rng(0))
+        cmu = np.where(gate, env, 0.0)
+        truth.reset()
+        recs[name] = Record(np.arange(env.size) / 400.0, cmu, env, truth.simulate(cmu, env).total, name=name)
+    idf = identify_interaction(recs["static"], recs["single_burst"], [recs[t] for t in TRAINS], recs["sine_k0125"])
+    got, want = idf.provenance, truth.provenance
+    assert got["structure"]["time_constant_s"] == want["structure"]["time_constant_s"]
+    assert got["structure"]["highpass"] == want["structure"]["highpass"]
+    assert got["wiener"]["order"] == want["wiener"]["order"]
+    for name, rec in recs.items():
+        idf.model.reset()
+        assert scores(rec.dcl, idf.model.simulate(rec.cmu, rec.cmu_envelope).total)["nrmse"] < 0.05, name
+
+
+def test_validate_warns_in_one_line_when_a_record_leaves_the_domain(model_file, tmp_path, capsys):
+    rec = run_experiment("sine_k0125", seed=1).to_record("every_0p2_s")
+    rec.cmu = np.where(np.arange(len(rec)) % 80 < 4, rec.cmu_envelope, 0.0)     # bursts every 0.2 s: unseen
+    path = tmp_path / "every_0p2_s.csv"
+    write_record(path, rec)
+    assert main(["validate", "--model", str(model_file), str(path)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "warning: every_0p2_s: outside the model's domain: burst periods 0.2 s" in err[0]
+
+
+def test_validate_says_nothing_for_records_inside_the_domain(model_file, campaign, capsys):
+    _, p = campaign
+    assert main(["validate", "--model", str(model_file), *(str(p[n]) for n in EXPERIMENTS)]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_live_watch_reports_once_where_the_record_check_does(model_file):
+    dom = load_model(model_file).provenance["domain"]
+    cmu = np.where(np.arange(4000) % 51 < 4, 0.01, 0.0)
+    cmu[2040:] = np.where(np.arange(1960) % 80 < 4, 0.01, 0.0)              # from 5.1 s on every 0.2 s
+    watch = DomainWatch(dom, 400.0)
+    lines = [(k, line) for k, c in enumerate(cmu) if (line := watch.step(c, 0.01))]
+    assert outside_domain(dom, cmu, np.full(4000, 0.01), 400.0) is not None
+    assert len(lines) == 1 and lines[0][0] == 2120 and "burst period 0.2 s" in lines[0][1]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--structure", "wiener"], "--structure wiener is for a generic --record"),
+    (["--structure", "interaction", "--form", "output_map"], "--form: not choices of --structure interaction"),
+])
+def test_identify_refuses_a_structure_or_option_that_does_not_fit_in_one_line(campaign, tmp_path, capsys,
+                                                                             argv, message):
+    _, p = campaign
+    code = main(["identify", "--static", str(p["static"]), "--single-burst", str(p["single_burst"]), "--train",
+                 str(p["sine_k0125"]), *argv, "-o", str(tmp_path / "m.json")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and message in err[0]
