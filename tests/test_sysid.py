@@ -37,13 +37,9 @@ def random_model(rng: np.random.Generator, hammerstein: bool) -> SisoModel:
                      tf(1) if hammerstein else None, 1000.0)
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4), st.booleans())
-def test_steps_and_chunks_agree_to_1e12(seed, cuts, hammerstein):
-    rng = np.random.default_rng(seed)
-    m1 = random_model(rng, hammerstein)
-    m2 = model_from_dict(m1.to_dict())
-    u = rng.normal(size=sum(cuts)) * 3
+def _steps_equal_chunks(m1, m2, u: np.ndarray, cuts: list[int]) -> np.ndarray:
+    """``m1`` stepped over ``u`` equals ``m2`` (its copy) simulated in chunks cut at ``cuts``, to
+    1e-12 of the output's scale, outputs and final states; returns the stepped output."""
     stepped = np.array([m1.step(v) for v in u])
     parts, i = [], 0
     for c in cuts:
@@ -52,6 +48,17 @@ def test_steps_and_chunks_agree_to_1e12(seed, cuts, hammerstein):
     scale = max(1.0, float(np.max(np.abs(stepped))))
     np.testing.assert_allclose(np.concatenate(parts), stepped, atol=1e-12 * scale, rtol=0)
     np.testing.assert_allclose(m1.get_state(), m2.get_state(), atol=1e-12 * scale, rtol=1e-9)
+    return stepped
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4), st.booleans())
+def test_steps_and_chunks_agree_to_1e12(seed, cuts, hammerstein):
+    rng = np.random.default_rng(seed)
+    m1 = random_model(rng, hammerstein)
+    m2 = model_from_dict(m1.to_dict())
+    u = rng.normal(size=sum(cuts)) * 3
+    _steps_equal_chunks(m1, m2, u, cuts)
 
 
 @settings(max_examples=30, deadline=None)
@@ -93,15 +100,7 @@ def test_a_saturated_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
     u = rng.normal(size=sum(cuts)) * 3
     m1 = SaturatedModel(inner, lo if seed % 3 else -np.inf, hi)
     m2 = model_from_dict(json.loads(json.dumps(m1.to_dict())))
-    stepped = np.array([m1.step(v) for v in u])
-    assert np.max(stepped) <= hi
-    parts, i = [], 0
-    for c in cuts:
-        parts.append(m2.simulate(u[i:i + c]))
-        i += c
-    scale = max(1.0, float(np.max(np.abs(stepped))))
-    np.testing.assert_allclose(np.concatenate(parts), stepped, atol=1e-12 * scale, rtol=0)
-    np.testing.assert_allclose(m1.get_state(), m2.get_state(), atol=1e-12 * scale, rtol=1e-9)
+    assert np.max(_steps_equal_chunks(m1, m2, u, cuts)) <= hi
 
 
 def test_clip_levels_are_where_the_measurement_piles_up():
