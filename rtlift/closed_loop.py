@@ -129,14 +129,10 @@ class ControlLoop:
 
     def tracking(self) -> dict[str, Any]:
         """Tracking RMSE (low-passed at 1 Hz), saturated share of the decisions, samples tracked."""
-        out: dict[str, Any] = {}
-        out["tracking_rmse"] = lowpassed_rmse(np.asarray(self.refs), np.asarray(self.estimates), self.fs_hz)
-        out["saturated_fraction"] = self.saturated / self.decisions if self.decisions else 0.0
-        out["tracking_samples"] = self.tracked
-        out["feedback"] = self.controller.config.feedback
-        if out["tracking_rmse"] is not None and not math.isfinite(out["tracking_rmse"]):
-            out["tracking_rmse"] = None
-        return out
+        rmse = lowpassed_rmse(np.asarray(self.refs), np.asarray(self.estimates), self.fs_hz)
+        return {"tracking_rmse": rmse if rmse is not None and math.isfinite(rmse) else None,
+                "saturated_fraction": self.saturated / self.decisions if self.decisions else 0.0,
+                "tracking_samples": self.tracked, "feedback": self.controller.config.feedback}
 
     def results(self) -> dict[str, Any]:
         """The link's command counters and latency, then :meth:`tracking`."""

@@ -22,15 +22,15 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.core.records import burst_onsets
+
 PERIOD_TOLERANCE = 0.1          # relative
 CMU_TOLERANCE = 0.05            # relative
 
 
 def burst_intervals(cmu: np.ndarray) -> np.ndarray:
     """Samples between consecutive burst onsets (Cμ turning positive)."""
-    on = np.asarray(cmu, dtype=float) > 0
-    onsets = np.flatnonzero(on[1:] & ~on[:-1]) + 1
-    return np.diff(onsets)
+    return np.diff(burst_onsets(cmu, threshold=0.0))
 
 
 def domain_of(records: Iterable[Any], fs_hz: float, isolated_samples: int) -> dict[str, Any]:

@@ -103,6 +103,10 @@ class _CommandRecorder:
     disconnected = False
 
     def __init__(self, modulus: int) -> None:
+        from firmware_io.commands import next_cmd_seq
+        from firmware_io.logs import LoggedCommand
+
+        self._next_seq, self._command = next_cmd_seq, LoggedCommand
         self.modulus = modulus
         self.last = 0
         self.sent: list = []
@@ -110,11 +114,8 @@ class _CommandRecorder:
 
     def send_command(self, envelope_cv: int, burst_period_ms: int = 0, enable: bool = True,
                      watchdog_ms_div10: int = 0) -> int:
-        from firmware_io.commands import next_cmd_seq
-        from firmware_io.logs import LoggedCommand
-
-        self.last = next_cmd_seq(self.last, self.modulus)
-        self.sent.append(LoggedCommand(self.position(), self.last, envelope_cv, burst_period_ms, bool(enable),
+        self.last = self._next_seq(self.last, self.modulus)
+        self.sent.append(self._command(self.position(), self.last, envelope_cv, burst_period_ms, bool(enable),
                                        watchdog_ms_div10))
         return self.last
 

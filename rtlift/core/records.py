@@ -33,6 +33,15 @@ def sample_rate(meta: dict[str, str], t: np.ndarray) -> float:
         return float(meta["fs_hz"])
     return float(1.0 / np.median(np.diff(t)))
 
+
+def burst_onsets(cmu: np.ndarray, threshold: float | None = None) -> np.ndarray:
+    """Sample indices where Cμ rises above ``threshold`` (default: half its maximum)."""
+    cmu = np.asarray(cmu, dtype=float)
+    thr = 0.5 * float(np.max(cmu)) if threshold is None else threshold
+    on = cmu > thr
+    return np.flatnonzero(on[1:] & ~on[:-1]) + 1 if on.size > 1 else np.empty(0, int)
+
+
 @dataclass
 class Record:
     """One experiment: uniformly sampled arrays of equal length."""

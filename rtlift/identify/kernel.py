@@ -29,13 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 
-
-def burst_onsets(cmu: np.ndarray, threshold: float | None = None) -> np.ndarray:
-    """Sample indices where Cμ rises above ``threshold`` (default: half its maximum)."""
-    cmu = np.asarray(cmu, dtype=float)
-    thr = 0.5 * float(np.max(cmu)) if threshold is None else threshold
-    on = cmu > thr
-    return np.flatnonzero(on[1:] & ~on[:-1]) + 1 if on.size > 1 else np.empty(0, int)
+from rtlift.core.records import burst_onsets
 
 
 @dataclass(frozen=True)

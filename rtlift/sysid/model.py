@@ -158,21 +158,9 @@ class SaturatedModel:
     fs_hz = property(lambda self: self.inner.fs_hz)
     state_size = property(lambda self: self.inner.state_size)
 
-    @property
-    def provenance(self) -> dict[str, Any]:
-        return self.inner.provenance
-
-    @provenance.setter
-    def provenance(self, value: dict[str, Any]) -> None:
-        self.inner.provenance = value
-
-    @property
-    def metrics(self) -> dict[str, Any]:
-        return self.inner.metrics
-
-    @metrics.setter
-    def metrics(self, value: dict[str, Any]) -> None:
-        self.inner.metrics = value
+    provenance = property(lambda self: self.inner.provenance,
+                          lambda self, value: setattr(self.inner, "provenance", value))
+    metrics = property(lambda self: self.inner.metrics, lambda self, value: setattr(self.inner, "metrics", value))
 
     def step(self, u: float) -> float:
         return min(max(self.inner.step(u), self.lower), self.upper)
