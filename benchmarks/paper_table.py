@@ -47,7 +47,7 @@ def run(seed: int) -> tuple[dict, dict, object]:
     rows["rtlift hybrid"] = {n: validate_record(idf.model, recs[n]).scores for n in VALIDATE}
     paper_form = IdentifyOptions(form="input_gain", dead_time=0, static_in_cost=False)    # eq. 11 as printed
     paper = identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"],
-                            replace(paper_form, phi="single_burst"))
+                            replace(paper_form, phi="single_burst", kernel="single_burst"))
     rows["paper hybrid (N(Cmu) y, single-burst phi)"] = {
         n: validate_record(paper.model, recs[n]).scores for n in VALIDATE}
     paper_phi = identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"], paper_form)

@@ -164,7 +164,7 @@ def test_sensor_resonance_is_named_within_10_percent_and_accepted_only_where_it_
 
 
 def test_a_subtle_pickup_is_still_named(clean_model, clean_val_rmse):
-    eff = Effect("periodic_disturbance", {"frequency_hz": 37.3, "amplitude": 0.003})
+    eff = Effect("periodic_disturbance", {"frequency_hz": 37.3, "amplitude": 0.002})
     diag, val = run_case(clean_model, [eff])
     before = pooled(diag, "baseline", val)
     assert before - clean_val_rmse < 0.03 * clean_val_rmse          # it adds < 3 % error

@@ -213,14 +213,21 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
         P_new / P_print ≈ α |H(f; f₀, ζ)|² + (1 − α),
 
     α the share of the residual's power that passes through the mode; fitted in dB from the
-    excess's highest point. The mode also changes the model's error at the input's lines near
-    it by more or less than that: those bins are outliers of the smooth shape, hence a robust
-    (soft L1) loss rather than leaving them out (a mode may sit right on a burst harmonic)."""
+    excess's highest point. At the input's lines (burst and envelope harmonics, ±2 bins) the
+    mode multiplies the model's own error there, which is not the print's: those bins say
+    nothing of the mode's shape and are left out of the peak search and the fit; a robust
+    (soft L1) loss takes care of what is left."""
     if ctx.fingerprint is None:
         return None
     f = np.asarray(ctx.tests["spectrum"].data["f"])
-    excess = 10.0 / math.log(10.0) * ndimage.uniform_filter1d(_psd_excess(ctx), size=3, mode="reflect")
-    band = (f >= lo_f) & (f <= hi_f)
+    df0 = float(f[1] - f[0])
+    locked = np.zeros(f.size, dtype=bool)
+    for x in ctx.input_lines_hz:
+        locked |= np.abs(f - x) <= 2.0 * df0
+    free = (~locked).astype(float)                        # 3-bin mean over the free bins only
+    excess = 10.0 / math.log(10.0) * ndimage.uniform_filter1d(_psd_excess(ctx) * free, size=3, mode="reflect") \
+        / np.maximum(ndimage.uniform_filter1d(free, size=3, mode="reflect"), 1e-12)
+    band = (f >= lo_f) & (f <= hi_f) & ~locked
     if not band.any():
         return None
     k = int(np.flatnonzero(band)[np.argmax(excess[band])])
@@ -229,7 +236,7 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
     if excess[k] < 3.0 or not psd_departure(ctx.tests["spectrum"], ctx.fingerprint,
                                             [(f_peak - 2.5 * df, f_peak + 2.5 * df)], "peak").departs:
         return None                                       # no peak stands significantly above the print
-    sel = (f >= f_peak / 3.0) & (f <= min(3.0 * f_peak, hi_f))
+    sel = (f >= f_peak / 3.0) & (f <= min(3.0 * f_peak, hi_f)) & ~locked
 
     def resid(theta: np.ndarray) -> np.ndarray:
         h2 = 10.0 ** (_mode_gain_db(f[sel], theta[0], theta[1], ctx.fs) / 10.0)
@@ -254,13 +261,15 @@ def fit_sensor_resonance(base: HybridModel, train: Record, ctx: Context) -> Fitt
     lo_f, hi_f, lo_z, hi_z = 5.0, 0.47 * ctx.fs, 0.005, 0.7
     mode = _spectral_mode(ctx, lo_f, hi_f, lo_z, hi_z)
     if mode is not None:
-        # the damping is what the noise through the mode shows; the frequency is sharpened on
-        # the output error within 5 % of the spectrum's. Where the mode sits next to a burst
-        # harmonic, an open-loop model would amplify its own ripple error there: the sharpening
-        # moves it as far as the data allow, and the held-out records judge the result.
-        f_s, zeta = mode
-        f = float(optimize.minimize_scalar(lambda v: sse(v, zeta), bounds=(0.95 * f_s, 1.05 * f_s),
-                                           method="bounded", options={"xatol": 1e-3}).x)
+        # the spectrum's (f₀, ζ) start a fit of both on the output error, f₀ within 5 % and ζ
+        # within a factor 3 of it: the spectrum shows where the mode is, the output error how
+        # it filters the lift (bins at the input's lines, left out of the spectral fit, are
+        # where the lift's filtering shows most); the held-out records judge the result.
+        f_s, z_s = mode
+        res = optimize.least_squares(lambda th: [math.sqrt(sse(th[0], th[1]))], [f_s, z_s],
+                                     bounds=([0.95 * f_s, max(lo_z, z_s / 3.0)], [1.05 * f_s, min(hi_z, 3.0 * z_s)]),
+                                     x_scale=[max(1.0, 0.05 * f_s), 0.3 * z_s])
+        f, zeta = float(res.x[0]), float(res.x[1])
     else:
         grid = [(f, zt) for f in np.geomspace(8.0, 0.45 * ctx.fs, 14) for zt in (0.05, 0.2)]
         f0, z0 = min(grid, key=lambda th: sse(*th))
@@ -273,7 +282,8 @@ def fit_sensor_resonance(base: HybridModel, train: Record, ctx: Context) -> Fitt
         bound = (f"damping_ratio {zeta:.2f} > {HEAVY_DAMPING}: a heavily damped 'mode' is a lag, not a "
                  f"resonance (compare delay)")
     return Fitted("sensor_resonance", augment(base, output_stage=fitted), fitted.params(),
-                  "damping from the residual spectrum's excess over the fingerprint" if mode else "",
+                  "(f0, damping) started from the residual spectrum's excess over the fingerprint, refined "
+                  "on the output error" if mode else "",
                   on_bound=bound)
 
 
