@@ -2,8 +2,10 @@
 
 For each benchmark (vendored in ``data/``), through the command line as a user runs it: the
 official estimation data written as a generic ``t,u,y`` record (its last 20 % a separate
-validation record), ``rtlift identify --record EST --structure wiener``, ``rtlift diagnose``
-with the validation record, and ``rtlift validate --skip 50`` of both model files on the
+validation record, which starts ``SKIP`` samples earlier: like the test split, it is scored
+after a state-initialisation window of ``SKIP`` samples, here the end of the training part, so
+that all of the last 20 % is scored), ``rtlift identify --record EST --structure wiener``,
+``rtlift diagnose --skip 50`` with the validation record, and ``rtlift validate --skip 50`` of both model files on the
 official test split (free run from rest, the first 50 test samples unscored). Prints a markdown
 table (before, after, what the diagnosis added, published references, seconds) and, as its
 last line, one JSON object. ``--only NAME`` runs one benchmark.
@@ -60,7 +62,7 @@ def run(name: str, work: Path) -> dict:
     fs, ue, ye, ut, yt, scale, unit = splits(name)
     n_fit = int(round(0.8 * ue.size))
     est = record(work / "est.csv", fs, ue[:n_fit], ye[:n_fit], "est")
-    val = record(work / "val.csv", fs, ue[n_fit:], ye[n_fit:], "val")
+    val = record(work / "val.csv", fs, ue[n_fit - SKIP:], ye[n_fit - SKIP:], "val")
     test = record(work / "test.csv", fs, ut, yt, "test")
     t0 = time.perf_counter()
     run_cli("identify", "--record", est, "--structure", "wiener", "-o", work / "model.json")

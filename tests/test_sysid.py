@@ -74,11 +74,14 @@ def test_the_feedback_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
     z = np.exp(-1j * np.linspace(0.0, np.pi, 512))
     peak = np.max(np.abs(np.polyval(g[::-1], z) * z / np.polyval(np.concatenate([[1.0], a])[::-1], z)))
     g *= 0.5 / peak
-    m1 = FeedbackModel(a, g, [rng.uniform(-0.5, 0.5), rng.uniform(0, 2)], 100.0)
+    # odd seeds: a limit on the state (the recursion clipped inside the loop) at 0.05
+    limits = (-np.inf, 0.05) if seed % 2 else (-np.inf, np.inf)
+    m1 = FeedbackModel(a, g, [rng.uniform(-0.5, 0.5), rng.uniform(0, 2)], 100.0, state_limits=limits)
     m2 = model_from_dict(json.loads(json.dumps(m1.to_dict())))
+    assert m2.state_limits == limits and m2.limited == bool(seed % 2)
     u = rng.normal(size=sum(cuts)) * 0.1
     stepped = np.array([m1.step(v) for v in u])
-    assert np.all(np.isfinite(stepped))
+    assert np.all(np.isfinite(stepped)) and np.max(stepped) <= limits[1]
     parts, i = [], 0
     for c in cuts:
         state = m2.get_state()
@@ -146,6 +149,41 @@ def test_a_clipped_wiener_hammerstein_system_is_diagnosed_as_saturation(tmp_path
     (tmp_path / "m.json").write_text(json.dumps(augmented.to_dict()))
     back = model_from_dict(json.loads((tmp_path / "m.json").read_text()))
     np.testing.assert_array_equal(back.simulate(val.u), augmented.simulate(val.u))
+
+
+def test_a_store_that_overflows_is_diagnosed_as_a_limit_on_the_state():
+    """A first-order store with a quadratic outflow whose level cannot pass its brim:
+    y(k) = min(0.9 y(k−1) + 0.1 v(k−1), brim), v = u − 0.3 y² (+ a gauge's noise, the gauge
+    topping out at the brim). The
+    output piles up at the brim; an output clip would let the level wind up beyond it and lag
+    on the way down, the state limit does not: from a Wiener model the diagnosis accepts
+    ``saturation`` with the limit on the state, at the brim, and the error falls to the noise."""
+    rng = np.random.default_rng(11)
+    u = np.zeros(6000)
+    for k in range(1, u.size):
+        u[k] = 0.8 * u[k - 1] + 0.5 * rng.normal()
+    u += 1.0
+    plant = FeedbackModel([-0.9], [0.1], [0.3, 0.0], 1.0)
+    free = plant.simulate(u)
+    brim = float(np.quantile(free, 0.85))
+    plant = FeedbackModel([-0.9], [0.1], [0.3, 0.0], 1.0, state_limits=(-np.inf, brim))
+    noise = 0.002
+    y = plant.simulate(u)
+    y = np.minimum(y + noise * rng.normal(size=u.size), brim)          # the gauge tops out at the brim
+
+    def rec(lo: int, hi: int, name: str) -> SisoRecord:
+        return SisoRecord(np.arange(hi - lo), u[lo:hi], y[lo:hi], {"fs_hz": "1.0"}, name)
+    opt = SisoOptions(orders=(1, 2), feedback_orders=(1, 2), max_nfev=200)
+    train, val = rec(0, 2000, "train"), rec(1950, 6000, "val")
+    wiener = identify_siso(train, "wiener", options=opt)
+    report, augmented = diagnose_siso(wiener, train, [val], skip=50, options=opt)
+    sat = next(e for e in report["effects"] if e["name"] == "saturation")
+    assert sat["accepted"], sat["evidence"]
+    assert sat["params"]["where"] == "state" and sat["params"]["upper"] == brim
+    assert sat["params"]["model"] == "nonlinear_feedback"
+    assert isinstance(augmented, FeedbackModel) and augmented.limited
+    assert sat["validation_rmse_after"] < 3 * noise < sat["validation_rmse_before"]
+    assert report["not_built"] == []
 
 
 def test_a_generic_record_round_trips_and_a_bad_one_is_one_line(tmp_path):

@@ -13,20 +13,23 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
   refined jointly (:func:`rtlift.sysid.identify.identify_siso`).
 - ``nonlinear_feedback`` — the output fed back through a static map into the linear block's
   input (an amplitude-dependent resonance, Duffing-like), identified jointly from the ARX fit.
-- ``saturation`` — a hard limit on the output, y = min(max(M(u), lower), upper): tried only
-  where the evidence points to it, a measured output that piles up at a level (its maximum or
-  minimum taken by ≥ 0.5 % and ≥ 5 of the training samples, which a continuous sensor reading a
-  signal that only passes through its extremes does not do). M is re-identified jointly with the
-  limit in place (censored samples, :func:`rtlift.sysid.identify.identify_siso`) in each of the
-  three forms (Wiener, Wiener–Hammerstein, nonlinear feedback); the one with the lowest
-  validation error stands for ``saturation``, its form in ``params.model``.
+- ``saturation`` — a hard limit on the output, y = min(max(M(u), lower), upper), or on the
+  state, a store that cannot fill beyond its brim (the nonlinear-feedback recursion clipped
+  inside the loop, :class:`rtlift.sysid.model.FeedbackModel`): tried only where the evidence
+  points to it, a measured output that piles up at a level (its maximum or minimum taken by
+  ≥ 0.5 % and ≥ 5 of the training samples, which a continuous sensor reading a signal that only
+  passes through its extremes does not do). M is re-identified jointly with the limit in place
+  (:func:`rtlift.sysid.identify.identify_siso`; censored samples for an output limit) in each
+  of the three forms with an output limit and in the feedback form with a state limit; the one
+  with the lowest validation error stands for ``saturation``, its form in ``params.model`` and
+  ``params.where``. A limit on the input is not a separate structure: a Wiener model's static
+  map f already saturates where the input's effect does.
 
 Of the candidates that pass, the one with the lower validation error is added.
 
 It is accepted only if it lowers the pooled error on the validation records significantly
 (:func:`rtlift.diagnose.selection.significant_gain`, the rule the lift diagnosis uses: ≥ 1.5 %
 RMSE, Diebold–Mariano t ≥ 3 over blocks, no record worse by more than 1 %).
-Only an output limit is built (``where`` ``output``); a limit on the input or on a state is not.
 """
 
 from __future__ import annotations
@@ -40,17 +43,20 @@ from rtlift.core.records import SisoRecord
 from rtlift.diagnose.residual import higher_order, input_crosscorr, whiteness
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
-from rtlift.sysid.model import SaturatedModel, SisoModel
+from rtlift.sysid.model import FeedbackModel, SaturatedModel, SisoModel, model_from_dict
 
 HOW = {"output_dynamics": "Wiener-Hammerstein re-identified jointly from the best linear approximation's "
                           "pole/zero splits",
        "nonlinear_feedback": "the output fed back through k2 y^2 + k3 y^3 into a strictly proper linear "
                              "block, all refined jointly from the ARX fit",
-       "saturation": "the output clipped at the level the measurement piles up at, the model re-identified "
-                     "jointly with the clip in place (censored samples) in each form"}
+       "saturation": "the output (or the feedback form's state) clipped at the level the measurement piles "
+                     "up at, the model re-identified jointly with the limit in place (censored samples for "
+                     "an output limit) in each form"}
 CLIP_MIN_FRACTION = 0.005
 CLIP_MIN_SAMPLES = 5
 FORMS = (("output_dynamics", "wiener_hammerstein"), ("nonlinear_feedback", "nonlinear_feedback"))
+SATURATED_FORMS = (("wiener", "output"), ("wiener_hammerstein", "output"), ("nonlinear_feedback", "output"),
+                   ("nonlinear_feedback", "state"))
 
 
 def clip_levels(y: np.ndarray, e: np.ndarray | None = None) -> tuple[Limits, str]:
@@ -74,6 +80,9 @@ def clip_levels(y: np.ndarray, e: np.ndarray | None = None) -> tuple[Limits, str
 def _structure_params(model) -> dict[str, Any]:
     if isinstance(model, SaturatedModel):
         return {**model.limits(), "model": model.structure, "model_params": _structure_params(model.inner)}
+    if isinstance(model, FeedbackModel) and model.limited:
+        return {**model.limits(), "model": model.structure,
+                "model_params": _structure_params(model_from_dict({**model.to_dict(), "saturation": None}))}
     if model.structure == "nonlinear_feedback":
         return {"feedback": {"k2": float(model.k[0]), "k3": float(model.k[1])}, "order": model.n,
                 "poles": [[float(p.real), float(p.imag)] for p in np.roots(np.concatenate([[1.0], model.a]))]}
@@ -115,7 +124,7 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
     rb = float(np.sqrt(np.mean(np.concatenate(before) ** 2)))
     effects = []
     augmented = model
-    not_built = ["saturation (on the input or a state)"]
+    not_built = []
     if model.structure == "wiener" and not isinstance(model, SaturatedModel):
         measured = np.concatenate([r.y[skip:] for r in validate])
         limits, clip_evidence = clip_levels(train.y, e)
@@ -132,7 +141,8 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
             tried.append((ok, ra, candidate))
             effects.append({"name": name, "kind": "structure", "accepted": False,
                             "params": _structure_params(candidate),
-                            "evidence": (f"{clip_evidence}; {HOW[name]} (best form: {candidate.structure}); {why}"
+                            "evidence": (f"{clip_evidence}; {HOW[name]} (best form: {candidate.structure}, "
+                                         f"limit on the {candidate.limits()['where']}); {why}"
                                          if name == "saturation" else f"{evidence}; {HOW[name]}; {why}"),
                             "validation_rmse_before": rb, "validation_rmse_after": ra})
         admissible = [i for i, (ok, _, _) in enumerate(tried) if ok]
@@ -161,12 +171,12 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
 
 
 def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: int, options: SisoOptions | None,
-                    limits: Limits) -> SaturatedModel:
-    """The ``saturation`` candidate: each form re-identified with the clip in place; the one with
+                    limits: Limits) -> SaturatedModel | FeedbackModel:
+    """The ``saturation`` candidate: each form re-identified with the limit in place; the one with
     the lowest pooled validation RMSE."""
     best = None
-    for structure in ("wiener", "wiener_hammerstein", "nonlinear_feedback"):
-        m = identify_siso(train, structure, options=options, limits=limits)
+    for structure, where in SATURATED_FORMS:
+        m = identify_siso(train, structure, options=options, limits=limits, where=where)
         err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r))[skip:] for r in validate]) ** 2)))
         if best is None or err < best[0]:
             best = (err, m)

@@ -21,6 +21,9 @@
    fitted on the other samples, and every refinement cost is the simulation error of the
    clipped model, min(max(ŷ, lower), upper) − y, which for a censored sample is nonzero only
    while ŷ has not reached the limit (the censored least squares of a Tobit model).
+   With ``where="state"`` (nonlinear feedback only) the limit acts inside the recursion
+   (:class:`.model.FeedbackModel` ``state_limits``): the model's output sits at the limit
+   exactly while the store is full, so every sample is fitted, none censored.
 
 Refinement costs are evaluated on at most ``cost_samples`` samples of the estimation part
 (simulation over them, from rest; the first ``skip`` samples left out as the initial state is
@@ -207,12 +210,16 @@ def _rmse(model: SisoModel | FeedbackModel, u: np.ndarray, y: np.ndarray, skip: 
 
 
 def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None = None,
-                  options: SisoOptions | None = None, limits: Limits = NO_LIMITS) -> SisoModel:
-    """The model of ``structure`` for one record (module docstring), its output clipped at
-    ``limits`` if given (4); ValueError on unusable data."""
+                  options: SisoOptions | None = None, limits: Limits = NO_LIMITS,
+                  where: str = "output") -> SisoModel:
+    """The model of ``structure`` for one record (module docstring), its output (or, for
+    nonlinear feedback, its state) clipped at ``limits`` if given (4); ValueError on unusable data."""
     opt = options or SisoOptions()
     if structure not in STRUCTURES:
         raise ValueError(f"unknown structure {structure!r}; expected one of {', '.join(STRUCTURES)}")
+    if where not in ("output", "state") or (where == "state" and structure != "nonlinear_feedback"):
+        raise ValueError(f"a limit where {where!r} is built for the output of any structure and the "
+                         "state of nonlinear_feedback")
     t0 = time.perf_counter()
     u, y, fs = rec.u, rec.y, rec.fs_hz
     n_est = int(round((1.0 - opt.holdout) * u.size))
@@ -222,7 +229,7 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
     ue, ye = u[:n_est], y[:n_est]
     cost = slice(0, min(n_est, opt.cost_samples))
     if structure == "nonlinear_feedback":
-        model = identify_feedback(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits)
+        model = identify_feedback(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits, where)
         model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout,
                                 identify_seconds=time.perf_counter() - t0)
         model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
@@ -264,10 +271,12 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
 
 
 def identify_feedback(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np.ndarray, n_est: int,
-                      skip: int, fs: float, opt: SisoOptions,
-                      limits: Limits = NO_LIMITS) -> FeedbackModel | SaturatedModel:
+                      skip: int, fs: float, opt: SisoOptions, limits: Limits = NO_LIMITS,
+                      where: str = "output") -> FeedbackModel | SaturatedModel:
     """The ``nonlinear_feedback`` model (module docstring, 4): fitted on (u, y), order chosen by the
-    held-out RMSE of (u_all, y_all) from ``n_est`` on."""
+    held-out RMSE of (u_all, y_all) from ``n_est`` on; ``limits`` on its output or its state."""
+    inner = limits if where == "state" else NO_LIMITS     # the limit inside the recursion
+    outer = NO_LIMITS if where == "state" else limits     # the clip after it
     best = None
     for n in opt.feedback_orders:
         rows = np.arange(n, u.size)
@@ -275,14 +284,14 @@ def identify_feedback(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np
         th, *_ = np.linalg.lstsq(X, y[rows], rcond=None)
 
         def res(p: np.ndarray, n: int = n) -> np.ndarray:
-            m = FeedbackModel(p[:n], p[n:2 * n], p[2 * n:], fs)
+            m = FeedbackModel(p[:n], p[n:2 * n], p[2 * n:], fs, state_limits=inner)
             with np.errstate(all="ignore"):
-                r = (np.clip(m.simulate(u), *limits) - y)[skip:]
+                r = (np.clip(m.simulate(u), *outer) - y)[skip:]
             return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3)
 
         sol = optimize.least_squares(res, np.concatenate([th, [0.0, 0.0]]), method="lm", x_scale="jac",
                                      max_nfev=opt.max_nfev, ftol=1e-13, xtol=1e-13)
-        model = _limited(FeedbackModel(sol.x[:n], sol.x[n:2 * n], sol.x[2 * n:], fs), limits)
+        model = _limited(FeedbackModel(sol.x[:n], sol.x[n:2 * n], sol.x[2 * n:], fs, state_limits=inner), outer)
         with np.errstate(all="ignore"):
             held = _rmse(model, u_all, y_all, n_est)
         if np.isfinite(held) and (best is None or held < best[0]):

@@ -79,12 +79,22 @@ class FeedbackModel:
     response amplitude dependent (the resonance shifts with amplitude); it cannot be filtered
     in one vectorised pass, so :meth:`simulate` runs the same recursion as :meth:`step` over the
     array (identical by construction). State: [y(k−1) … y(k−n), v(k−1) … v(k−n)].
+
+    ``state_limits`` (lower, upper) is a limit on the state (``saturation`` where ``state``):
+    y(k) is clipped inside the recursion, before it is stored and fed back,
+
+        y(k) = min(max(Σ b_i v(k−i) − Σ a_i y(k−i), lower), upper),
+
+    a store that cannot fill beyond its brim (Cascaded Tanks: the lower tank overflows, its
+    level stays at the brim and falls as soon as the inflow does), where an output limit
+    would let the unclipped level wind up beyond it and lag on the way down.
     """
 
     structure = "nonlinear_feedback"
 
     def __init__(self, a: np.ndarray, b: np.ndarray, feedback: np.ndarray, fs_hz: float,
-                 provenance: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None) -> None:
+                 provenance: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None,
+                 state_limits: tuple[float, float] = (-np.inf, np.inf)) -> None:
         a, b, k = (np.asarray(v, dtype=float).ravel() for v in (a, b, feedback))
         if a.size != b.size or a.size == 0 or k.size != 2 or not all(np.all(np.isfinite(v)) for v in (a, b, k)):
             raise ValueError("nonlinear_feedback needs finite a, b of one length and two feedback coefficients")
@@ -94,8 +104,18 @@ class FeedbackModel:
         self.provenance, self.metrics = dict(provenance or {}), dict(metrics or {})
         self._a, self._b = a.tolist(), b.tolist()
         self._k2, self._k3 = float(k[0]), float(k[1])
+        lo, hi = (float(v) for v in state_limits)
+        if np.isnan(lo) or np.isnan(hi) or not lo < hi:
+            raise ValueError(f"state limits need lower < upper, got {lo}, {hi}")
+        self.state_limits = (lo, hi)
+        self._lo, self._hi = lo, hi
         self._y = [0.0] * self.n
         self._v = [0.0] * self.n
+
+    @property
+    def limited(self) -> bool:
+        """Whether the state is limited (``saturation`` where ``state``)."""
+        return bool(np.isfinite(self._lo) or np.isfinite(self._hi))
 
     state_size = property(lambda self: 2 * self.n)
 
@@ -104,6 +124,7 @@ class FeedbackModel:
         y = 0.0
         for i in range(self.n):
             y += self._b[i] * vh[i] - self._a[i] * yh[i]
+        y = min(max(y, self._lo), self._hi)
         v = u - self._k2 * y * y - self._k3 * y * y * y
         for i in range(self.n - 1, 0, -1):
             yh[i], vh[i] = yh[i - 1], vh[i - 1]
@@ -126,10 +147,15 @@ class FeedbackModel:
             raise ValueError(f"model state must have shape ({2 * self.n},), got {s.shape}")
         self._y[:], self._v[:] = s[:self.n].tolist(), s[self.n:].tolist()
 
+    def limits(self) -> dict[str, Any]:
+        """The state limit as the report and the file give it (infinite sides as ``None``)."""
+        return {"lower": _finite(self._lo), "upper": _finite(self._hi), "where": "state"}
+
     def to_dict(self) -> dict[str, Any]:
-        return {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
-                "fs_hz": self.fs_hz, "a": self.a.tolist(), "b": self.b.tolist(), "feedback": self.k.tolist(),
-                "provenance": self.provenance, "metrics": self.metrics}
+        d = {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
+             "fs_hz": self.fs_hz, "a": self.a.tolist(), "b": self.b.tolist(), "feedback": self.k.tolist(),
+             "provenance": self.provenance, "metrics": self.metrics}
+        return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> FeedbackModel:
         return model_from_dict(self.to_dict())
@@ -178,14 +204,17 @@ class SaturatedModel:
         self.inner.set_state(state)
 
     def limits(self) -> dict[str, Any]:
-        finite = lambda v: float(v) if np.isfinite(v) else None   # noqa: E731
-        return {"lower": finite(self.lower), "upper": finite(self.upper), "where": self.where}
+        return {"lower": _finite(self.lower), "upper": _finite(self.upper), "where": self.where}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.inner.to_dict(), "saturation": self.limits()}
 
     def copy(self) -> SaturatedModel:
         return model_from_dict(self.to_dict())
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
 
 
 SISO_MODELS = (SisoModel, FeedbackModel, SaturatedModel)
@@ -196,20 +225,23 @@ def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | Fee
     """Build and check a model from its file form; :class:`ModelFileError` (one line) if wrong."""
     if d.get("format") != FORMAT or d.get("version") != VERSION:
         raise ModelFileError(f"{source}: not an rtlift single-input model file of version {VERSION}")
-    if d.get("saturation") is not None:
-        sat = d["saturation"]
+    sat = d.get("saturation")
+    where = sat.get("where", "output") if isinstance(sat, dict) else None
+    if sat is not None and where != "state":
         inner = model_from_dict({k: v for k, v in d.items() if k != "saturation"}, source)
         try:
-            if sat.get("where", "output") != "output":
-                raise ValueError(f"saturation where {sat.get('where')!r} is not built (output only)")
-            lo, hi = sat.get("lower"), sat.get("upper")
-            return SaturatedModel(inner, -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi))
+            if where != "output":
+                raise ValueError(f"saturation where {where!r} is not built (output, or state of "
+                                 "nonlinear_feedback)")
+            return SaturatedModel(inner, *_limit_pair(sat))
         except (AttributeError, TypeError, ValueError) as exc:
             raise ModelFileError(f"{source}: {exc}") from None
+    if where == "state" and d.get("structure") != "nonlinear_feedback":
+        raise ModelFileError(f"{source}: saturation where 'state' is built for nonlinear_feedback only")
     if d.get("structure") == "nonlinear_feedback":
         try:
             return FeedbackModel(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"),
-                                 d.get("metrics"))
+                                 d.get("metrics"), _limit_pair(sat) if sat is not None else (-np.inf, np.inf))
         except KeyError as exc:
             raise ModelFileError(f"{source}: missing key {exc}") from None
         except (TypeError, ValueError) as exc:
@@ -226,6 +258,11 @@ def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | Fee
     if not np.isfinite(fs) or fs <= 0:
         raise ModelFileError(f"{source}: fs_hz must be a positive number")
     return SisoModel(g1, f, g2, fs, dict(d.get("provenance") or {}), dict(d.get("metrics") or {}))
+
+
+def _limit_pair(sat: dict[str, Any]) -> tuple[float, float]:
+    lo, hi = sat.get("lower"), sat.get("upper")
+    return -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi)
 
 
 def save_siso_model(model: SisoModel | FeedbackModel | SaturatedModel, path: str | os.PathLike) -> None:
