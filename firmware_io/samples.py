@@ -14,7 +14,8 @@ STATUS_BURST_ON = 0x08
 STATUS_HOST_CONTROL = 0x10
 """Version 2: a command has been applied and the watchdog has not fired."""
 STATUS_WATCHDOG = 0x20
-"""Version 2: host control ended, no valid command for ``watchdog_ms``; the actuator is off."""
+"""Version 2: host control ended, no valid command for ``watchdog_ms``; the actuator is ramped
+to 0, then off."""
 STATUS_FLAGGED = STATUS_ADC_SATURATED | STATUS_SENSOR_FAULT
 """Status bits that make a sample's forces unusable (ΔCL is reported as missing)."""
 COMMAND_KEYS = ("commands_sent", "commands_applied", "watchdog_trips")

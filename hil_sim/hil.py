@@ -6,11 +6,15 @@
 plant is driven by the firmware's commanded envelope instead, one burst period at a time:
 
 - at each burst onset the envelope is latched from :attr:`HostControl.envelope_cv` (already
-  clamped to the actuator limit, 0 when disabled or after the watchdog), so the envelope
-  changes only at burst onsets — the update rate the bursts allow;
+  clamped to the actuator limit, 0 when disabled, on its ramp to 0 after the watchdog), so the
+  envelope changes only at burst onsets — the update rate the bursts allow;
 - the burst period is the commanded ``burst_period_ms`` (default: the lift-optimal 8 Hz);
-- after a watchdog trip the envelope is 0 from the next onset on (the actuator is ramped to 0
-  within one burst period), until the next applied command.
+- after a watchdog trip the firmware ramps the envelope to 0 over
+  :data:`~hil_sim.devices.host_control.WATCHDOG_RAMP_MS` (100 ms, 40 samples); each onset
+  during the ramp latches the ramp's value there (the period starting at onset k is computed
+  when the device reads sample k, before it steps the command side for k: it gets the value
+  after sample k − 1), later onsets 0, until the next applied command. At the default 125 ms
+  period that is at most one reduced burst, then none.
 
 The plant is stepped on demand: the device asks for the next samples when it needs them, so
 the period starting at an onset is computed from the command state at that instant. Before

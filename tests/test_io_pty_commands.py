@@ -181,14 +181,17 @@ def test_silence_trips_the_watchdog_and_the_next_command_takes_control_again(mak
         tripped = read_until(link, lambda s: s.status & STATUS_WATCHDOG)
         silence_s = time.perf_counter() - t_sent
         wd = tripped[-1]
-        assert not wd.status & STATUS_HOST_CONTROL and wd.envelope_cv == 0 and wd.cmd_seq == first
+        assert not wd.status & STATUS_HOST_CONTROL and wd.envelope_cv == 8000 and wd.cmd_seq == first
+        ramp = [wd, *read_for(link, 40)]  # the 100 ms ramp: 200 cV less per sample, 0 after 40
         assert not dev.control.enabled and dev.control.envelope_cv == 0
         still = read_for(link, 20)
         again = link.send_command(4000)
         back = read_until(link, lambda s: s.cmd_seq == again)[-1]
         c = link.counters.as_dict()
     assert 0.09 < silence_s < 0.1 + GENEROUS_S
-    assert all(s.status & STATUS_WATCHDOG and s.envelope_cv == 0 for s in still)
+    assert [s.envelope_cv for s in ramp] == [8000 - 200 * j for j in range(41)]
+    assert [(s.seq - wd.seq) % 256 for s in ramp] == list(range(41))
+    assert all(s.status & STATUS_WATCHDOG and s.envelope_cv == 0 for s in ramp[-1:] + still)
     assert back.status & STATUS_HOST_CONTROL and not back.status & STATUS_WATCHDOG and back.envelope_cv == 4000
     assert c["watchdog_trips"] == dev.stats.watchdog_trips == 1
     assert c["commands_sent"] == c["commands_applied"] == 2

@@ -7,8 +7,23 @@ it: it is never echoed). A command whose ``cmd_seq`` is not newer than the last 
 is ignored, but like every valid command it feeds the watchdog; an invalid one (bad CRC,
 length, version, or ``cmd_seq`` 0) is dropped and counted in ``cmd_errors``. When no valid
 command arrived for ``watchdog_ms`` (counted in samples of the device clock) after host
-control began, the watchdog fires: status bit5, bit4 cleared, envelope 0 and the actuator off
-until the next applied command.
+control began, the watchdog fires: status bit5 from that sample on, bit4 cleared, and the
+envelope ramps down (:data:`WATCHDOG_RAMP_MS`): from its value ``E`` at the firing sample ``f``
+it is ``E * (R - j) // R`` at sample ``f + j`` (``R`` = the ramp in samples, integer
+arithmetic), so exactly 0 at ``f + R``. The actuator stays enabled until then and is off
+afterwards, until the next applied command; a command applied during the ramp ends it and
+takes over at once like any command. A valid command that is not newer (ignored) feeds the
+watchdog but does not end the ramp or the watchdog state.
+
+Why 100 ms: long enough that the amplifier sees 40 steps at 400 Hz instead of one cut, short
+against the default watchdog (500 ms), so the actuator is off at most ``watchdog_ms`` + 100 ms
+after the last valid command. It is shorter than the default burst period (125 ms, 8 Hz) on
+purpose: the plant latches the envelope at burst onsets (:class:`hil_sim.hil.HilStream`), so at
+the default period it gets at most one reduced burst, then none — the safe state comes at most
+one burst later than an instant cut. The ramp spares the actuator's drive a step; it is not
+meant to shape the lift, which falls over the flow's relaxation time (τ_s ≈ 0.25 s) either way:
+shaping it would take a ramp of several τ_s, the actuator on for a second or more after the
+host is gone, which a safe state should not be.
 
 Command faults (:mod:`.faults`: dropped, corrupted, late) sit in front of it, the same for
 both devices: :meth:`HostControl.arrive` takes a command as its wire carries it, decides its
@@ -36,6 +51,9 @@ from firmware_io.commands import DEFAULT_WATCHDOG_MS, ENVELOPE_LIMIT_CV, WATCHDO
 from firmware_io.samples import STATUS_HOST_CONTROL, STATUS_WATCHDOG
 from hil_sim.devices.faults import DeviceStats, FaultPlan
 
+WATCHDOG_RAMP_MS = 100
+"""Time from the watchdog firing to envelope 0, counted in samples of the device clock."""
+
 
 class HostControl:
     """Commands in, per-sample ``(cmd_seq, status, envelope_cv)`` out; counts in ``stats``
@@ -55,9 +73,11 @@ class HostControl:
         """The last applied command (``None`` before any: the device streams version 1)."""
         self.envelope_cv = 0
         """The envelope the firmware drives now, 0.01 V: the applied command's, clamped to
-        :data:`~firmware_io.commands.ENVELOPE_LIMIT_CV`; 0 when disabled or after the watchdog."""
+        :data:`~firmware_io.commands.ENVELOPE_LIMIT_CV`; 0 when disabled; on the way down during
+        the watchdog's ramp, 0 after it."""
         self.enabled = False
-        """Whether the actuator is on under host control (flags bit0, and no watchdog)."""
+        """Whether the actuator is on under host control (flags bit0, and the watchdog's ramp
+        not yet at 0)."""
         self.burst_period_ms: int | None = None
         """The commanded burst period (``None``: the experiment's own)."""
         self.watchdog_ms = DEFAULT_WATCHDOG_MS
@@ -66,6 +86,10 @@ class HostControl:
         self._pending: Command | None = None
         self._last_seq: int | None = None
         self._fed_at = 0
+        self.ramp_samples = max(1, int(round(WATCHDOG_RAMP_MS * fs_hz / 1000.0)))
+        """The watchdog's ramp in samples (40 at 400 Hz)."""
+        self._ramp: tuple[int, int] | None = None
+        """(firing sample, envelope then) while the watchdog's ramp runs."""
 
     @property
     def version(self) -> int:
@@ -128,17 +152,30 @@ class HostControl:
             self.envelope_cv = min(cmd.envelope_cv, ENVELOPE_LIMIT_CV) if cmd.enable else 0
             self.host_control = True
             self.watchdog = False
+            self._ramp = None
         if self.applied is None:
             return None, status, envelope_cv
         if self.host_control and (index - self._fed_at) * 1000.0 >= self.watchdog_ms * self.fs_hz:
             self.host_control = False
             self.watchdog = True
-            self.enabled = False
-            self.envelope_cv = 0
             self.stats.watchdog_trips += 1
+            self._ramp = (index, self.envelope_cv if self.enabled else 0)
+        if self._ramp is not None:
+            self._ramp_down(index)
         status &= ~(STATUS_HOST_CONTROL | STATUS_WATCHDOG) & 0xFF
         if self.host_control:
             status |= STATUS_HOST_CONTROL
         if self.watchdog:
             status |= STATUS_WATCHDOG
         return self.applied.cmd_seq % self.modulus, status, self.envelope_cv
+
+    def _ramp_down(self, index: int) -> None:
+        """The watchdog's ramp at sample ``index``: linear from its start to 0, then off."""
+        start, env0 = self._ramp
+        left = self.ramp_samples - (index - start)
+        if left <= 0 or env0 == 0:
+            self._ramp = None
+            self.envelope_cv = 0
+            self.enabled = False
+        else:
+            self.envelope_cv = env0 * left // self.ramp_samples
