@@ -15,13 +15,21 @@ as the pure-Python blocks, so the two agree to rounding (the convolution's sum o
 from BLAS ``ddot``'s). numba compiles on the first call with these argument types, or loads
 the machine code from its cache (``__pycache__``) — :meth:`HybridModel.warm_up` does that
 before a live link opens.
+
+:func:`hybrid_simulate` is the same model's batch (:meth:`HybridModel.simulate`): one loop over
+the samples through the same per-sample helpers (``_delayed``, ``_push``, ``_highpass``,
+``_wiener``, inlined), except the convolution, which scatters each non-zero input instead of
+taking a dot per output. Measured on the benchmark record (10 min at 400 Hz, 300 taps, 7 %
+non-zero Cμ): ≈ 3.7 ms against 10–12 ms for the numpy/scipy chain. What bounds it: the filter
+and LTI states live in the blocks' arrays, so every sample's recursion goes through memory
+(store-to-load forwarding, and parameters reloaded after each store to a possibly aliasing
+array); a prototype holding one model shape's states in registers (order 2, one section) took ≈ 1.8 ms.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
-
 
 _COUNT_MAX = 128
 """Grids up to this many points are searched by counting (:func:`_segment`)."""
