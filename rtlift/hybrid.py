@@ -160,10 +160,12 @@ class HybridModel(BlockChain):
         if kernel is None:
             kernel = self._bind_kernel()
         if kernel:                                # the compiled step's model: one compiled loop
-            from rtlift.blocks.compiled import hybrid_simulate
+            from rtlift.blocks.compiled import hybrid_simulate, state_slots
 
+            args = kernel[1]
             total, high, low = np.empty(cmu.size), np.empty(cmu.size), np.empty(cmu.size)
-            hybrid_simulate(np.ascontiguousarray(cmu), np.ascontiguousarray(env), total, high, low, *kernel[1])
+            hybrid_simulate(np.ascontiguousarray(cmu), np.ascontiguousarray(env), total, high, low, *args,
+                            *state_slots(*args[-2:]))
             return HybridOutput(total, high, low)
         return self.reference_simulate(cmu, env)
 

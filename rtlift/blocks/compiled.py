@@ -19,17 +19,19 @@ before a live link opens.
 :func:`hybrid_simulate` is the same model's batch (:meth:`HybridModel.simulate`): one loop over
 the samples through the same per-sample helpers (``_delayed``, ``_push``, ``_highpass``,
 ``_wiener``, inlined), except the convolution, which scatters each non-zero input instead of
-taking a dot per output. Measured on the benchmark record (10 min at 400 Hz, 300 taps, 7 %
-non-zero Cμ): ≈ 3.7 ms against 10–12 ms for the numpy/scipy chain. What bounds it: the filter
-and LTI states live in the blocks' arrays, so every sample's recursion goes through memory
-(store-to-load forwarding, and parameters reloaded after each store to a possibly aliasing
-array); a prototype holding one model shape's states in registers (order 2, one section) took ≈ 1.8 ms.
+taking a dot per output. It is compiled once per size of the filter and LTI states (their
+loops unrolled, the states held in registers; a few seconds the first time, then numba's cache).
+Measured on the benchmark record (10 min at 400 Hz, 300 taps, 7 % non-zero Cμ): ≈ 2.3 ms,
+against ≈ 3.7 ms with the states left in the blocks' arrays (every sample's recursions
+through memory) and 10–12 ms for the numpy/scipy chain.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import carray, njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 _COUNT_MAX = 128
 """Grids up to this many points are searched by counting (:func:`_segment`)."""
@@ -178,22 +180,52 @@ def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, buf, pos, z, x):
     return high + low, high, low
 
 
+@intrinsic
+def _stack_buffer(typingctx, like):
+    """A float64 buffer on the stack as long as the tuple ``like``, whose length is part of its
+    type: one compiled batch per state size, whose loops over the state LLVM unrolls and whose
+    state it then holds in registers (``like`` of another type: not typed)."""
+    if not isinstance(like, types.UniTuple):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return cgutils.alloca_once(builder, context.get_value_type(types.float64), size=like.count)
+
+    return types.CPointer(types.float64)(like), codegen
+
+
+def state_slots(z: np.ndarray, x: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The size arguments of :func:`hybrid_simulate` for the filter state z and the LTI state x."""
+    return (0.0,) * z.size, (0.0,) * x.size
+
+
 @njit(cache=True)
-def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, pos, z, x):
+def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, pos, z, x, z_slots, x_slots):
     """:func:`hybrid_step` over whole arrays in one loop, into ``total``, ``high`` and ``low``
-    (same length as ``cmu``), from and advancing the same state. The convolution scatters each
-    non-zero Cμ′(k) over the outputs it reaches, ``high[k + j] += φh(j) Cμ′(k)``, with ``high``
-    itself as the accumulator (nnz·L multiply-adds instead of N·L: a burst-modulated Cμ is zero
-    between bursts); the inputs still in the ring buffer are scattered first, and the last L
-    inputs are pushed into it, so streaming continues where the batch stops. The same products
-    as the step's dot, summed oldest input first: equal to rounding.
+    (same length as ``cmu``), from and advancing the same state, through the same helpers.
+
+    The convolution scatters each non-zero Cμ′(k) over the outputs it reaches,
+    ``high[k + j] += φh(j) Cμ′(k)``, with ``high`` itself as the accumulator (nnz·L
+    multiply-adds instead of N·L: a burst-modulated Cμ is zero between bursts); the inputs still
+    in the ring buffer are scattered first, and the last L inputs are pushed into it, so
+    streaming continues where the batch stops. The same products as the step's dot, summed
+    oldest input first: equal to rounding. The filter and LTI states are copied to stack
+    buffers sized by ``z_slots``/``x_slots`` (:func:`state_slots`) for the loop and back after
+    it: in the blocks' arrays every sample's recursions went through memory (3.7 against 2.2 ms
+    for the benchmark record); the arithmetic, and so the output, is the same bit for bit.
     """
     n = cmu.shape[0]
     n_taps = buf.shape[0] // 2
+    n_z, n_x = len(z_slots), len(x_slots)
+    z_local = carray(_stack_buffer(z_slots), (n_z,))
+    x_local = carray(_stack_buffer(x_slots), (n_x,))
+    scratch = carray(_stack_buffer(x_slots), (n_x,))
+    z_local[:] = z
+    x_local[:] = x
     taps = par[2:2 + n_taps]
     o_hp = 2 + n_taps
-    o_wiener = o_hp + 5 * (z.shape[0] // 2)
-    xs, fs, slopes, scratch = _wiener_table(par, o_wiener, x.shape[0])
+    o_wiener = o_hp + 5 * (n_z // 2)
+    grid, values, slopes, _ = _wiener_table(par, o_wiener, n_x)
     p = pos[0]
     for m in range(min(n, n_taps - 1)):
         high[m] = 0.0
@@ -216,11 +248,13 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, p
         if c != 0.0:
             for j in range(min(n_taps, n - k)):
                 high[k + j] += taps[j] * c
-        h = _highpass(par, o_hp, z, high[k])
-        lo = _wiener(par, o_wiener, xs, fs, slopes, scratch, x, e)
+        h = _highpass(par, o_hp, z_local, high[k])
+        lo = _wiener(par, o_wiener, grid, values, slopes, scratch, x_local, e)
         high[k] = h
         low[k] = lo
         total[k] = h + lo
+    z[:] = z_local
+    x[:] = x_local
 
 
 @njit(cache=True)
