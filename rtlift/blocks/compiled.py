@@ -20,10 +20,10 @@ before a live link opens.
 the samples through the same per-sample helpers (``_delayed``, ``_push``, ``_highpass``,
 ``_wiener``, inlined), except the convolution, which scatters each non-zero input instead of
 taking a dot per output. It is compiled once per size of the filter and LTI states (their
-loops unrolled, the states held in registers; a few seconds the first time, then numba's cache).
-Measured on the benchmark record (10 min at 400 Hz, 300 taps, 7 % non-zero Cμ): ≈ 2.3 ms,
-against ≈ 3.7 ms with the states left in the blocks' arrays (every sample's recursions
-through memory) and 10–12 ms for the numpy/scipy chain.
+loops unrolled, the states and the recursions' parameters held in registers; a few seconds the
+first time, then numba's cache). Measured on the benchmark record (10 min at 400 Hz, 300 taps,
+7 % non-zero Cμ): ≈ 2.0 ms, against ≈ 3.7 ms with the states left in the blocks' arrays (every
+sample's recursions through memory) and 10–12 ms for the numpy/scipy chain.
 """
 
 from __future__ import annotations
@@ -194,13 +194,15 @@ def _stack_buffer(typingctx, like):
     return types.CPointer(types.float64)(like), codegen
 
 
-def state_slots(z: np.ndarray, x: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """The size arguments of :func:`hybrid_simulate` for the filter state z and the LTI state x."""
-    return (0.0,) * z.size, (0.0,) * x.size
+def state_slots(z: np.ndarray, x: np.ndarray) -> tuple[tuple[float, ...], ...]:
+    """The size arguments of :func:`hybrid_simulate` for the filter state z, the LTI state x
+    and the parameters of both recursions ([form, table length, SOS rows, A, B, C])."""
+    return (0.0,) * z.size, (0.0,) * x.size, (0.0,) * (2 + 5 * (z.size // 2) + x.size * (x.size + 2))
 
 
 @njit(cache=True)
-def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, pos, z, x, z_slots, x_slots):
+def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, pos, z, x, z_slots, x_slots,
+                    p_slots):
     """:func:`hybrid_step` over whole arrays in one loop, into ``total``, ``high`` and ``low``
     (same length as ``cmu``), from and advancing the same state, through the same helpers.
 
@@ -211,8 +213,11 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, p
     streaming continues where the batch stops. The same products as the step's dot, summed
     oldest input first: equal to rounding. The filter and LTI states are copied to stack
     buffers sized by ``z_slots``/``x_slots`` (:func:`state_slots`) for the loop and back after
-    it: in the blocks' arrays every sample's recursions went through memory (3.7 against 2.2 ms
-    for the benchmark record); the arithmetic, and so the output, is the same bit for bit.
+    it, and the recursions' parameters to one sized by ``p_slots``: in the blocks' arrays every
+    sample's recursions went through memory, and every store to an output array made the
+    parameters be loaded again (measured on the benchmark record: 3.7 ms, 2.3 ms with the
+    states on the stack, ≈ 2.0 ms with the parameters too); the arithmetic, and so the output,
+    is the same bit for bit.
     """
     n = cmu.shape[0]
     n_taps = buf.shape[0] // 2
@@ -222,10 +227,15 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, p
     scratch = carray(_stack_buffer(x_slots), (n_x,))
     z_local[:] = z
     x_local[:] = x
+    n_p = len(p_slots)
+    rec = carray(_stack_buffer(p_slots), (n_p,))   # par without φh and the table: [form, n, SOS, A, B, C]
+    rec[0] = par[0]
+    rec[1] = par[1]
+    rec[2:] = par[2 + n_taps:n_taps + n_p]
     taps = par[2:2 + n_taps]
-    o_hp = 2 + n_taps
+    o_hp = 2
     o_wiener = o_hp + 5 * (n_z // 2)
-    grid, values, slopes, _ = _wiener_table(par, o_wiener, n_x)
+    grid, values, slopes, _ = _wiener_table(par, n_taps + o_wiener, n_x)
     p = pos[0]
     for m in range(min(n, n_taps - 1)):
         high[m] = 0.0
@@ -248,8 +258,8 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, p
         if c != 0.0:
             for j in range(min(n_taps, n - k)):
                 high[k + j] += taps[j] * c
-        h = _highpass(par, o_hp, z_local, high[k])
-        lo = _wiener(par, o_wiener, grid, values, slopes, scratch, x_local, e)
+        h = _highpass(rec, o_hp, z_local, high[k])
+        lo = _wiener(rec, o_wiener, grid, values, slopes, scratch, x_local, e)
         high[k] = h
         low[k] = lo
         total[k] = h + lo
