@@ -7,7 +7,7 @@ The high-frequency part is the high-pass filtered convolution of the burst-modul
 with the single-burst kernel; the low-frequency part is the Wiener block driven by the
 burst envelope. Augmentation stages (effects the paper lacks) may map the inputs before
 and the total after. :meth:`HybridModel.step` is the 400 Hz hot path; :meth:`simulate` is
-its vectorised twin; both carry one explicit state.
+its batch twin; both carry one explicit state.
 
 The hot path is compiled (:mod:`rtlift.blocks.compiled`, numba) for every model whose
 nonlinearity has a compiled form (``input_gain``, ``output``) and whose only augmentation
@@ -16,7 +16,10 @@ writes it. The other effect stages (``actuator_fade``, ``sensor_resonance``, ``z
 ``periodic_disturbance``) and the hysteresis nonlinearities are not compiled yet: a model that
 carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain of the
 blocks' own ``step`` (``model.compiled`` says which). That chain is also the compiled
-step's test oracle; both advance the same state arrays. The compiled step is bound to the
+step's test oracle; both advance the same state arrays. :meth:`simulate` follows the same
+choice: one compiled loop over the samples (:func:`rtlift.blocks.compiled.hybrid_simulate`)
+for a compiled model, else :meth:`HybridModel.reference_simulate`, the chain of the blocks'
+vectorised ``simulate`` (numpy, scipy). The compiled step is bound to the
 blocks on the first step after a block or stage field of the model is assigned; a part swapped
 inside a block (``model.wiener.nonlinearity = ...``) is not seen: build a new model instead.
 """
@@ -153,6 +156,25 @@ class HybridModel(BlockChain):
         env = np.asarray(cmu_envelope, dtype=float)
         if cmu.shape != env.shape or cmu.ndim != 1:
             raise ValueError(f"cmu {cmu.shape} and cmu_envelope {env.shape} must be equal 1-D arrays")
+        kernel = self._kernel
+        if kernel is None:
+            kernel = self._bind_kernel()
+        if kernel:                                # the compiled step's model: one compiled loop
+            from rtlift.blocks.compiled import hybrid_simulate, state_slots
+
+            args = kernel[1]
+            total, high, low = np.empty(cmu.size), np.empty(cmu.size), np.empty(cmu.size)
+            hybrid_simulate(np.ascontiguousarray(cmu), np.ascontiguousarray(env), total, high, low, *args,
+                            *state_slots(*args[-2:]))
+            return HybridOutput(total, high, low)
+        return self.reference_simulate(cmu, env)
+
+    def reference_simulate(self, cmu: np.ndarray, cmu_envelope: np.ndarray) -> HybridOutput:
+        """:meth:`simulate` as a chain of the blocks' own vectorised ``simulate`` (numpy and
+        scipy): the path of the models the compiled step does not cover, and the compiled
+        batch's second judge."""
+        cmu = np.asarray(cmu, dtype=float)
+        env = np.asarray(cmu_envelope, dtype=float)
         for s in self.input_stages:
             cmu, env = s.simulate(cmu, env)
         high = self.highpass.simulate(self.convolution.simulate(cmu))

@@ -139,3 +139,80 @@ def test_integer_and_numpy_scalar_inputs_give_the_float_result():
     compiled = m.step(np.float64(0.01), 1)
     m.reset()
     assert compiled == pytest.approx(m.reference_step(0.01, 1.0), abs=1e-15)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), cuts=st.lists(st.integers(0, 400), min_size=2, max_size=2),
+       kernel_len=st.integers(1, 60), order=st.integers(1, 3), hp_order=st.integers(1, 4),
+       output_form=st.booleans(), delay=st.integers(0, 5))
+def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, order, hp_order, output_form, delay):
+    """Stream, batch (the fused compiled loop), stream again: (ΔCL, ΔCL_H, ΔCL_L) and the state
+    after each part equal the steps alone to 1e-12, batches shorter and longer than the kernel."""
+    rng = np.random.default_rng(seed)
+    m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
+    if delay:
+        m.input_stages = (Delay(delay / FS, FS),)
+    cmu, env = burst_input(rng, 450)
+    a, b = sorted(cuts)
+    expect = _run(m.step, cmu, env)
+    after_steps = m.get_state()
+    m.reset()
+    first = _run(m.step, cmu[:a], env[:a])
+    batch = np.array(m.simulate(cmu[a:b], env[a:b])).reshape(3, -1)
+    last = _run(m.step, cmu[b:], env[b:])
+    got = np.concatenate([first, batch, last], axis=1)
+    scale = max(1.0, float(np.max(np.abs(expect))))
+    np.testing.assert_allclose(got, expect, atol=TOL * scale, rtol=0)
+    np.testing.assert_allclose(m.get_state(), after_steps, atol=TOL, rtol=1e-12)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 3000), warm=st.integers(0, 400),
+       output_form=st.booleans(), delay=st.integers(0, 3))
+def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay):
+    """The fused loop and the numpy/scipy chain (``reference_simulate``, scatter or FFT for long
+    records) agree to 1e-12 from a mid-record state, and leave the same state."""
+    rng = np.random.default_rng(seed)
+    m = make_model(rng, kernel_len=300, output_form=output_form)
+    m.input_stages = (Delay(delay / FS, FS),)
+    cmu, env = burst_input(rng, warm + n)
+    _run(m.step, cmu[:warm], env[:warm])
+    start = m.get_state()
+    fused = np.array(m.simulate(cmu[warm:], env[warm:]))
+    after = m.get_state()
+    m.set_state(start)
+    reference = np.array(m.reference_simulate(cmu[warm:], env[warm:]))
+    scale = max(1.0, float(np.max(np.abs(reference), initial=0.0)))
+    np.testing.assert_allclose(fused, reference, atol=TOL * scale, rtol=0)
+    np.testing.assert_allclose(after, m.get_state(), atol=TOL, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name,model", list(_fallback_models()), ids=lambda v: v if isinstance(v, str) else "")
+def test_models_with_uncompiled_effects_batch_with_the_numpy_chain(name, model, monkeypatch):
+    import rtlift.blocks.compiled as compiled
+
+    def refuse(*args):
+        raise AssertionError("the fused batch ran for a model it does not cover")
+
+    monkeypatch.setattr(compiled, "hybrid_simulate", refuse)
+    cmu, env = burst_input(np.random.default_rng(10), 300)
+    batch = model.simulate(cmu, env)
+    model.reset()
+    np.testing.assert_array_equal(np.array(batch), np.array(model.reference_simulate(cmu, env)))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), size=st.sampled_from([2, 3, 8, 25, 128, 129, 300]))
+def test_table_segment_is_bisect_right_for_every_value(seed, size):
+    """The counting search (short grids) and the bisection (long ones) find bisect_right − 1,
+    on grid points, between them, outside, and for NaN."""
+    from bisect import bisect_right
+
+    from rtlift.blocks.compiled import _segment
+
+    rng = np.random.default_rng(seed)
+    xs = np.unique(rng.normal(size=size))
+    probes = np.concatenate([xs, rng.normal(size=50) * 2, [np.nan, -np.inf, np.inf, np.nextafter(xs[0], -1)]])
+    for v in probes:
+        expect = bisect_right(xs.tolist(), v) - 1
+        assert _segment(xs, v) == expect
