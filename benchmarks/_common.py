@@ -26,7 +26,7 @@ def emit(result: dict) -> None:
 
 def run_cli(*argv) -> str:
     """``rtlift ARGV`` in process; its stdout; a non-zero exit raises."""
-    from rtlift.cli import main as rtlift
+    from rtlift.app.cli import main as rtlift
 
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):

@@ -26,7 +26,7 @@ from benchmarks.independent_plant import DEFAULT_DATA as DEFAULT_PLANT
 from rtlift.core.records import Record, read_record
 from rtlift.identify.campaign import identify_hybrid
 from rtlift.identify.interaction import identify_interaction
-from rtlift.validation import validate_record
+from rtlift.model.validation import validate_record
 
 RECORDS = ("static", "single_burst", "train_T1p75", "train_T3p5", "train_T7", "sine_k0125", "sine_k025", "random")
 TRAINS = ("train_T1p75", "train_T3p5", "train_T7")

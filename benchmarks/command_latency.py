@@ -88,7 +88,7 @@ def _stats(values_ms: list[float]) -> dict[str, float]:
 def one_link(kind: str, seconds: float, tmp: str) -> dict:
     from hil_sim.devices import SerialDaq, SlcanAdapter
     from hil_sim.hil import HilStream
-    from rtlift.hil_tracking import FADE
+    from rtlift.app.hil_tracking import FADE
 
     pc = time.perf_counter
     stream = HilStream("random", seed=11, effects=[FADE])

@@ -25,7 +25,7 @@ import tempfile
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit  # noqa: E402
-from rtlift.hil_tracking import BenchTracking  # noqa: E402
+from rtlift.app.hil_tracking import BenchTracking  # noqa: E402
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 REFERENCES = {"steps": "steps:0.06@0,0.12@5,0.16@10,0.08@15",

@@ -18,7 +18,7 @@ from pathlib import Path
 from hil_sim.experiments import EXPERIMENTS, run_experiment
 from rtlift.core.records import read_record, write_record
 from rtlift.identify.campaign import identify_hybrid
-from rtlift.validation import validate_record
+from rtlift.model.validation import validate_record
 
 
 def main() -> int:

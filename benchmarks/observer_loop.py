@@ -20,7 +20,7 @@ pinned to core 0 when the machine has two or more) and bursts of disk writes (``
 MB written and fsync'd every ``--burst-every`` s into a temporary directory), both in their
 own processes; the JSON gains ``load`` (what the hog and the writer did).
 
-``--view`` runs the same live loop with the live view up (``rtlift.view.LiveView``, the tap
+``--view`` runs the same live loop with the live view up (``rtlift.app.view.LiveView``, the tap
 fed once per sample) and a headless Chromium showing the page: after a warm-up (not counted)
 that lasts until the samples queued while the browser started are consumed, the run
 alternates phases without and with the tap (off, view, four times; ``--seconds`` of each in
@@ -184,7 +184,7 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
     browser's profile) alternately without and with the view's tap, ``seconds`` of each."""
     from firmware_io import Converter
     from firmware_io.latency import LatencyRecorder
-    from rtlift.live import ObserverLoop
+    from rtlift.app.live import ObserverLoop
 
     converter = Converter()
     stream = link.samples(0.5)
@@ -211,8 +211,8 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
     if view_dir is None:
         phase("off", n, None)
         return runs
-    from rtlift.view import LiveView
-    from rtlift.view.browser import HeadlessPage
+    from rtlift.app.view import LiveView
+    from rtlift.app.view.browser import HeadlessPage
 
     view = LiveView(0, title="benchmarks/observer_loop.py --view", fs_hz=fs_hz,
                     counters=lambda: link.counters.as_dict()).start()
@@ -258,7 +258,7 @@ def main() -> None:
     import tempfile
 
     from firmware_io import open_link
-    from rtlift.modelfile import load_model
+    from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
 
     model = load_model(args.model) if args.model else default_model()

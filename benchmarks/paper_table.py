@@ -28,7 +28,7 @@ from hil_sim.experiments import run_experiment
 from rtlift.core.metrics import scores
 from rtlift.identify.campaign import IdentifyOptions, convolution_output, identify_hybrid
 from rtlift.identify.pem import fit_wiener
-from rtlift.validation import validate_record
+from rtlift.model.validation import validate_record
 
 PAPER_CORR = {"sine_k0125": 0.9596, "sine_k025": 0.8654, "random": 0.9277}
 VALIDATE = tuple(PAPER_CORR)

@@ -6,7 +6,7 @@ The frames are the simulated bench's (``hil_sim.experiments.daq_stream``), encod
 ``firmware_io.serial_codec.encode_sample``; a seeded :class:`FaultInjector` changes the wire
 and records exactly what it injected, hence the counters the decoder must end with. The
 bytes reach the decoder in reads of random size (1–4096 bytes, as ``in_waiting`` gives
-them); every sample goes through ``firmware_io.Converter`` and ``rtlift.live.ObserverLoop``
+them); every sample goes through ``firmware_io.Converter`` and ``rtlift.app.live.ObserverLoop``
 (predict-only steps for gaps and flagged samples) exactly as in ``rtlift observe``.
 
 Checks: decoder counters == injected (received, lost, crc_errors, duplicates, resyncs,
@@ -49,7 +49,7 @@ from firmware_io.serial_codec import SEQ_MODULUS, SerialDecoder, encode_event, e
 from hil_sim.devices.serial_daq import cobs_data_positions, invalid_chunks  # noqa: E402
 from hil_sim.devices.source import can_wire, serial_wire, wire_samples  # noqa: E402
 from hil_sim.experiments import daq_stream  # noqa: E402
-from rtlift.live import ObserverLoop  # noqa: E402
+from rtlift.app.live import ObserverLoop  # noqa: E402
 from rtlift.observer import Observer, ObserverConfig  # noqa: E402
 from testkit.synthetic import make_model  # noqa: E402
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 from importlib import import_module
 from typing import Any
 
-_EXPORTS = {"HybridModel": "rtlift.hybrid", "HybridOutput": "rtlift.hybrid",
-            "load_model": "rtlift.modelfile", "save_model": "rtlift.modelfile",
+_EXPORTS = {"HybridModel": "rtlift.model.hybrid", "HybridOutput": "rtlift.model.hybrid",
+            "load_model": "rtlift.model.modelfile", "save_model": "rtlift.model.modelfile",
             "Observer": "rtlift.observer"}
 
 __all__ = ["HybridModel", "HybridOutput", "Observer", "load_model", "save_model"]

@@ -1,5 +1,5 @@
 import sys
 
-from rtlift.cli import main
+from rtlift.app.cli import main
 
 sys.exit(main())

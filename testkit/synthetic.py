@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from rtlift.blocks import HighPassFilter, InputGain, OutputNonlinearity, RingConvolution, WienerBlock
-from rtlift.hybrid import HybridModel
+from rtlift.model.hybrid import HybridModel
 
 
 def random_stable_A(rng: np.random.Generator, n: int, radius: float = 0.995) -> np.ndarray:

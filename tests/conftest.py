@@ -16,7 +16,7 @@ def rng() -> np.random.Generator:
 def model_file(tmp_path_factory):
     """A model identified on the bench and tuned for the observer, as a file (shared by the
     live-observe and replay tests; a module may define its own ``model_file``)."""
-    from rtlift.modelfile import save_model
+    from rtlift.model.modelfile import save_model
     from tests.test_observer_bench import bench_model
 
     path = tmp_path_factory.mktemp("model") / "model.json"

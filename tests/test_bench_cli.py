@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from rtlift.cli import build_parser, main
+from rtlift.app.cli import build_parser, main
 from rtlift.core.records import read_record
 
 

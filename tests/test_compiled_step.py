@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from rtlift.blocks.stages import ActuatorFade, Delay, PeriodicDisturbance, SensorResonance, ZeroDrift
 from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
-from rtlift.modelfile import load_model
+from rtlift.model.modelfile import load_model
 from testkit.synthetic import burst_input, make_model
 
 TOL = 1e-12

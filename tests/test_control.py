@@ -1,4 +1,4 @@
-"""rtlift.control on the model: the closed loop in simulation with the hybrid model as the
+"""rtlift.app.control on the model: the closed loop in simulation with the hybrid model as the
 plant (bursts every 50 samples, the envelope applied at the next onset, measurement noise
 σ 0.004, an actuator fade the controller is not told about) and the observer in the loop;
 references parsed from the command line's specs.
@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from rtlift.control import ControlConfig, LiftController, static_map
+from rtlift.app.control import ControlConfig, LiftController, static_map
+from rtlift.app.reference import parse_reference
 from rtlift.core.errors import UserError
-from rtlift.modelfile import load_model
+from rtlift.model.modelfile import load_model
 from rtlift.observer import Observer
-from rtlift.reference import parse_reference
 
 MODEL = Path(__file__).parent / "data" / "bench_model.json"
 FS = 400

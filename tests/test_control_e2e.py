@@ -15,7 +15,7 @@ import pytest
 
 from hil_sim.devices import SerialDaq, SlcanAdapter
 from hil_sim.hil import HilStream
-from rtlift.cli import main
+from rtlift.app.cli import main
 
 pytestmark = pytest.mark.pty
 
@@ -26,7 +26,7 @@ SECONDS = 11
 TARGET = 0.14
 FS = 400
 TRACKING_STARTS = 3 * FS
-"""Settle (1 s) and tare (2 s) before tracking starts (rtlift.closed_loop)."""
+"""Settle (1 s) and tare (2 s) before tracking starts (rtlift.app.closed_loop)."""
 KEYS = ("received", "lost", "crc_errors", "commands_sent", "commands_applied", "command_latency_p50_ms",
         "command_latency_p99_ms", "watchdog_trips", "tracking_rmse", "saturated_fraction")
 

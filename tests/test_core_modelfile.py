@@ -11,7 +11,7 @@ import pytest
 from rtlift.blocks.lti import LTIBlock, spectral_radius
 from rtlift.blocks.stages import Delay
 from rtlift.core.errors import ModelFileError
-from rtlift.modelfile import load_model, model_to_dict, save_model
+from rtlift.model.modelfile import load_model, model_to_dict, save_model
 from testkit.synthetic import burst_input, make_model
 
 PAPER = files("rtlift") / "data" / "paper_model.json"

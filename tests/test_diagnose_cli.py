@@ -7,9 +7,9 @@ import json
 import pytest
 
 from hil_sim.experiments import run_experiment, write_bench_record
-from rtlift.cli import main
+from rtlift.app.cli import main
 from rtlift.identify import identify_hybrid
-from rtlift.modelfile import load_model, save_model
+from rtlift.model.modelfile import load_model, save_model
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtlift.modelfile import load_model
+from rtlift.model.modelfile import load_model
 from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer
 from tests.test_faults_support import rtlift, write_model
 

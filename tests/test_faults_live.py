@@ -206,7 +206,7 @@ def test_reconnect_after_a_two_second_unplug(tmp_path, record_property):
     holds every sample received before and after."""
     import time
 
-    from rtlift.live import FLAG_LINK_GAP
+    from rtlift.app.live import FLAG_LINK_GAP
 
     port = tmp_path / "ttyDAQ"
     dev = SerialDaq(synthetic_stream(1), faults=FaultPlan(disconnect_after_s=1.0))

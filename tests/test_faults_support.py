@@ -21,8 +21,8 @@ from firmware_io.can_codec import encode_sample_frames
 from firmware_io.serial_codec import encode_sample
 from hil_sim.devices import synthetic_stream
 from hil_sim.devices.source import can_wire, serial_wire, wire_samples
-from rtlift.cli import main
-from rtlift.modelfile import save_model
+from rtlift.app.cli import main
+from rtlift.model.modelfile import save_model
 from testkit.synthetic import make_model
 
 FS = 400

@@ -1,4 +1,4 @@
-"""Step-response scoring on the bench truth (rtlift.hil_tracking.settling_times) on signals
+"""Step-response scoring on the bench truth (rtlift.app.hil_tracking.settling_times) on signals
 with a known answer."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rtlift.hil_tracking import settling_times
+from rtlift.app.hil_tracking import settling_times
 
 FS = 400
 

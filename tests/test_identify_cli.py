@@ -7,9 +7,9 @@ import json
 import pytest
 
 from hil_sim.experiments import run_experiment
-from rtlift.cli import main
+from rtlift.app.cli import main
 from rtlift.core.records import write_record
-from rtlift.modelfile import load_model
+from rtlift.model.modelfile import load_model
 
 
 @pytest.fixture(scope="module")

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from hil_sim.experiments import EXPERIMENTS, run_experiment
-from rtlift.cli import main
+from rtlift.app.cli import main
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record, write_record
-from rtlift.domain import DomainWatch, outside_domain
 from rtlift.identify.interaction import identify_interaction
-from rtlift.modelfile import load_model
-from rtlift.validation import validate_record
+from rtlift.model.domain import DomainWatch, outside_domain
+from rtlift.model.modelfile import load_model
+from rtlift.model.validation import validate_record
 
 TRAINS = ("train_T1p75", "train_T3p5", "train_T7")
 

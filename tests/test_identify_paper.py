@@ -7,7 +7,7 @@ import pytest
 
 from hil_sim.experiments import run_experiment
 from rtlift.identify.campaign import identify_hybrid
-from rtlift.validation import validate_record
+from rtlift.model.validation import validate_record
 
 PAPER_CORR = {"sine_k0125": 0.9596, "sine_k025": 0.8654, "random": 0.9277}
 

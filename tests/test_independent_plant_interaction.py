@@ -11,7 +11,7 @@ import pytest
 from benchmarks.independent_plant import DEFAULT_DATA
 from rtlift.core.records import read_record
 from rtlift.identify.interaction import identify_interaction
-from rtlift.validation import validate_record
+from rtlift.model.validation import validate_record
 
 pytestmark = pytest.mark.skipif(not (DEFAULT_DATA / "campaign" / "static.csv").exists(),
                                 reason=f"the independent plant's development set is not at {DEFAULT_DATA} "

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from rtlift.blocks import HighPassFilter, InputGain, WienerBlock
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
 from rtlift.blocks.stages import DeliveredMomentum
-from rtlift.hybrid import HybridModel
-from rtlift.modelfile import model_from_dict, model_to_dict
+from rtlift.model.hybrid import HybridModel
+from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig
 from testkit.synthetic import burst_input, model_steps, random_stable_A, run_in_chunks
 

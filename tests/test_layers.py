@@ -9,8 +9,8 @@ excluded, and the ones that would close a cycle are listed in ``LAZY_CYCLES`` (e
 
 Package level: every top-level package is a node (``firmware_io``, ``hil_sim``, ``testkit``,
 ``tests``, ``benchmarks``), except ``rtlift``, whose sub-packages (``rtlift.core``,
-``rtlift.blocks``, ``rtlift.observer`` …) and top-level modules (``rtlift.hybrid``,
-``rtlift.live`` …) are nodes of their own: ``rtlift`` holds every layer from the core to the
+``rtlift.blocks``, ``rtlift.observer`` …) and top-level modules (``rtlift.model.hybrid``,
+``rtlift.app.live`` …) are nodes of their own: ``rtlift`` holds every layer from the core to the
 applications, and ``hil_sim`` sits between its core and its demo.
 """
 
@@ -162,7 +162,31 @@ def test_tests_and_benchmarks_share_helpers_through_testkit_only():
 def test_importing_firmware_io_loads_neither_scipy_nor_the_model():
     code = ("import sys, firmware_io, firmware_io.links; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in "
-            "{'scipy', 'filterpy', 'numba'} or m in {'rtlift.hybrid', 'rtlift.observer'}))")
+            "{'scipy', 'filterpy', 'numba'} or m in {'rtlift.model.hybrid', 'rtlift.observer'}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=ROOT, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     assert out.stdout.strip() == "[]"
+
+
+LAYERS = (("rtlift.core",), ("rtlift.blocks",), ("rtlift.model",),
+          ("rtlift.identify", "rtlift.diagnose", "rtlift.observer", "rtlift.sysid"), ("rtlift.app",))
+"""rtlift's folders bottom up, the data flow: the core; the model's blocks; the model (hybrid,
+file, domain, prediction, the single-input models); what estimates and corrects it
+(identification, diagnosis, observer); the applications. ``rtlift`` itself and ``rtlift.data``
+hold no code of a layer."""
+
+
+def _layer(module: str) -> int | None:
+    node = _node(module)
+    return next((i for i, names in enumerate(LAYERS) if node in names), None)
+
+
+def test_rtlift_is_its_layers_and_each_imports_only_its_own_or_lower_ones():
+    """Every module of rtlift sits in one of the layer folders, and every import it makes — at
+    load time or inside a function — goes to its own layer or one below."""
+    loose = [m for m in MODULES if m.startswith("rtlift.") and _layer(m) is None
+             and m not in ("rtlift.__main__",)]
+    assert loose == [], loose
+    upward = sorted((m, t) for m in MODULES if _layer(m) is not None
+                    for t in EAGER[m] | LAZY[m] if t.startswith("rtlift.") and (_layer(t) or 0) > _layer(m))
+    assert upward == [], upward

@@ -17,8 +17,8 @@ from firmware_io.logs import read_log
 from firmware_io.samples import COMMAND_KEYS
 from hil_sim.devices import FaultPlan, SerialDaq, SlcanAdapter
 from hil_sim.experiments import daq_stream
-from rtlift.cli import main
-from rtlift.modelfile import save_model
+from rtlift.app.cli import main
+from rtlift.model.modelfile import save_model
 from tests.test_observer_bench import bench_model
 
 KEYS = ("received", "crc_errors", "lost", "resyncs", "events", "duplicates", "estimates",

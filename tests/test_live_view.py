@@ -22,10 +22,10 @@ import pytest
 
 from hil_sim.devices import SerialDaq
 from hil_sim.experiments import daq_stream
+from rtlift.app.view import LiveView
+from rtlift.app.view.browser import HEADLESS_FLAGS, find_chromium
+from rtlift.app.view.server import COUNTER_KEYS
 from rtlift.core.errors import UserError
-from rtlift.view import LiveView
-from rtlift.view.browser import HEADLESS_FLAGS, find_chromium
-from rtlift.view.server import COUNTER_KEYS
 
 REPO = Path(__file__).resolve().parents[1]
 FIGURE = REPO / "docs" / "figures" / "live_view.png"

@@ -15,9 +15,9 @@ import pytest
 
 from hil_sim.experiments import run_experiment
 from rtlift.core.records import Record
-from rtlift.hybrid import HybridModel
 from rtlift.identify.campaign import identify_hybrid
-from rtlift.modelfile import model_from_dict, model_to_dict
+from rtlift.model.hybrid import HybridModel
+from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, tune_observer
 
 TARE = 800                                          # the bench's 2 s actuator-off start
@@ -126,7 +126,7 @@ def _ar2_variance(a: list[float]) -> float:
 
 
 def test_the_tuned_settings_round_trip_through_the_model_file(tmp_path):
-    from rtlift.modelfile import load_model, save_model
+    from rtlift.model.modelfile import load_model, save_model
 
     model = bench_model()
     save_model(model, tmp_path / "m.json", observer=model.observer_config)

@@ -12,7 +12,7 @@ import pytest
 
 from hil_sim.devices import FaultPlan, SerialDaq, SlcanAdapter
 from hil_sim.experiments import daq_stream
-from rtlift.cli import main
+from rtlift.app.cli import main
 from tests.test_live_observe import estimate_rows, start_observe
 
 FAULTS = FaultPlan(corrupt=0.01, drop=0.01, duplicate=0.01, garbage=0.005)

@@ -23,7 +23,7 @@ from rtlift.blocks.stages import (
     alias_hz,
 )
 from rtlift.blocks.wiener import NONLINEARITIES, HysteresisGain, OutputHysteresis
-from rtlift.modelfile import model_from_dict, model_to_dict
+from rtlift.model.modelfile import model_from_dict, model_to_dict
 from testkit.synthetic import burst_input, make_model
 
 FS = 400.0

@@ -15,14 +15,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rtlift.app.cli import main
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
-from rtlift.cli import main
 from rtlift.core.errors import RecordError
 from rtlift.core.records import SisoRecord, read_siso_record, write_siso_record
+from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, model_from_dict
 from rtlift.sysid.diagnose import clip_levels, diagnose_siso
 from rtlift.sysid.identify import SisoOptions, identify_siso
-from rtlift.sysid.model import FeedbackModel, SaturatedModel, SisoModel, model_from_dict
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

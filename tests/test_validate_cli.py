@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from hil_sim.experiments import run_experiment
-from rtlift.cli import main
+from rtlift.app.cli import main
 from rtlift.core.metrics import scores
 from rtlift.core.records import read_record, write_record
-from rtlift.modelfile import load_model
+from rtlift.model.modelfile import load_model
 
 
 @pytest.fixture(scope="module")

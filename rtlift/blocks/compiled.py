@@ -1,6 +1,6 @@
 """The compiled 400 Hz step of the hybrid model (numba ``@njit(cache=True)``).
 
-:func:`hybrid_step` is :meth:`rtlift.hybrid.HybridModel.reference_step` for a model whose
+:func:`hybrid_step` is :meth:`rtlift.model.hybrid.HybridModel.reference_step` for a model whose
 only augmentation stage is at most one input ``delay`` (what ``rtlift identify`` writes), as
 one machine-code call on the blocks' own state arrays (their ``kernel_arrays()``, not
 copies), so the blocks' ``get_state``/``set_state`` see what it did, and on one packed copy

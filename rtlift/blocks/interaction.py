@@ -17,7 +17,7 @@ the per-burst gains of the slow and of the fast (high-passed) part of each burst
 those of an isolated burst at m ≈ 0, smaller when recent bursts have already moved the flow
 (the interaction the convolution alone over-predicts).
 
-Blocks, so that a :class:`~rtlift.hybrid.HybridModel` — and the Kalman observer, which steps
+Blocks, so that a :class:`~rtlift.model.hybrid.HybridModel` — and the Kalman observer, which steps
 the model's blocks one by one — runs the structure unchanged:
 
 - :class:`~rtlift.blocks.stages.DeliveredMomentum`, an input stage ``(Cμ, Cμ_env) → (Cμ, m)``: the Wiener part and

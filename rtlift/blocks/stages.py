@@ -438,7 +438,7 @@ class PeriodicDisturbance(OutputStage):
     State per line x_i(k) = [A_i sin(ω_i k + φ_i), A_i cos(ω_i k + φ_i)], rotated by R(ω_i);
     d(k) = Σ x_i,0(k) (kind "additive": B = 0, D = 1). The phases are a property of a record,
     not of the pickup: an observer tracks them in x, the diagnosis and ``rtlift validate``
-    re-estimate them per record (:func:`rtlift.validation.predict_record`). The batch twin
+    re-estimate them per record (:func:`rtlift.model.validation.predict_record`). The batch twin
     evaluates the rotation in closed form from the current state; the recursion and the
     closed form differ by rounding only (≈ k·1e-16·A).
     """

@@ -56,9 +56,9 @@ from rtlift.diagnose.fingerprint import (
     psd_departure,
 )
 from rtlift.diagnose.residual import TestResult
-from rtlift.hybrid import HybridModel, HybridOutput
-from rtlift.modelfile import model_from_dict, model_to_dict
-from rtlift.validation import predict_record
+from rtlift.model.hybrid import HybridModel, HybridOutput
+from rtlift.model.modelfile import model_from_dict, model_to_dict
+from rtlift.model.validation import predict_record
 
 MAX_LAG = 100                      # samples the delay search reaches (0.25 s at 400 Hz)
 HEAVY_DAMPING = 0.3                # a "resonance" damped more than this is a lag, not a mode
@@ -109,7 +109,7 @@ def augment(model: HybridModel, *, input_stage: InputStage | None = None,
 
 
 def predict(model: HybridModel, rec: Record) -> HybridOutput:
-    """The open-loop prediction every score uses (:func:`rtlift.validation.predict_record`)."""
+    """The open-loop prediction every score uses (:func:`rtlift.model.validation.predict_record`)."""
     return predict_record(model, rec)
 
 

@@ -35,8 +35,8 @@ import numpy as np
 
 from rtlift.core.records import Record
 from rtlift.diagnose.residual import TestResult, run_all
-from rtlift.hybrid import HybridModel
-from rtlift.validation import predict_record
+from rtlift.model.hybrid import HybridModel
+from rtlift.model.validation import predict_record
 
 FINGERPRINT_VERSION = 1
 Z_DEPART = 4.0                 # |z| beyond which a statistic has left the fingerprint

@@ -13,7 +13,7 @@ import numpy as np
 from rtlift.core.effects import SCHEMAS
 from rtlift.diagnose.residual import welch_psd
 from rtlift.diagnose.selection import Diagnosis
-from rtlift.modelfile import save_model
+from rtlift.model.modelfile import save_model
 
 
 def _fig_paths(out: str) -> dict[str, str]:

@@ -31,7 +31,7 @@
    re-estimated jointly on the training record (:func:`.catalog.reestimate`), kept only if
    the validation error is lower and no record worse by more than 1 %.
 
-Scores everywhere are :func:`rtlift.validation.predict_record` over whole records: the
+Scores everywhere are :func:`rtlift.model.validation.predict_record` over whole records: the
 report's numbers are the ones ``rtlift validate`` prints for the same model file.
 """
 
@@ -60,7 +60,7 @@ from rtlift.diagnose.fingerprint import (
     record_tests,
 )
 from rtlift.diagnose.residual import TestResult, cluster_ols
-from rtlift.hybrid import HybridModel
+from rtlift.model.hybrid import HybridModel
 
 REPORT_VERSION = 1
 

@@ -28,10 +28,10 @@
    held-out RMSE (``kernel="auto"``; the paper's ``"single_burst"`` keeps h as averaged).
 6. the residual fingerprint of the final model on the three records
    (:mod:`rtlift.diagnose.fingerprint`), stored in the model file for later diagnoses, and
-   the model's domain (burst periods and Cμ range of the three records, :mod:`rtlift.domain`).
+   the model's domain (burst periods and Cμ range of the three records, :mod:`rtlift.model.domain`).
 
 Pure: takes :class:`~rtlift.core.records.Record` objects, returns an :class:`Identification`
-holding the :class:`~rtlift.hybrid.HybridModel` and plain dicts for the model file.
+holding the :class:`~rtlift.model.hybrid.HybridModel` and plain dicts for the model file.
 """
 
 from __future__ import annotations
@@ -48,12 +48,12 @@ from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
 from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
-from rtlift.domain import domain_of
-from rtlift.hybrid import HybridModel
 from rtlift.identify.highpass import HighPassChoice, choose_highpass, wiener_fit_for_highpass
 from rtlift.identify.kernel import KernelRefinement, SingleBurstKernel, burst_onsets, fit_kernel, refine_kernel
 from rtlift.identify.pem import OrderChoice, PEMResult, choose_order, fit_wiener
 from rtlift.identify.static_map import StaticMap, fit_static_map
+from rtlift.model.domain import domain_of
+from rtlift.model.hybrid import HybridModel
 
 WIENER_FORMS = ("input_gain", "output_map")
 

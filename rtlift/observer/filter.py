@@ -10,7 +10,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import blas
 
-from rtlift.hybrid import HybridModel
+from rtlift.model.hybrid import HybridModel
 from rtlift.observer import compiled as cs
 from rtlift.observer.config import (
     FLAG_BAD_INPUT,
@@ -51,7 +51,7 @@ class Estimate:
 
 
 class Observer:
-    """Kalman observer of ΔCL around a :class:`~rtlift.hybrid.HybridModel` (:mod:`rtlift.observer`).
+    """Kalman observer of ΔCL around a :class:`~rtlift.model.hybrid.HybridModel` (:mod:`rtlift.observer`).
 
     ``obs = Observer.from_model(model)``; per sample ``est = obs.step(cmu, env, dcl)``
     (``dcl=None`` when missing/flagged). ``obs.kf`` is the filterpy ``KalmanFilter`` that

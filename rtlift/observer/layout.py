@@ -19,7 +19,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
 from rtlift.blocks.stages import PeriodicDisturbance
-from rtlift.hybrid import HybridModel
+from rtlift.model.hybrid import HybridModel
 from rtlift.observer.config import ObserverConfig, ObserverError
 
 

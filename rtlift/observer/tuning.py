@@ -13,7 +13,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
 from rtlift.core.records import Record
-from rtlift.hybrid import HybridModel
+from rtlift.model.hybrid import HybridModel
 from rtlift.observer.config import ObserverConfig
 from rtlift.observer.filter import Observer
 from rtlift.observer.layout import StateLayout

@@ -15,7 +15,7 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
   input (an amplitude-dependent resonance, Duffing-like), identified jointly from the ARX fit.
 - ``saturation`` — a hard limit on the output, y = min(max(M(u), lower), upper), or on the
   state, a store that cannot fill beyond its brim (the nonlinear-feedback recursion clipped
-  inside the loop, :class:`rtlift.sysid.model.FeedbackModel`): tried only where the evidence
+  inside the loop, :class:`rtlift.model.siso.FeedbackModel`): tried only where the evidence
   points to it, a measured output that piles up at a level (its maximum or minimum taken by
   ≥ 0.5 % and ≥ 5 of the training samples, which a continuous sensor reading a signal that only
   passes through its extremes does not do). M is re-identified jointly with the limit in place
@@ -42,8 +42,8 @@ from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
 from rtlift.diagnose.residual import higher_order, input_crosscorr, whiteness
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
+from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, model_from_dict
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
-from rtlift.sysid.model import FeedbackModel, SaturatedModel, SisoModel, model_from_dict
 
 HOW = {"output_dynamics": "Wiener-Hammerstein re-identified jointly from the best linear approximation's "
                           "pole/zero splits",

@@ -43,7 +43,7 @@ from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.records import SisoRecord
 from rtlift.identify.pem import denominator_from_theta, theta_from_poles
-from rtlift.sysid.model import STRUCTURES, FeedbackModel, SaturatedModel, SisoModel
+from rtlift.model.siso import STRUCTURES, FeedbackModel, SaturatedModel, SisoModel
 
 
 @dataclass(frozen=True)

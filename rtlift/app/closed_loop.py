@@ -1,6 +1,6 @@
 """The live closed loop of ``rtlift control``: samples in, observer, controller, commands out.
 
-Per received sample (the device's ``seq`` is the clock, as in :mod:`rtlift.live`)::
+Per received sample (the device's ``seq`` is the clock, as in :mod:`rtlift.app.live`)::
 
     observer loop: converter → observer.step → estimate ΔĈL
     envelope = controller.step(estimate, r(t))          # t from the start of tracking
@@ -26,9 +26,9 @@ from scipy import signal
 
 from firmware_io.commands import ENVELOPE_LIMIT_CV
 from firmware_io.samples import Sample
-from rtlift.control import LiftController
-from rtlift.live import ObserverLoop
-from rtlift.reference import Reference
+from rtlift.app.control import LiftController
+from rtlift.app.live import ObserverLoop
+from rtlift.app.reference import Reference
 
 SETTLE_S = 1.0
 MARGIN_SAMPLES = 10

@@ -1,4 +1,4 @@
-"""The ``rtlift`` command line: one module per subcommand under :mod:`rtlift.commands`.
+"""The ``rtlift`` command line: one module per subcommand under :mod:`rtlift.app.commands`.
 
 Each command module exposes ``register(subparsers)``, which adds its parser and sets
 ``func`` to a callable ``func(args) -> int``. Exit status: 0 success, 2 bad input
@@ -33,9 +33,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name in COMMANDS:
         try:
-            module = importlib.import_module(f"rtlift.commands.{name}")
+            module = importlib.import_module(f"rtlift.app.commands.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name == f"rtlift.commands.{name}":
+            if exc.name == f"rtlift.app.commands.{name}":
                 continue  # not built yet in this checkout
             raise
         module.register(sub)

@@ -1,6 +1,6 @@
 """Versioned JSON model file (format ``rtlift-model``, version 1).
 
-Holds every parameter of a :class:`~rtlift.hybrid.HybridModel` (kernel, φ, HPF
+Holds every parameter of a :class:`~rtlift.model.hybrid.HybridModel` (kernel, φ, HPF
 coefficients and design, A B C, the nonlinearity table, augmentation stages; for the
 ``interaction`` structure ``convolution.interaction``: the G_H and G tables, its HF and the
 delivered-momentum memory, :mod:`rtlift.blocks.interaction`), the sample
@@ -26,7 +26,7 @@ from rtlift.blocks.lti import spectral_radius
 from rtlift.blocks.stages import stage_from_spec
 from rtlift.blocks.wiener import NONLINEARITIES, WienerBlock
 from rtlift.core.errors import ModelFileError
-from rtlift.hybrid import HybridModel
+from rtlift.model.hybrid import HybridModel
 
 FORMAT = "rtlift-model"
 VERSION = 1
@@ -152,8 +152,8 @@ def load_model(path: str | os.PathLike, allow_unstable: bool = False) -> HybridM
 
 def load_any_model(path: str | os.PathLike):
     """A lift model (:class:`HybridModel`) or a generic single-input one
-    (:class:`rtlift.sysid.model.SisoModel`, ``"kind": "siso"``), by what the file holds."""
-    from rtlift.sysid.model import model_from_dict as siso_from_dict
+    (:class:`rtlift.model.siso.SisoModel`, ``"kind": "siso"``), by what the file holds."""
+    from rtlift.model.siso import model_from_dict as siso_from_dict
 
     d = _read_json(path)
     if isinstance(d, dict) and d.get("kind") == "siso":

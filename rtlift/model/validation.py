@@ -20,7 +20,7 @@ import numpy as np
 from rtlift.blocks.stages import PeriodicDisturbance
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
-from rtlift.hybrid import HybridModel, HybridOutput
+from rtlift.model.hybrid import HybridModel, HybridOutput
 
 VALIDATE_VERSION = 1
 

@@ -20,7 +20,7 @@ from rtlift.core.errors import UserError
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from firmware_io.links import add_link_arguments, add_reconnect_argument
-    from rtlift.view.arguments import add_view_argument
+    from rtlift.app.view.arguments import add_view_argument
 
     p = subparsers.add_parser("observe", help="run the Kalman observer live on a serial or CAN link",
                               description=__doc__.splitlines()[0])
@@ -41,11 +41,11 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.convert import Converter
     from firmware_io.links import link_config_from_args, open_link
     from firmware_io.logs import graceful_exit
-    from rtlift.domain import watch_domain
-    from rtlift.live import EstimateWriter, ObserverLoop, summary, write_summary
-    from rtlift.modelfile import load_model
+    from rtlift.app.live import EstimateWriter, ObserverLoop, summary, write_summary
+    from rtlift.app.view.arguments import start_view
+    from rtlift.model.domain import watch_domain
+    from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
-    from rtlift.view.arguments import start_view
 
     if args.seconds is not None and not args.seconds > 0:
         raise UserError(f"--seconds must be positive, got {args.seconds}")

@@ -97,7 +97,7 @@ class ObserverLoop:
         self.fs_hz = fs_hz
         self.max_samples = max_samples
         self.time_steps = time_steps
-        self.tap = tap      # rtlift.view.LiveView.tap: (index, dcl | None, dcl_hat, model_dcl, ν, NIS) rows
+        self.tap = tap      # rtlift.app.view.LiveView.tap: (index, dcl | None, dcl_hat, model_dcl, ν, NIS) rows
         self.stats = LoopStats()
         self._last_seq: int | None = None
         self._index = -1

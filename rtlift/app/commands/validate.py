@@ -27,9 +27,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from rtlift.core.records import read_record, read_siso_record, record_kind
-    from rtlift.modelfile import load_any_model
-    from rtlift.sysid.model import SISO_MODELS
-    from rtlift.validation import RecordValidation, plot_validation, validate_record, validation_json
+    from rtlift.model.modelfile import load_any_model
+    from rtlift.model.siso import SISO_MODELS
+    from rtlift.model.validation import RecordValidation, plot_validation, validate_record, validation_json
 
     model = load_any_model(args.model)
     generic = isinstance(model, SISO_MODELS)
@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UserError(f"{args.json}: cannot write ({exc.strerror})") from None
     if not generic:
-        from rtlift.domain import outside_domain
+        from rtlift.model.domain import outside_domain
 
         for r in records:
             line = outside_domain(model.provenance.get("domain"), r.cmu, r.cmu_envelope, r.fs_hz)

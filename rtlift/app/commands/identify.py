@@ -145,7 +145,7 @@ def run_interaction(args: argparse.Namespace, static, burst, trains, train) -> i
 
 
 def _save(idf, out: str, observer: dict) -> None:
-    from rtlift.modelfile import save_model
+    from rtlift.model.modelfile import save_model
 
     try:
         save_model(idf.model, out, provenance=idf.provenance, metrics=idf.metrics, observer=observer)
@@ -197,8 +197,8 @@ def summary(idf, out_path: str, seconds: float) -> str:
 def run_generic(args: argparse.Namespace) -> int:
     """``rtlift identify --record F --structure S``: a generic single-input record."""
     from rtlift.core.records import read_siso_record
+    from rtlift.model.siso import save_siso_model
     from rtlift.sysid.identify import identify_siso
-    from rtlift.sysid.model import save_siso_model
 
     if args.order is not None and not 1 <= args.order <= 8:
         raise UserError(f"--order {args.order}: must be between 1 and 8")

@@ -1,7 +1,7 @@
 """``rtlift control``: closed-loop lift tracking at 400 Hz over protocol version 2.
 
-The observer's estimate in, burst-envelope commands out (:mod:`rtlift.closed_loop`,
-:mod:`rtlift.control`). The host first holds the actuator off for the settle and tare
+The observer's estimate in, burst-envelope commands out (:mod:`rtlift.app.closed_loop`,
+:mod:`rtlift.app.control`). The host first holds the actuator off for the settle and tare
 (3 s on the default calibration); the reference's time starts after them. ``--log`` keeps
 the raw frames and, beside them, every command sent (``LOG.commands.csv``, with the reference
 and the feedback setting): ``rtlift replay`` reruns the controller on the frames and checks
@@ -24,7 +24,7 @@ from rtlift.core.errors import UserError
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from firmware_io.links import add_link_arguments, add_reconnect_argument
-    from rtlift.view.arguments import add_view_argument
+    from rtlift.app.view.arguments import add_view_argument
 
     p = subparsers.add_parser("control", help="track a lift reference live over protocol version 2",
                               description=__doc__.splitlines()[0])
@@ -48,14 +48,14 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.convert import Converter
     from firmware_io.links import link_config_from_args, open_link
     from firmware_io.logs import graceful_exit
-    from rtlift.closed_loop import SETTLE_S, ControlLoop
-    from rtlift.control import ControlConfig, LiftController
-    from rtlift.domain import watch_domain
-    from rtlift.live import ObserverLoop, summary, write_summary
-    from rtlift.modelfile import load_model
+    from rtlift.app.closed_loop import SETTLE_S, ControlLoop
+    from rtlift.app.control import ControlConfig, LiftController
+    from rtlift.app.live import ObserverLoop, summary, write_summary
+    from rtlift.app.reference import parse_reference
+    from rtlift.app.view.arguments import start_view
+    from rtlift.model.domain import watch_domain
+    from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
-    from rtlift.reference import parse_reference
-    from rtlift.view.arguments import start_view
 
     if args.seconds is not None and not args.seconds > 0:
         raise UserError(f"--seconds must be positive, got {args.seconds}")

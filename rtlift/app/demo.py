@@ -13,7 +13,7 @@
 6. close the loop: ``rtlift control`` tracks a ΔCL reference (steps, then a slow sine) on the
    bench as a hardware-in-the-loop plant while an undeclared actuator fade to 75 % sets in,
    feedforward only beside feedforward + feedback (the two runs side by side), scored on the
-   bench's truth low-passed at 1 Hz (:mod:`rtlift.hil_tracking`);
+   bench's truth low-passed at 1 Hz (:mod:`rtlift.app.hil_tracking`);
 7. write everything to ``out_dir``: records, model files, figures, ``report.md`` and
    ``summary.json``.
 """
@@ -113,9 +113,9 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
     from rtlift.diagnose import DiagnoseOptions, diagnose
     from rtlift.diagnose.report import write as write_diagnosis
     from rtlift.identify.campaign import identify_hybrid
-    from rtlift.modelfile import save_model
+    from rtlift.model.modelfile import save_model
+    from rtlift.model.validation import plot_validation, validate_record
     from rtlift.observer import tune_observer
-    from rtlift.validation import plot_validation, validate_record
 
     out = opt.out_dir
     for sub in ("records", "figures", "diagnosis"):
@@ -226,8 +226,8 @@ def _live(model_path: str, opt: DemoOptions, out: str, prog: _Progress) -> dict[
     from firmware_io.links import open_link
     from hil_sim.devices import SerialDaq
     from hil_sim.experiments import daq_stream
-    from rtlift.live import ObserverLoop
-    from rtlift.modelfile import load_model
+    from rtlift.app.live import ObserverLoop
+    from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
 
     model = load_model(model_path)
@@ -294,7 +294,7 @@ def tracking_reference(path: str) -> str:
 
 def _closed_loop(model_path: str, opt: DemoOptions, out: str) -> dict[str, Any]:
     """Feedforward only and feedforward + feedback side by side on two benches with the same fade."""
-    from rtlift.hil_tracking import FADE, BenchTracking, reference_values
+    from rtlift.app.hil_tracking import FADE, BenchTracking, reference_values
 
     t0 = time.perf_counter()
     spec = tracking_reference(os.path.join(out, "tracking_reference.csv"))
@@ -320,7 +320,7 @@ def _tracking_figure(t: np.ndarray, ref: np.ndarray, traces: dict, rows: dict, p
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from rtlift.hil_tracking import lowpass
+    from rtlift.app.hil_tracking import lowpass
 
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True, height_ratios=(2, 1))
     style = {"off": ("tab:orange", "feedforward only"), "on": ("tab:blue", "feedforward + feedback")}

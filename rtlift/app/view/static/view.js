@@ -1,4 +1,4 @@
-// rtlift live view: batches from /ws (rtlift/view/server.py) into three uPlot charts.
+// rtlift live view: batches from /ws (rtlift/app/view/server.py) into three uPlot charts.
 "use strict";
 
 const COLS = ["t", "meas", "est", "model", "innov", "band", "nis"];

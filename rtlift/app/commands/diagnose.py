@@ -29,8 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import os
 
-    from rtlift.modelfile import load_any_model
-    from rtlift.sysid.model import SISO_MODELS
+    from rtlift.model.modelfile import load_any_model
+    from rtlift.model.siso import SISO_MODELS
 
     model = load_any_model(args.model)
     if isinstance(model, SISO_MODELS):
@@ -79,8 +79,8 @@ def run_generic(args: argparse.Namespace, model) -> int:
     import os
 
     from rtlift.core.records import read_siso_record, record_kind
+    from rtlift.model.siso import save_siso_model
     from rtlift.sysid.diagnose import diagnose_siso
-    from rtlift.sysid.model import save_siso_model
 
     paths = [args.train, *args.validate]
     for path in paths:

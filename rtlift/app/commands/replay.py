@@ -24,7 +24,7 @@ from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from rtlift.view.arguments import add_view_argument
+    from rtlift.app.view.arguments import add_view_argument
 
     p = subparsers.add_parser("replay", help="replay a recorded serial or CAN log through the observer",
                               description=__doc__.splitlines()[0])
@@ -124,9 +124,9 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibr
                    kind: str) -> dict:
     """Feed the samples through a fresh controller as ``rtlift control`` did; compare its commands."""
     from firmware_io.commands import CAN_CMD_SEQ_MODULUS, SERIAL_CMD_SEQ_MODULUS
-    from rtlift.closed_loop import ControlLoop
-    from rtlift.control import ControlConfig, LiftController
-    from rtlift.reference import parse_reference
+    from rtlift.app.closed_loop import ControlLoop
+    from rtlift.app.control import ControlConfig, LiftController
+    from rtlift.app.reference import parse_reference
 
     try:
         reference = parse_reference(meta["reference"])
@@ -168,10 +168,10 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
     from firmware_io.logs import read_command_log, read_log
-    from rtlift.live import EstimateWriter, ObserverLoop, summary, write_summary
-    from rtlift.modelfile import load_model
+    from rtlift.app.live import EstimateWriter, ObserverLoop, summary, write_summary
+    from rtlift.app.view.arguments import start_view
+    from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
-    from rtlift.view.arguments import start_view
 
     model = load_model(args.model)
     observer = Observer.from_model(model)

@@ -1,4 +1,4 @@
-"""``rtlift demo``: the main job on the simulated bench, end to end (see :mod:`rtlift.demo`)."""
+"""``rtlift demo``: the main job on the simulated bench, end to end (see :mod:`rtlift.app.demo`)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     import os
 
     from hil_sim.effects import parse_effect
-    from rtlift.demo import DEMO_EFFECT, DemoOptions, results_table, run_demo
+    from rtlift.app.demo import DEMO_EFFECT, DemoOptions, results_table, run_demo
 
     if not args.live_seconds > 0:
         raise UserError(f"--live-seconds must be positive, got {args.live_seconds}")

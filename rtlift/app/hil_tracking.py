@@ -13,7 +13,7 @@ the time until that average stays within ``SETTLE_TOL`` of the new level up to t
 (``None`` if it never does: a level beyond the actuator's reach). After an unreachable level,
 the next step's settling time is the recovery time (windup shows there).
 
-Tracking starts after the host's settle and tare (``rtlift.closed_loop``): 3 s on the default
+Tracking starts after the host's settle and tare (``rtlift.app.closed_loop``): 3 s on the default
 calibration, counted in device samples (none lost, the host received from sample 0). Several
 runs can go side by side: :meth:`BenchTracking.start` them all, then :meth:`~BenchTracking.finish`.
 """
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from rtlift.closed_loop import LOWPASS_HZ, SETTLE_S
+from rtlift.app.closed_loop import LOWPASS_HZ, SETTLE_S
 from rtlift.core.rate import FS_HZ
 
 TRACKING_STARTS = int(round((SETTLE_S + 2.0) * FS_HZ))
@@ -40,7 +40,7 @@ FADE = "actuator_fade:final_fraction=0.75,time_constant_s=0.4"
 
 def reference_values(spec: str, n: int, fs_hz: float = FS_HZ) -> np.ndarray:
     """r(k / fs) for k < n, the reference ``rtlift control`` tracks (spec as ``--reference``)."""
-    from rtlift.reference import parse_reference
+    from rtlift.app.reference import parse_reference
 
     ref = parse_reference(spec)
     return np.array([ref.at(k / fs_hz) for k in range(n)])
@@ -53,7 +53,7 @@ def lowpass(x: np.ndarray, fs_hz: float = FS_HZ) -> np.ndarray:
 
 SETTLE_TOL = 0.01
 RIPPLE_SAMPLES = 50
-"""One burst period at the lift-optimal 8 Hz (``rtlift.control.BURST_PERIOD_SAMPLES``)."""
+"""One burst period at the lift-optimal 8 Hz (``rtlift.app.control.BURST_PERIOD_SAMPLES``)."""
 
 
 def settling_times(truth: np.ndarray, reference: np.ndarray, fs_hz: float = FS_HZ, tol: float = SETTLE_TOL,
@@ -107,7 +107,7 @@ class BenchTracking:
 
     def start(self) -> BenchTracking:
         """Start ``rtlift control``; start the device once its link is open."""
-        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
         path = os.pathsep.join(filter(None, (root, os.environ.get("PYTHONPATH"))))
         self.proc = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env={**os.environ, "PYTHONPATH": path})

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from rtlift.view.server import DEFAULT_PORT, LiveView
+from rtlift.app.view.server import DEFAULT_PORT, LiveView
 
 
 def add_view_argument(parser: argparse.ArgumentParser) -> None:

@@ -1,1 +1,0 @@
-"""Subcommands of ``rtlift``; each module has ``register(subparsers)`` (see :mod:`rtlift.cli`)."""
