@@ -112,7 +112,9 @@ def test_nis_stays_in_its_95_percent_band_on_the_default_bench():
     total = cfg["R"] + cfg["q_noise"] * _ar2_variance(cfg["noise_ar"])
     assert cfg["measurement_noise_std"] == pytest.approx(0.004, rel=0.15)   # from the tare seconds
     assert total == pytest.approx(cfg["measurement_noise_std"] ** 2, rel=0.1)  # white + buffeting
-    assert cfg["ripple_harmonics"] == 8 and len(cfg["noise_ar"]) == 2
+    assert len(cfg["noise_ar"]) == 2
+    nll = cfg["harmonics_nll"]                        # the ripple harmonics chosen by likelihood
+    assert set(nll) == {"8", "12"} and nll[str(cfg["ripple_harmonics"])] == min(nll.values()) == cfg["nll"]
     for name in ("random", "sine_k0125"):
         obs = observe(model, _test_record(name))["observer"]
         assert 0.92 <= obs.nis_band_fraction <= 0.97, name

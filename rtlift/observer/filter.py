@@ -172,17 +172,17 @@ class Observer:
         e.sample = 0
 
     def get_state(self) -> np.ndarray:
-        """[model state, ξ, P (row-major), H's ripple part, burst phase (3), outlier count,
-        gate open, steps] — a copy."""
+        """[model state, ξ, P (row-major), H's ripple part, burst phase (3), the last finite Cμ
+        and Cμ_env (held for a bad input), outlier count, gate open, steps] — a copy."""
         s = self._s
         return np.concatenate([self.model.get_state(), self._xi, self._P.ravel(), self._H_ripple,
-                               self.phase.get_state(),
+                               self.phase.get_state(), [s[cs.LAST_CMU], s[cs.LAST_ENV]],
                                [s[cs.REJECTED_RUN], s[cs.GATE_OPEN], float(self.estimate.sample)]])
 
     def set_state(self, state: np.ndarray) -> None:
         s = np.asarray(state, dtype=float)
         ms, d, nr = self.model.state_size, self.layout.dim_x, self._H_ripple.size
-        size = ms + d + d * d + nr + 3 + 3
+        size = ms + d + d * d + nr + 3 + 2 + 3
         if s.shape != (size,):
             raise ValueError(f"observer state must have shape ({size},), got {s.shape}")
         self.model.set_state(s[:ms])
@@ -195,6 +195,8 @@ class Observer:
         self._s[cs.RIPPLE_ON] = float(np.any(self._H_ripple))
         i += nr
         self.phase.set_state(s[i:i + 3])
+        i += 3
+        self._s[cs.LAST_CMU], self._s[cs.LAST_ENV] = s[i], s[i + 1]
         self._s[cs.REJECTED_RUN] = s[-3]
         self._s[cs.GATE_OPEN] = float(bool(s[-2]))
         self._s[cs.SAMPLE] = s[-1]

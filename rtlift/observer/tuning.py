@@ -109,17 +109,25 @@ def fit_noise(segments: Sequence[np.ndarray], order: int = 2) -> dict[str, Any]:
             "coloured_std": math.sqrt(ar_var)}
 
 
+HARMONICS = (8, 12)
+"""Numbers of burst-synchronous ripple harmonics :func:`tune_observer` tries by default."""
+
+
 def tune_observer(model: HybridModel, records: Sequence[Record], *, tare_seconds: float = 2.0,
                   max_seconds: float = 30.0, skip_seconds: float = 2.0,
-                  gate_probability: float = 0.9999, max_rejections: int = 10, harmonics: int = 8,
-                  ripple_powers: int = 1, sweeps: int = 1) -> dict[str, Any]:
+                  gate_probability: float = 0.9999, max_rejections: int = 10,
+                  harmonics: int | Sequence[int] = HARMONICS, ripple_powers: int = 1,
+                  sweeps: int = 1) -> dict[str, Any]:
     """Q and R from data, for ``save_model(..., observer=tune_observer(model, records))``.
 
     - Noise: the actuator-off tare seconds at the start of each record (pooled) give R and the
       coloured part of the noise (buffeting: :func:`fit_noise`); if no record has them, R is
       half the variance of the first difference of the open-loop residual (white only).
     - Structure: ``harmonics`` burst-synchronous ripple harmonics (0: none) and a random-walk
-      gain on ΔCL_H (module docstring).
+      gain on ΔCL_H (module docstring). Given several numbers of harmonics, each is tuned and
+      the one with the highest innovation likelihood is kept (``harmonics_nll`` lists them): the
+      better the model's own ripple, the more of the measured ripple's finer shape the states
+      must carry for the estimate to follow the lift rather than the buffeting beside it.
     - Q: ``q_x``, ``q_bias``, ``q_ripple``, ``q_gain_h`` and a common scale of the noise
       (R and q_noise together: the tare is taken stalled, where buffeting is strongest) by
       maximum likelihood of the innovations (:attr:`Observer.nll`), coordinate search on a
@@ -129,6 +137,13 @@ def tune_observer(model: HybridModel, records: Sequence[Record], *, tare_seconds
     """
     if not records:
         raise ValueError("tune_observer needs at least one record")
+    if not isinstance(harmonics, int):
+        tuned = {h: tune_observer(model, records, tare_seconds=tare_seconds, max_seconds=max_seconds,
+                                  skip_seconds=skip_seconds, gate_probability=gate_probability,
+                                  max_rejections=max_rejections, harmonics=int(h), ripple_powers=ripple_powers,
+                                  sweeps=sweeps) for h in harmonics}
+        best = min(tuned, key=lambda h: tuned[h]["nll"])
+        return {**tuned[best], "harmonics_nll": {str(h): tuned[h]["nll"] for h in tuned}}
     fs = model.fs_hz
     recs = [r.slice(0, int(round(max_seconds * fs))) for r in records]
     quiet = [actuator_off_noise(r, tare_seconds) for r in recs]
