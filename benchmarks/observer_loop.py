@@ -179,7 +179,7 @@ PAIRS = 4
 """``--view``: the run alternates this many (without, with) pairs of phases."""
 
 
-def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | None) -> dict:
+def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | None, spin: bool = False) -> dict:
     """The live loop for ``seconds`` of device time; with ``view_dir`` (a scratch folder for the
     browser's profile) alternately without and with the view's tap, ``seconds`` of each."""
     from firmware_io import Converter
@@ -208,6 +208,13 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
         h.n += loop.stats.latencies.n
 
     n = int(round(seconds * fs_hz))
+    if spin:
+        runs["spin"] = {"samples": 0, "lost": 0, "wall": 0.0, "steps": [], "latencies": LatencyRecorder()}
+        for condition in ("off", "spin") * PAIRS:      # alternated: both under the same machine load
+            link.spin = condition == "spin"
+            phase(condition, n // PAIRS, None)
+        link.spin = False
+        return runs
     if view_dir is None:
         phase("off", n, None)
         return runs
@@ -254,6 +261,8 @@ def main() -> None:
     ap.add_argument("--burst-mb", type=int, default=64, help="MB per disk burst with --load (default 64)")
     ap.add_argument("--burst-every", type=float, default=1.0, help="seconds between disk bursts (default 1)")
     ap.add_argument("--view", action="store_true", help="also run with the live view and a headless Chromium on it")
+    ap.add_argument("--spin", action="store_true",
+                    help="also run with the link busy-polling the port (rtlift observe --spin), alternating")
     args = ap.parse_args()
     import tempfile
 
@@ -274,7 +283,8 @@ def main() -> None:
         if args.load:
             load = start_load((2 if args.view else 1) * args.seconds + 2.0, args.burst_mb, args.burst_every, tmp.name)
         with open_link({"kind": "serial", "port": path}) as link:
-            runs = run_phases(link, observer, model.fs_hz, args.seconds, tmp.name if args.view else None)
+            runs = run_phases(link, observer, model.fs_hz, args.seconds, tmp.name if args.view else None,
+                              spin=args.spin)
             counters = link.counters.as_dict()
     finally:
         serve.terminate()
@@ -290,7 +300,10 @@ def main() -> None:
         **{k: v for k, v in counters.items() if k != "lost"},
         **allocation(model),
     }
-    if args.view:
+    if args.spin:
+        result["spin"] = loop_figures(runs["spin"])
+        result["lost_samples"] = counters["lost"]
+    elif args.view:
         result["lost_samples"] = runs["off"]["lost"] + runs["warm-up"]["lost"]
         result["view"] = loop_figures(runs["view"])
         result["view_server"] = runs["view_server"]

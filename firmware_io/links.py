@@ -11,7 +11,8 @@ Optional keys: ``log`` (a path: ``.bin``/``.raw`` raw serial capture, ``.asc``/`
 log, written as frames arrive), ``reconnect`` (``True``, a number of seconds to give up after,
 or a dict of :class:`Reconnect` fields: when the device vanishes, reopen it with backoff and
 go on with the same counters and log), ``calibration`` (serial only: a
-:class:`~firmware_io.calibration.Calibration` or a TOML path, for counts per N and N·m).
+:class:`~firmware_io.calibration.Calibration` or a TOML path, for counts per N and N·m),
+``spin`` (serial only: busy-poll the port between samples instead of blocking in the kernel).
 Any other key of a CAN config is passed to ``can.Bus`` (``ignore_config=True`` is the
 default, and ``sleep_after_open=0`` for ``slcan``).
 
@@ -345,8 +346,12 @@ class SerialLink(Link):
     t_us_modulus = 1 << 32
 
     def __init__(self, port: str, *, calibration: Calibration | None = None, log: str | None = None,
-                 reconnect: Reconnect | None = None) -> None:
+                 reconnect: Reconnect | None = None, spin: bool = False) -> None:
         self.closed = True
+        self.spin = spin
+        """Busy-poll the port while waiting for the next sample instead of blocking in the
+        kernel (opt-in low latency: the core stays on this process and its caches warm, at the
+        price of that core; ``rtlift observe --spin``)."""
         cal = calibration or Calibration()
         self._queue: deque[Sample] = deque()
         self._decoder = SerialDecoder(self._queue.append, cal.counts_per_n, cal.counts_per_nm)
@@ -410,6 +415,8 @@ class SerialLink(Link):
                 waiting = ser.in_waiting
                 if not waiting and deadline is not None and time.perf_counter() >= deadline:
                     return None
+                if not waiting and self.spin:
+                    continue
                 data = ser.read(waiting or 1)
             except (serial.SerialException, OSError):
                 self._device_gone()
@@ -537,9 +544,10 @@ def open_link(config: dict[str, Any]) -> Link:
             calibration = Calibration.load(calibration)
         log = cfg.pop("log", None)
         reconnect = Reconnect.from_config(cfg.pop("reconnect", None))
+        spin = bool(cfg.pop("spin", False))
         if cfg:
             raise LinkError(f"serial link: unknown option {sorted(cfg)[0]!r}")
-        return SerialLink(str(port), calibration=calibration, log=log, reconnect=reconnect)
+        return SerialLink(str(port), calibration=calibration, log=log, reconnect=reconnect, spin=spin)
     if kind == "can":
         interface = cfg.pop("interface", None)
         channel = cfg.pop("channel", None)

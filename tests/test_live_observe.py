@@ -66,6 +66,30 @@ def test_sixty_seconds_live_at_400_hz_lose_no_sample(make, model_file, tmp_path)
 
 
 @pytest.mark.pty
+def test_spinning_on_the_port_changes_no_estimate_and_loses_nothing(model_file, tmp_path):
+    """``--spin`` busy-polls the serial port between samples: the same stream gives the same
+    estimate rows, bit for bit, as the sleeping loop (the samples are the clock, not the host)."""
+    rows = {}
+    for mode in ("sleep", "spin"):
+        tmp = tmp_path / mode
+        tmp.mkdir()
+        with SerialDaq(daq_stream("random", seed=7)) as dev:
+            proc = start_observe(dev, model_file, tmp, "--seconds", "8", *(("--spin",) if mode == "spin" else ()))
+            _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 0, err
+        s = json.loads((tmp / "summary.json").read_text())
+        assert s["lost"] == 0 and s["samples_stepped"] == 3200
+        rows[mode] = [r.split(",") for r in estimate_rows(tmp / "estimates.csv")]
+    cut = lambda table: [r[:3] + r[4:] for r in table]     # noqa: E731  (t_us, the device clock, aside)
+    assert len(rows["spin"]) == 3200 and cut(rows["spin"]) == cut(rows["sleep"])
+
+
+def test_spin_on_a_can_link_is_one_line_and_exit_2(model_file, capsys):
+    assert main(["observe", "--can", "slcan:/dev/null", "--model", str(model_file), "--spin"]) == 2
+    assert capsys.readouterr().err.count("rtlift: error: --spin is for a serial link") == 1
+
+
+@pytest.mark.pty
 @pytest.mark.parametrize("make", [SerialDaq, SlcanAdapter], ids=["serial", "slcan"])
 def test_when_the_device_disappears_the_summary_has_the_exact_counters(make, model_file, tmp_path):
     dev = make(daq_stream("random", seed=8),
