@@ -189,7 +189,7 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
     converter = Converter()
     stream = link.samples(0.5)
     runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "steps": [], "latencies": LatencyRecorder()}
-            for c in ("warm-up", "off", "view")}
+            for c in ("warm-up", "off", "view", "spin")}
 
     def phase(condition: str, n: int, tap) -> None:
         lost0 = link.counters.lost
@@ -209,7 +209,6 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
 
     n = int(round(seconds * fs_hz))
     if spin:
-        runs["spin"] = {"samples": 0, "lost": 0, "wall": 0.0, "steps": [], "latencies": LatencyRecorder()}
         for condition in ("off", "spin") * PAIRS:      # alternated: both under the same machine load
             link.spin = condition == "spin"
             phase(condition, n // PAIRS, None)

@@ -220,10 +220,10 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
     if ctx.fingerprint is None:
         return None
     f = np.asarray(ctx.tests["spectrum"].data["f"])
-    df0 = float(f[1] - f[0])
+    df = float(f[1])                                      # the Welch grid starts at 0 Hz
     locked = np.zeros(f.size, dtype=bool)
     for x in ctx.input_lines_hz:
-        locked |= np.abs(f - x) <= 2.0 * df0
+        locked |= np.abs(f - x) <= 2.0 * df
     free = (~locked).astype(float)                        # 3-bin mean over the free bins only
     excess = 10.0 / math.log(10.0) * ndimage.uniform_filter1d(_psd_excess(ctx) * free, size=3, mode="reflect") \
         / np.maximum(ndimage.uniform_filter1d(free, size=3, mode="reflect"), 1e-12)
@@ -232,7 +232,6 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
         return None
     k = int(np.flatnonzero(band)[np.argmax(excess[band])])
     f_peak = float(f[k])
-    df = float(f[1])
     if excess[k] < 3.0 or not psd_departure(ctx.tests["spectrum"], ctx.fingerprint,
                                             [(f_peak - 2.5 * df, f_peak + 2.5 * df)], "peak").departs:
         return None                                       # no peak stands significantly above the print

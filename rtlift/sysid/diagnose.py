@@ -42,7 +42,7 @@ from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
 from rtlift.diagnose.residual import higher_order, input_crosscorr, whiteness
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
-from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, model_from_dict
+from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
 
 HOW = {"output_dynamics": "Wiener-Hammerstein re-identified jointly from the best linear approximation's "
@@ -77,12 +77,13 @@ def clip_levels(y: np.ndarray, e: np.ndarray | None = None) -> tuple[Limits, str
     return (lo, hi), detail
 
 
-def _structure_params(model) -> dict[str, Any]:
+def _structure_params(model, limited: bool = True) -> dict[str, Any]:
+    """The report's params of a model; a limited one's limits with its own params under
+    ``model_params``."""
     if isinstance(model, SaturatedModel):
         return {**model.limits(), "model": model.structure, "model_params": _structure_params(model.inner)}
-    if isinstance(model, FeedbackModel) and model.limited:
-        return {**model.limits(), "model": model.structure,
-                "model_params": _structure_params(model_from_dict({**model.to_dict(), "saturation": None}))}
+    if isinstance(model, FeedbackModel) and model.limited and limited:
+        return {**model.limits(), "model": model.structure, "model_params": _structure_params(model, False)}
     if model.structure == "nonlinear_feedback":
         return {"feedback": {"k2": float(model.k[0]), "k3": float(model.k[1])}, "order": model.n,
                 "poles": [[float(p.real), float(p.imag)] for p in np.roots(np.concatenate([[1.0], model.a]))]}
