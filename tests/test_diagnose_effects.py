@@ -16,6 +16,7 @@ import pytest
 from hil_sim.effects import EFFECTS, Effect
 from hil_sim.experiments import run_experiment
 from rtlift.blocks.stages import STAGES
+from rtlift.blocks.wiener import OutputHysteresis
 from rtlift.diagnose import diagnose
 from rtlift.diagnose.catalog import augment, predict
 from rtlift.identify import identify_hybrid
@@ -138,6 +139,7 @@ def test_hysteresis_is_found_with_its_magnitude(clean_model, clean_val_rmse):
     found = accepted(diag)
     assert set(found) == {"hysteresis"}
     assert found["hysteresis"]["params"]["magnitude"] == pytest.approx(eff.params["magnitude"], rel=0.2)
+    assert found["hysteresis"]["params"]["driver"] == "cmu"        # the bench's gain follows the command
     assert_recovers(diag, val, clean_val_rmse)
 
 
@@ -215,4 +217,29 @@ def test_a_mode_on_a_burst_harmonic_is_fitted_with_its_damping(clean_model, clea
     p = found["sensor_resonance"]["params"]
     assert p["frequency_hz"] == pytest.approx(24.0, rel=0.02)
     assert p["damping_ratio"] == pytest.approx(0.06, rel=0.2)
+    assert_recovers(diag, val, clean_val_rmse)
+
+
+def test_a_gain_that_follows_the_lift_not_the_command_is_fitted_so(clean_model, clean_val_rmse):
+    """Known answer for the play operator's other driver: the bench's records with the clean
+    model's own prediction replaced by that of the same model whose gain switches branch with
+    its quasi-steady lift (width 0.03 in ΔCL, branch lag 0.1 s) — the bench's noise and the
+    model's misfit stay as they are. The diagnosis must pick the lift as driver, the magnitude
+    within 20 %, and win back at least half the added error."""
+    nl = clean_model.wiener.nonlinearity
+    truth = augment(clean_model, nonlinearity=OutputHysteresis(nl.y, nl.f, 0.25, 0.1, FS, 0.03, 0.9,
+                                                               driver="lift"))
+
+    def swapped(rec):
+        rec.dcl = rec.dcl - predict(clean_model, rec).total + predict(truth, rec).total
+        return rec
+
+    train = swapped(record(11, [], "train"))
+    val = [swapped(r) for r in validation([])]
+    diag = diagnose(clean_model, train, val)
+    found = accepted(diag)
+    assert set(found) == {"hysteresis"}
+    p = found["hysteresis"]["params"]
+    assert p["driver"] == "lift"
+    assert p["magnitude"] == pytest.approx(0.25, rel=0.2)
     assert_recovers(diag, val, clean_val_rmse)

@@ -6,12 +6,15 @@ campaign, ``rtlift diagnose`` per case (train sine_k0125, validate sine_k025 and
 ``effect`` are exactly the truth's names, the key parameters are close and at least half of the
 error the effect added is recovered (or, where it added < 10 %, the model is no worse).
 
-Seven of the eight cases are right and are asserted so, with two mixes composed from them
-(drift plus pickup, resonance plus drift). One is not, and its test asserts what does hold,
-so that a change in either direction is seen:
-- ``hysteresis``: the direction test departs from the fingerprint and names it, but no
-  hysteresis fit (play operator, own branch gains) generalises to the held-out records, so
-  nothing is accepted — and nothing spurious either.
+Seven of the eight cases are right and are asserted so, with three mixes composed from them
+(drift plus pickup, resonance plus drift, hysteresis plus pickup). One is not, and its test
+asserts what does hold:
+- ``hysteresis``: named and accepted (alone, as an effect) since the play operator may be driven
+  by the quasi-steady lift — this plant's gain follows the flow's state, which lags the command
+  — but only 34 % of the error it added on ``random`` is recovered (131 % on ``sine_k025``). The
+  training record, one sine, cannot tell the play operator's width from a lag of the branch
+  (both delay the switch at one frequency); the held-out records can, and they prefer another
+  pair than the one training picks.
 
 The resonance case became right when identification began to refine the kernel's first burst
 period on the training record: the mode (31 Hz) sits on the 4th burst harmonic, and the
@@ -86,12 +89,23 @@ def test_the_resonance_is_named_with_its_frequency_and_damping(model, clean_rmse
     assert min(row["recovered"].values()) > 0.6
 
 
-def test_the_hysteresis_is_named_by_the_evidence_but_nothing_is_accepted(model, clean_rmse):
+def test_the_hysteresis_is_named_and_driven_by_the_lift(model, clean_rmse):
     row, report = run_case(model, clean_rmse, "hysteresis")
-    assert [e["name"] for e in report["effects"] if e["accepted"]] == []
+    assert row["accepted"] == ["hysteresis"] and row["names_ok"]
+    assert [e["name"] for e in report["effects"] if e["accepted"]] == ["hysteresis"]   # nothing else
     entry = next(e for e in report["effects"] if e["name"] == "hysteresis")
     assert entry["kind"] == "effect" and "z = +" in entry["evidence"]
-    assert any(line.startswith("hysteresis is pointed at by the evidence") for line in report["unexplained"])
+    assert entry["params"]["driver"] == "lift"
+    assert entry["params"]["magnitude"] > 0                       # the falling branch above the rising one
+    assert row["recovered"]["sine_k025"] >= 0.5
+    assert row["recovered"]["random"] > 0.25                      # short of the protocol's 50 % (docstring)
+
+
+def test_a_hysteresis_and_a_pickup_together_are_both_named(model, clean_rmse):
+    mix = compose(DEFAULT_DATA, ("hysteresis", "mains"), model.parent / "mixes")
+    row, _ = run_case(model, clean_rmse, mix)
+    assert sorted(row["accepted"]) == ["hysteresis", "periodic_disturbance"]
+    assert row["right"], row
 
 
 def test_a_drift_and_a_pickup_together_are_both_named(model, clean_rmse):

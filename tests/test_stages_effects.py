@@ -88,15 +88,17 @@ def test_every_stage_steps_and_chunks_agree_to_1e12(kind, seed, cuts):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4), st.booleans())
-def test_hysteresis_gain_steps_and_chunks_agree_to_1e12(seed, cuts, output_form):
+@given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 300), min_size=1, max_size=4), st.booleans(),
+       st.sampled_from(("cmu", "lift")))
+def test_hysteresis_gain_steps_and_chunks_agree_to_1e12(seed, cuts, output_form, driver):
     rng = np.random.default_rng(seed)
     n = sum(cuts)
     env = np.round(np.clip(0.011 + 0.01 * np.sin(np.arange(n) / rng.uniform(5, 50)), 0, 0.022), 5)
     env = np.clip(env + rng.normal(0, 0.001, n) * rng.integers(0, 2), 0, None)     # small reversals too
     y = env * rng.uniform(0.8, 1.2)
     args = (rng.uniform(-0.3, 0.3), rng.choice([0.0, rng.uniform(0.001, 1.0)]), FS,
-            rng.choice([0.0, rng.uniform(0.0005, 0.01)]), rng.uniform(0.7, 1.2))
+            rng.choice([0.0, rng.uniform(0.0005, 0.01)]) * (1.0 if driver == "cmu" else 10.0),
+            rng.uniform(0.7, 1.2), driver)
     grid = np.linspace(0, 0.022, 6)
     nl1 = OutputHysteresis(grid, 10 * grid + rng.uniform(0, 0.01, 6), *args) if output_form else \
         HysteresisGain(grid, 10 + rng.uniform(0, 3, 6), *args)

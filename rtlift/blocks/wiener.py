@@ -127,26 +127,36 @@ class InputGain(_Stateless):
 
 class _DirectionMemory:
     """The direction-dependent factor of the ``hysteresis`` effect, a play operator of width w
-    (the Prandtl–Ishlinskii / Preisach element) followed by a first-order relaxation:
+    (the Prandtl–Ishlinskii / Preisach element) on a driver x, followed by a first-order
+    relaxation:
 
-        p(k) = min(max(p(k−1), Cμ(k) − w/2), Cμ(k) + w/2),   s(k) = (p(k) − Cμ(k))/w + 1/2
-        (w = 0:  s(k) = 1 if Cμ(k) < Cμ(k−1), 0 if Cμ(k) > Cμ(k−1), s(k−1) otherwise)
+        p(k) = min(max(p(k−1), x(k) − w/2), x(k) + w/2),   s(k) = (p(k) − x(k))/w + 1/2
+        (w = 0:  s(k) = 1 if x(k) < x(k−1), 0 if x(k) > x(k−1), s(k−1) otherwise)
         h(k) = λ h(k−1) + (1 − λ) s(k),   λ = exp(−1/(τ fs))  (λ = 0 for τ = 0)
         factor(k) = g (1 + m h(k))
 
-    s is 0 on the rising branch, 1 on the falling one, and crosses between them while Cμ
-    reverses by less than w (small reversals do not switch branch). The static gain on falling
-    Cμ is (1 + m) times that on rising Cμ; the rising branch is g times the identified map (a
-    map swept up and down is the mean of the two branches: g < 1 < g (1 + m)).
-    ``magnitude`` = m, ``rising_gain`` = g, ``width`` = w (Cμ), ``time_constant_s`` = τ.
-    State: [h, s, p] (w > 0) or [h, s, Cμ(k−1)] (w = 0); at rest
-    p = −w/2 (the rising branch).
+    The driver is the actuation, x = Cμ (``driver = "cmu"``: the gain remembers which way the
+    command last moved), or the flow's own state, x = q, the nonlinearity's quasi-steady lift
+    before the factor (N(Cμ)·y or f(y); ``driver = "lift"``: stall hysteresis, where whether
+    the flow reattaches depends on the lift it has, which lags the command by the LTI's
+    dynamics). s is 0 on the rising branch, 1 on the falling one, and crosses between them
+    while x reverses by less than w (small reversals do not switch branch). The gain on a
+    falling driver is (1 + m) times that on a rising one; the rising branch is g times the
+    identified map (a map swept up and down is the mean of the two branches: g < 1 < g (1 + m)).
+    ``magnitude`` = m, ``rising_gain`` = g, ``width`` = w (in the driver's unit: Cμ or ΔCL),
+    ``time_constant_s`` = τ, ``driver``. State: [h, s, p] (w > 0) or [h, s, x(k−1)] (w = 0);
+    at rest p = −w/2 (the rising branch).
     """
+
+    DRIVERS = ("cmu", "lift")
 
     state_size = 3
 
     def _init_memory(self, magnitude: float, time_constant_s: float, fs_hz: float, width: float = 0.0,
-                     rising_gain: float = 1.0) -> None:
+                     rising_gain: float = 1.0, driver: str = "cmu") -> None:
+        if driver not in self.DRIVERS:
+            raise ValueError(f"hysteresis driver must be one of {', '.join(self.DRIVERS)}, got {driver!r}")
+        self.driver = driver
         m, tau, fs, w, g = (float(v) for v in (magnitude, time_constant_s, fs_hz, width, rising_gain))
         if not all(np.isfinite(v) for v in (m, tau, fs, w, g)) or tau < 0 or fs <= 0 or w < 0 or g <= 0:
             raise ValueError("hysteresis needs a finite magnitude, rising_gain > 0, width >= 0, "
@@ -156,18 +166,19 @@ class _DirectionMemory:
         self._lam = float(np.exp(-1.0 / (tau * fs))) if tau > 0 else 0.0
         self.reset()
 
-    def _factor_step(self, cmu: float) -> float:
+    def _factor_step(self, cmu: float, q: float) -> float:
+        x = cmu if self.driver == "cmu" else q
         if self.width > 0.0:
             half = 0.5 * self.width
-            p = min(max(self.last, cmu - half), cmu + half)
+            p = min(max(self.last, x - half), x + half)
             self.last = p
-            self.s = (p - cmu) / self.width + 0.5
+            self.s = (p - x) / self.width + 0.5
         else:
-            if cmu < self.last:
+            if x < self.last:
                 self.s = 1.0
-            elif cmu > self.last:
+            elif x > self.last:
                 self.s = 0.0
-            self.last = cmu
+            self.last = x
         self.h = (1.0 - self._lam) * self.s + self._lam * self.h
         return self.rising_gain * (1.0 + self.magnitude * self.h)
 
@@ -175,24 +186,29 @@ class _DirectionMemory:
         """g (1 + m h) in force (after this sample's step; for the observer's gain)."""
         return self.rising_gain * (1.0 + self.magnitude * self.h)
 
-    def _factor_batch(self, cmu: np.ndarray) -> np.ndarray:
+    def branch(self, cmu: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """h(k) over a chunk (Cμ and the quasi-steady lift q), advancing the state."""
+        x = np.asarray(cmu if self.driver == "cmu" else q, dtype=float)
         if self.width > 0.0:                 # the play operator is a recursion: one pass
             half, inv = 0.5 * self.width, 1.0 / self.width
-            s = np.empty(cmu.size)
+            s = np.empty(x.size)
             p = self.last
-            for k, c in enumerate(cmu.tolist()):
+            for k, c in enumerate(x.tolist()):
                 p = min(max(p, c - half), c + half)
                 s[k] = (p - c) * inv + 0.5
             self.last = p
         else:
-            step = np.diff(cmu, prepend=self.last)
-            idx = np.where(step != 0.0, np.arange(cmu.size), -1)
+            step = np.diff(x, prepend=self.last)
+            idx = np.where(step != 0.0, np.arange(x.size), -1)
             last_change = np.maximum.accumulate(idx)
             s = np.where(last_change >= 0, (step[np.maximum(last_change, 0)] < 0.0).astype(float), self.s)
-            self.last = float(cmu[-1])
+            self.last = float(x[-1])
         h, _ = signal.lfilter([1.0 - self._lam], [1.0, -self._lam], s, zi=[self._lam * self.h])
         self.h, self.s = float(h[-1]), float(s[-1])
-        return self.rising_gain * (1.0 + self.magnitude * h)
+        return h
+
+    def _factor_batch(self, cmu: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return self.rising_gain * (1.0 + self.magnitude * self.branch(cmu, q))
 
     def reset(self) -> None:
         self.h = self.s = 0.0
@@ -209,7 +225,7 @@ class _DirectionMemory:
 
     def _memory_dict(self) -> dict[str, Any]:
         return {"magnitude": self.magnitude, "rising_gain": self.rising_gain, "width": self.width,
-                "time_constant_s": self.time_constant_s, "fs_hz": self.fs_hz}
+                "time_constant_s": self.time_constant_s, "fs_hz": self.fs_hz, "driver": self.driver}
 
 
 class HysteresisGain(_DirectionMemory, InputGain):
@@ -220,18 +236,21 @@ class HysteresisGain(_DirectionMemory, InputGain):
     kernel_kind = None
 
     def __init__(self, cmu: np.ndarray, gain: np.ndarray, magnitude: float,
-                 time_constant_s: float, fs_hz: float, width: float = 0.0, rising_gain: float = 1.0) -> None:
+                 time_constant_s: float, fs_hz: float, width: float = 0.0, rising_gain: float = 1.0,
+                 driver: str = "cmu") -> None:
         InputGain.__init__(self, cmu, gain)
-        self._init_memory(magnitude, time_constant_s, fs_hz, width, rising_gain)
+        self._init_memory(magnitude, time_constant_s, fs_hz, width, rising_gain, driver)
 
     def step(self, cmu: float, y: float) -> float:
-        return self._n(cmu) * y * self._factor_step(cmu)
+        q = self._n(cmu) * y
+        return q * self._factor_step(cmu, q)
 
     def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
         cmu = np.asarray(cmu, dtype=float)
         if cmu.size == 0:
             return cmu.copy()
-        return self._n.batch(cmu) * np.asarray(y, dtype=float) * self._factor_batch(cmu)
+        q = self._n.batch(cmu) * np.asarray(y, dtype=float)
+        return q * self._factor_batch(cmu, q)
 
     def to_dict(self) -> dict[str, Any]:
         return {**InputGain.to_dict(self), **self._memory_dict()}
@@ -239,7 +258,7 @@ class HysteresisGain(_DirectionMemory, InputGain):
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> HysteresisGain:
         return cls(d["cmu"], d["gain"], d["magnitude"], d["time_constant_s"], d["fs_hz"], d.get("width", 0.0),
-                   d.get("rising_gain", 1.0))
+                   d.get("rising_gain", 1.0), d.get("driver", "cmu"))
 
 
 class OutputNonlinearity(_Stateless):
@@ -288,18 +307,20 @@ class OutputHysteresis(_DirectionMemory, OutputNonlinearity):
     kernel_kind = None
 
     def __init__(self, y: np.ndarray, f: np.ndarray, magnitude: float, time_constant_s: float,
-                 fs_hz: float, width: float = 0.0, rising_gain: float = 1.0) -> None:
+                 fs_hz: float, width: float = 0.0, rising_gain: float = 1.0, driver: str = "cmu") -> None:
         OutputNonlinearity.__init__(self, y, f)
-        self._init_memory(magnitude, time_constant_s, fs_hz, width, rising_gain)
+        self._init_memory(magnitude, time_constant_s, fs_hz, width, rising_gain, driver)
 
     def step(self, cmu: float, y: float) -> float:
-        return self._f(y) * self._factor_step(cmu)
+        q = self._f(y)
+        return q * self._factor_step(cmu, q)
 
     def simulate(self, cmu: np.ndarray, y: np.ndarray) -> np.ndarray:
         cmu = np.asarray(cmu, dtype=float)
         if cmu.size == 0:
             return cmu.copy()
-        return self._f.batch(y) * self._factor_batch(cmu)
+        q = self._f.batch(y)
+        return q * self._factor_batch(cmu, q)
 
     def output_at(self, cmu: float, y: float) -> float:
         return self._f(y) * self.factor()
@@ -313,7 +334,7 @@ class OutputHysteresis(_DirectionMemory, OutputNonlinearity):
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> OutputHysteresis:
         return cls(d["y"], d["f"], d["magnitude"], d["time_constant_s"], d["fs_hz"], d.get("width", 0.0),
-                   d.get("rising_gain", 1.0))
+                   d.get("rising_gain", 1.0), d.get("driver", "cmu"))
 
 
 NONLINEARITIES: dict[str, Any] = {c.form: c for c in (InputGain, OutputNonlinearity, HysteresisGain,

@@ -18,8 +18,9 @@ there is nothing to fit. The objective is the output error on the training recor
 - ``periodic_disturbance``: the narrow line standing highest above the fingerprint, its
   frequency refined by maximising the periodogram; its harmonics n f₀ as sampled (aliased)
   that also stand above the fingerprint; amplitudes and phases by linear LS;
-- ``hysteresis``: ε ≈ m · F(static(Cμ, y) h) for the play operator's branch h (width w, relaxation
-  τ, on a grid), m by linear LS (F = the model's filter stages), on either Wiener form;
+- ``hysteresis``: ε ≈ m · F(static(Cμ, y) h) for the play operator's branch h (driven by Cμ or by
+  the quasi-steady lift itself; width w, relaxation τ, on a grid), m by linear LS (F = the
+  model's filter stages), on either Wiener form;
 - ``output_nonlinearity``: f(y) as a piecewise-linear table on 10 quantile knots of y, node
   values by ridge-regularised linear LS of the output error (paper form only).
 """
@@ -374,55 +375,65 @@ def fit_periodic_disturbance(base: HybridModel, train: Record, ctx: Context) -> 
 
 
 def fit_hysteresis(base: HybridModel, train: Record, ctx: Context) -> Fitted | str:
-    """(width, τ) on a grid by linear LS of ε ≈ (g − 1) F(s) + g m F(s h) + c F(s Cμ/span)
-    (s = static(Cμ, y), h the play operator's branch indicator of
-    :class:`rtlift.blocks.wiener._DirectionMemory`, computed by the block itself): the last
-    column, a static level-dependent gain, is a nuisance that keeps a very wide play operator
-    (which degenerates into one) from standing in for the map's own misfit; then (g, m) by
-    linear LS without it."""
+    """Tried only where the training residual's gain differs between falling and rising Cμ
+    (the direction test, |t| > 4): a play operator on the lift can fit a misfit of another
+    kind, and the name must rest on the evidence that points at it.
+
+    (driver, width, τ) on a grid by linear LS of ε ≈ (g − 1) F(q) + g m F(q h) + c F(q Cμ/span)
+    (q = the nonlinearity's quasi-steady lift static(Cμ, y), h the play operator's branch of
+    :class:`rtlift.blocks.wiener._DirectionMemory` on the driver — Cμ, or q itself — computed
+    by the block itself): the last column, a static level-dependent gain, is a nuisance that
+    keeps a very wide play operator (which degenerates into one) from standing in for the map's
+    own misfit; then (g, m) by linear LS without it. The width grid is in fractions of the
+    driver's range on the record."""
     nl = base.wiener.nonlinearity
     if type(nl) not in (InputGain, OutputNonlinearity):
         return f"the Wiener nonlinearity is already '{nl.form}'"
+    direction = ctx.tests.get("direction")
+    if direction is not None and not direction.significant:
+        return f"the residual's gain does not depend on the direction: {direction.detail}"
     env, y = _wiener_parts(base, train)
     e = train.dcl - predict(base, train).total
     F = _filter_chain(base)
     ny = nl.simulate(env, y)
     s = ctx.start
     span = float(np.ptp(env[s:]))
-    widths = tuple(span * w for w in (0.0, 0.05, 0.1, 0.2, 0.4, 0.7))
-    taus = (0.0, 0.05, 0.2, 0.5, 1.0, 2.0, 5.0)
-
-    def branch(width: float, tau: float) -> np.ndarray:
-        return OutputHysteresis([0.0, 1.0], [0.0, 1.0], 1.0, tau, ctx.fs, width).simulate(env, np.ones_like(env)) - 1.0
+    fractions = (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.7)
+    taus = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+    spans = {"cmu": span, "lift": float(np.ptp(ny[s:]))}
 
     best = None
     z = e[s:]
     plain = F(ny)[s:]
     level = F(ny * env / max(span, 1e-300))[s:]     # a static, level-dependent gain: nuisance
-    for width in widths:
-        for tau in taus:
-            col = F(ny * branch(width, tau))[s:]
-            X = np.column_stack([plain, col, level])
-            coef, *_ = np.linalg.lstsq(X, z, rcond=None)
-            sse = float(np.sum((z - X @ coef) ** 2))
-            if best is None or sse < best[0]:
-                best = (sse, width, tau, col)
+    for driver, driver_span in spans.items():
+        for fraction in fractions:
+            for tau in taus:
+                h = OutputHysteresis([0.0, 1.0], [0.0, 1.0], 1.0, tau, ctx.fs, fraction * driver_span,
+                                     driver=driver).branch(env, ny)
+                col = F(ny * h)[s:]
+                X = np.column_stack([plain, col, level])
+                coef, *_ = np.linalg.lstsq(X, z, rcond=None)
+                sse = float(np.sum((z - X @ coef) ** 2))
+                if best is None or sse < best[0]:
+                    best = (sse, driver, fraction, fraction * driver_span, tau, col)
     if best is None:
         return "the model's low-frequency part is zero on the training record"
-    _, width, tau, col = best
+    _, driver, fraction, width, tau, col = best
     (dg, dm), *_ = np.linalg.lstsq(np.column_stack([plain, col]), z, rcond=None)
     if 1.0 + dg <= 0:
         return "the fitted rising-branch gain is not positive"
     g = 1.0 + float(dg)
     m = float(dm) / g
     if isinstance(nl, InputGain):
-        new = HysteresisGain(nl.cmu, nl.gain, m, tau, ctx.fs, width, g)
+        new = HysteresisGain(nl.cmu, nl.gain, m, tau, ctx.fs, width, g, driver)
     else:
-        new = OutputHysteresis(nl.y, nl.f, m, tau, ctx.fs, width, g)
+        new = OutputHysteresis(nl.y, nl.f, m, tau, ctx.fs, width, g, driver)
     bound = (f"time_constant_s ended at the grid's largest value ({taus[-1]:g} s)" if tau == taus[-1] else
-             f"width ended at the grid's largest value ({width:.3g})" if width == widths[-1] and width > 0 else "")
+             f"width ended at the grid's largest value ({width:.3g})" if fraction == fractions[-1] else "")
     return Fitted("hysteresis", augment(base, nonlinearity=new),
-                  {"magnitude": m, "rising_gain": g, "width": width, "time_constant_s": tau}, on_bound=bound)
+                  {"magnitude": m, "rising_gain": g, "width": width, "time_constant_s": tau, "driver": driver},
+                  on_bound=bound)
 
 
 def fit_output_nonlinearity(base: HybridModel, train: Record, ctx: Context,
