@@ -20,6 +20,12 @@ pinned to core 0 when the machine has two or more) and bursts of disk writes (``
 MB written and fsync'd every ``--burst-every`` s into a temporary directory), both in their
 own processes; the JSON gains ``load`` (what the hog and the writer did).
 
+``--spin`` alternates three phases in one run (``PAIRS`` times each, ``--seconds`` in all):
+sleeping in the kernel between samples, spinning on the port (``rtlift observe --spin``'s
+link), and spinning while the observer keeps its working set in the cache between polls
+(``Observer.touch``, what ``rtlift observe --spin`` does); the JSON gains ``spin`` and
+``spin_touch`` with the same keys.
+
 ``--view`` runs the same live loop with the live view up (``rtlift.app.view.LiveView``, the tap
 fed once per sample) and a headless Chromium showing the page: after a warm-up (not counted)
 that lasts until the samples queued while the browser started are consumed, the run
@@ -189,7 +195,7 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
     converter = Converter()
     stream = link.samples(0.5)
     runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "steps": [], "latencies": LatencyRecorder()}
-            for c in ("warm-up", "off", "view", "spin")}
+            for c in ("warm-up", "off", "view", "spin", "spin_touch")}
 
     def phase(condition: str, n: int, tap) -> None:
         lost0 = link.counters.lost
@@ -209,10 +215,11 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
 
     n = int(round(seconds * fs_hz))
     if spin:
-        for condition in ("off", "spin") * PAIRS:      # alternated: both under the same machine load
-            link.spin = condition == "spin"
+        for condition in ("off", "spin", "spin_touch") * PAIRS:    # alternated: under the same load
+            link.spin = condition != "off"
+            link.on_idle = observer.touch if condition == "spin_touch" else None
             phase(condition, n // PAIRS, None)
-        link.spin = False
+        link.spin, link.on_idle = False, None
         return runs
     if view_dir is None:
         phase("off", n, None)
@@ -301,6 +308,7 @@ def main() -> None:
     }
     if args.spin:
         result["spin"] = loop_figures(runs["spin"])
+        result["spin_touch"] = loop_figures(runs["spin_touch"])
         result["lost_samples"] = counters["lost"]
     elif args.view:
         result["lost_samples"] = runs["off"]["lost"] + runs["warm-up"]["lost"]

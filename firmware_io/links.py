@@ -352,6 +352,9 @@ class SerialLink(Link):
         """Busy-poll the port while waiting for the next sample instead of blocking in the
         kernel (opt-in low latency: the core stays on this process and its caches warm, at the
         price of that core; ``rtlift observe --spin``)."""
+        self.on_idle: Callable[[], None] | None = None
+        """Called between polls while spinning (the live loop's observer keeps its working set
+        in the cache with it: :meth:`rtlift.observer.Observer.touch`)."""
         cal = calibration or Calibration()
         self._queue: deque[Sample] = deque()
         self._decoder = SerialDecoder(self._queue.append, cal.counts_per_n, cal.counts_per_nm)
@@ -416,6 +419,8 @@ class SerialLink(Link):
                 if not waiting and deadline is not None and time.perf_counter() >= deadline:
                     return None
                 if not waiting and self.spin:
+                    if self.on_idle is not None:
+                        self.on_idle()
                     continue
                 data = ser.read(waiting or 1)
             except (serial.SerialException, OSError):

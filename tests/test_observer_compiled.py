@@ -103,6 +103,25 @@ def test_warm_up_compiles_without_touching_the_state(rng):
     np.testing.assert_array_equal(obs.get_state(), before)
 
 
+def test_touching_the_working_set_between_steps_changes_nothing(rng):
+    """``Observer.touch`` (called while a spinning loop waits) only reads: the same estimates,
+    bit for bit, and the same state as a run without it."""
+    model = make_model(rng)
+    cmu, env, z = _inputs(rng, 300)
+    plain, touched = Observer(model, CONFIGS["all_states"]), Observer(model.copy(), CONFIGS["all_states"])
+    assert touched.compiled
+    expected = _run(plain.step, cmu, env, z)
+
+    def step(c, e, m):
+        touched.touch()
+        out = touched.step(c, e, m)
+        touched.touch()
+        return out
+
+    np.testing.assert_array_equal(_run(step, cmu, env, z), expected)
+    np.testing.assert_array_equal(touched.get_state(), plain.get_state())
+
+
 @pytest.mark.parametrize("config", sorted(CONFIGS))
 def test_the_compiled_step_reuses_one_estimate_and_the_state_arrays(rng, config):
     obs = Observer(make_model(rng), CONFIGS[config])

@@ -151,6 +151,13 @@ class Observer:
             fn(0.0, 0.0, 0.0, *(a.copy() if isinstance(a, np.ndarray) else a for a in args))
         return time.perf_counter() - t0
 
+    def touch(self) -> None:
+        """Bring the compiled step's working set into the cache without changing anything
+        (:func:`.compiled.observer_touch`); a no-op for the reference step. For a loop that
+        spins between samples (``link.on_idle``): the step then runs at its tight-loop cost."""
+        if self._kernel:
+            cs.observer_touch(*self._kernel[1])
+
     @classmethod
     def from_model(cls, model: HybridModel) -> Observer:
         """The observer with the Q and R stored in the model file (``model.observer_config``)."""

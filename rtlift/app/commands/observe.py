@@ -61,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--spin is for a serial link (--serial); a CAN interface reads in its own driver")
     extra = {"spin": True} if args.spin else {}
     link = open_link(link_config_from_args(args, log=args.log, calibration=calibration, **extra))
+    if args.spin:
+        link.on_idle = observer.touch    # keep the step's working set cached while waiting
     where = args.serial or args.can
     print(f"rtlift observe: {link.kind} link open on {where} ({compiled}); Ctrl-C stops", file=sys.stderr, flush=True)
     writer = None
