@@ -14,7 +14,9 @@ go on with the same counters and log), ``calibration`` (serial only: a
 :class:`~firmware_io.calibration.Calibration` or a TOML path, for counts per N and N·m),
 ``spin`` (serial only: busy-poll the port between samples instead of blocking in the kernel).
 Any other key of a CAN config is passed to ``can.Bus`` (``ignore_config=True`` is the
-default, and ``sleep_after_open=0`` for ``slcan``).
+default, and ``sleep_after_open=0`` for ``slcan``). ``slcan`` opens python-can's slcan driver
+reading the port in chunks (:class:`firmware_io.slcan.ChunkedSlcanBus`; ``"slcan_chunked_read":
+false`` for python-can's byte-at-a-time reader).
 
 Protocol version 2: ``link.send_command(envelope_cv, ...)`` sends a command with the link's
 next ``cmd_seq`` (serial: a COBS packet through pyserial; CAN: the ``CMD`` frame through
@@ -47,6 +49,7 @@ from firmware_io.logs import CommandLog, LoggedCommand, commands_path, open_link
 from firmware_io.samples import Counters, Sample
 from firmware_io.serial_codec import SEQ_MODULUS as SERIAL_SEQ_MODULUS
 from firmware_io.serial_codec import SerialDecoder, encode_command
+from firmware_io.slcan import ChunkedSlcanBus
 from rtlift.core.rate import FS_HZ
 
 SERIAL_BAUD = 921_600
@@ -456,6 +459,7 @@ class CanLink(Link):
         self.reconnect = reconnect
         kwargs = dict(bus_kwargs)
         kwargs.setdefault("ignore_config", True)
+        self._chunked_slcan = interface == "slcan" and bool(kwargs.pop("slcan_chunked_read", True))
         if interface == "slcan":
             kwargs.setdefault("sleep_after_open", 0)
         if bitrate is not None:
@@ -470,7 +474,11 @@ class CanLink(Link):
     def _open_device(self, channel: Any) -> None:
         where = f"CAN {self.interface}:{channel}"
         try:
-            self._bus = can.Bus(interface=self.interface, channel=channel, **self._bus_kwargs)
+            if self._chunked_slcan:        # python-can's slcan driver, reading in chunks (firmware_io.slcan)
+                kwargs = {k: v for k, v in self._bus_kwargs.items() if k != "ignore_config"}
+                self._bus = ChunkedSlcanBus(channel=channel, **kwargs)
+            else:
+                self._bus = can.Bus(interface=self.interface, channel=channel, **self._bus_kwargs)
         except NotImplementedError as exc:
             raise LinkError(f"{where}: interface not available ({_one_line(exc)})") from None
         except (can.CanError, OSError, ValueError, TypeError, ImportError, serial.SerialException) as exc:

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from firmware_io import open_link
+from firmware_io.slcan import ChunkedSlcanBus
 from hil_sim.devices import FaultPlan, SerialDaq, SlcanAdapter
 from hil_sim.experiments import daq_stream
 
@@ -131,11 +132,15 @@ def test_serial_counters_equal_the_faults_injected():
     assert [serial_fields(s) for s in got] == [serial_sent(e) for e in dev.sent]
 
 
-def test_slcan_counters_equal_the_faults_injected():
+@pytest.mark.parametrize("chunked", [True, False], ids=["chunked_read", "python_can_read"])
+def test_slcan_counters_equal_the_faults_injected(chunked):
+    """The same exact accounting through firmware_io's chunked reader (the default) and through
+    python-can's own byte-at-a-time one."""
     n = 4 * FS
     plan = FaultPlan(corrupt=0.01, drop=0.01, duplicate=0.01, garbage=0.01, stop=n - 5)
     dev = SlcanAdapter(daq_stream("random", seed=6), faults=plan, seed=12, max_samples=n, keep_sent=True)
-    with dev, open_link(can_config(dev)) as link:
+    with dev, open_link({**can_config(dev), "slcan_chunked_read": chunked}) as link:
+        assert isinstance(link._bus, ChunkedSlcanBus) is chunked
         dev.start()
         got = read_until_done(link, dev)
         st = dev.stats
