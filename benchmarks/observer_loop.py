@@ -20,11 +20,13 @@ pinned to core 0 when the machine has two or more) and bursts of disk writes (``
 MB written and fsync'd every ``--burst-every`` s into a temporary directory), both in their
 own processes; the JSON gains ``load`` (what the hog and the writer did).
 
-``--spin`` alternates three phases in one run (``PAIRS`` times each, ``--seconds`` in all):
-sleeping in the kernel between samples, spinning on the port (``rtlift observe --spin``'s
-link), and spinning while the observer keeps its working set in the cache between polls
-(``Observer.touch``, what ``rtlift observe --spin`` does); the JSON gains ``spin`` and
-``spin_touch`` with the same keys.
+``--spin`` alternates four phases in one run (``PAIRS`` times each, ``--seconds`` in all):
+sleeping in the kernel between samples; spinning on the port; spinning while the observer
+keeps its working set in the cache between polls (``Observer.touch``: ``rtlift observe
+--spin``); and sleeping until ``SPIN_WINDOW_S`` before each sample is due, then spinning with
+the touch (``rtlift observe --spin 0.5``). The JSON gains ``spin``, ``spin_touch`` and
+``spin_tail`` with the same keys; every phase has ``cpu_share``, this process's CPU time over
+the phase's wall time.
 
 ``--view`` runs the same live loop with the live view up (``rtlift.app.view.LiveView``, the tap
 fed once per sample) and a headless Chromium showing the page: after a warm-up (not counted)
@@ -182,6 +184,7 @@ def stop_load(procs: list[subprocess.Popen]) -> dict:
 
 
 PAIRS = 4
+SPIN_WINDOW_S = 0.0005
 """``--view``: the run alternates this many (without, with) pairs of phases."""
 
 
@@ -194,17 +197,18 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
 
     converter = Converter()
     stream = link.samples(0.5)
-    runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "steps": [], "latencies": LatencyRecorder()}
-            for c in ("warm-up", "off", "view", "spin", "spin_touch")}
+    runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "cpu": 0.0, "steps": [], "latencies": LatencyRecorder()}
+            for c in ("warm-up", "off", "view", "spin", "spin_touch", "spin_tail")}
 
     def phase(condition: str, n: int, tap) -> None:
         lost0 = link.counters.lost
         loop = ObserverLoop(observer, converter, link.seq_modulus, fs_hz=fs_hz, max_samples=n, time_steps=True,
                             tap=tap)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         loop.run(stream, host_timeout_s=n / fs_hz + 10.0)
         r = runs[condition]
         r["wall"] += time.perf_counter() - t0
+        r["cpu"] += time.process_time() - c0
         r["samples"] += loop.stats.samples
         r["lost"] += link.counters.lost - lost0
         r["steps"].append(np.frombuffer(loop.stats.step_times, dtype=float))
@@ -215,11 +219,12 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
 
     n = int(round(seconds * fs_hz))
     if spin:
-        for condition in ("off", "spin", "spin_touch") * PAIRS:    # alternated: under the same load
+        for condition in ("off", "spin", "spin_touch", "spin_tail") * PAIRS:   # alternated: same load
             link.spin = condition != "off"
-            link.on_idle = observer.touch if condition == "spin_touch" else None
+            link.on_idle = observer.touch if condition in ("spin_touch", "spin_tail") else None
+            link.spin_window_s = SPIN_WINDOW_S if condition == "spin_tail" else None
             phase(condition, n // PAIRS, None)
-        link.spin, link.on_idle = False, None
+        link.spin, link.on_idle, link.spin_window_s = False, None, None
         return runs
     if view_dir is None:
         phase("off", n, None)
@@ -256,7 +261,8 @@ def loop_figures(run: dict) -> dict:
     return {"observer_step_median_us": round(step_median, 2), "observer_step_p99_us": round(step_p99, 2),
             "loop_latency_p50_ms": round(h.percentile(50) * 1e3, 4),
             "loop_latency_p99_ms": round(h.percentile(99) * 1e3, 4),
-            "lost_samples": run["lost"], "samples": run["samples"], "seconds": round(run["wall"], 2)}
+            "lost_samples": run["lost"], "samples": run["samples"], "seconds": round(run["wall"], 2),
+            "cpu_share": round(run["cpu"] / run["wall"], 3) if run["wall"] > 0 else None}
 
 
 def main() -> None:
@@ -309,6 +315,7 @@ def main() -> None:
     if args.spin:
         result["spin"] = loop_figures(runs["spin"])
         result["spin_touch"] = loop_figures(runs["spin_touch"])
+        result["spin_tail"] = loop_figures(runs["spin_tail"])
         result["lost_samples"] = counters["lost"]
     elif args.view:
         result["lost_samples"] = runs["off"]["lost"] + runs["warm-up"]["lost"]

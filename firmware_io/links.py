@@ -12,7 +12,8 @@ log, written as frames arrive), ``reconnect`` (``True``, a number of seconds to 
 or a dict of :class:`Reconnect` fields: when the device vanishes, reopen it with backoff and
 go on with the same counters and log), ``calibration`` (serial only: a
 :class:`~firmware_io.calibration.Calibration` or a TOML path, for counts per N and N·m),
-``spin`` (serial only: busy-poll the port between samples instead of blocking in the kernel).
+``spin`` (serial only: ``true`` busy-polls the port between samples instead of blocking in the
+kernel; a number W blocks until W ms before the next sample is due and busy-polls from there).
 Any other key of a CAN config is passed to ``can.Bus`` (``ignore_config=True`` is the
 default, and ``sleep_after_open=0`` for ``slcan``). ``slcan`` opens python-can's slcan driver
 reading the port in chunks (:class:`firmware_io.slcan.ChunkedSlcanBus`; ``"slcan_chunked_read":
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import select
 import time
 from abc import ABC, abstractmethod
 from collections import deque
@@ -349,7 +351,8 @@ class SerialLink(Link):
     t_us_modulus = 1 << 32
 
     def __init__(self, port: str, *, calibration: Calibration | None = None, log: str | None = None,
-                 reconnect: Reconnect | None = None, spin: bool = False) -> None:
+                 reconnect: Reconnect | None = None, spin: bool = False,
+                 spin_window_s: float | None = None) -> None:
         self.closed = True
         self.spin = spin
         """Busy-poll the port while waiting for the next sample instead of blocking in the
@@ -358,6 +361,9 @@ class SerialLink(Link):
         self.on_idle: Callable[[], None] | None = None
         """Called between polls while spinning (the live loop's observer keeps its working set
         in the cache with it: :meth:`rtlift.observer.Observer.touch`)."""
+        self.spin_window_s = spin_window_s
+        """With ``spin``: block in the kernel until this long before the next sample is due
+        (the last one's receipt + 1/400 s), and spin only from there (None: spin throughout)."""
         cal = calibration or Calibration()
         self._queue: deque[Sample] = deque()
         self._decoder = SerialDecoder(self._queue.append, cal.counts_per_n, cal.counts_per_nm)
@@ -422,6 +428,16 @@ class SerialLink(Link):
                 if not waiting and deadline is not None and time.perf_counter() >= deadline:
                     return None
                 if not waiting and self.spin:
+                    if self.spin_window_s is not None and self._last is not None:
+                        rest = self._last.host_time + 1.0 / FS_HZ - self.spin_window_s - time.perf_counter()
+                        if deadline is not None:
+                            rest = min(rest, deadline - time.perf_counter())
+                        if rest > 0.0:              # not due yet: wait in the kernel for data or the window
+                            select.select([ser.fileno()], [], [], rest)
+                            continue
+                        if rest < -1.0 / FS_HZ:     # overdue by a period: the device is late, stop spinning
+                            select.select([ser.fileno()], [], [], POLL_S)
+                            continue
                     if self.on_idle is not None:
                         self.on_idle()
                     continue
@@ -557,10 +573,17 @@ def open_link(config: dict[str, Any]) -> Link:
             calibration = Calibration.load(calibration)
         log = cfg.pop("log", None)
         reconnect = Reconnect.from_config(cfg.pop("reconnect", None))
-        spin = bool(cfg.pop("spin", False))
+        spin = cfg.pop("spin", False)
+        window = None
+        if not isinstance(spin, bool):
+            if not isinstance(spin, (int, float)) or not 0.0 < float(spin) < 1e3 / FS_HZ:
+                raise LinkError(f"serial link: spin must be true, false or a window in ms between 0 and "
+                                f"{1e3 / FS_HZ:g}, got {spin!r}")
+            window, spin = float(spin) / 1e3, True
         if cfg:
             raise LinkError(f"serial link: unknown option {sorted(cfg)[0]!r}")
-        return SerialLink(str(port), calibration=calibration, log=log, reconnect=reconnect, spin=spin)
+        return SerialLink(str(port), calibration=calibration, log=log, reconnect=reconnect, spin=spin,
+                          spin_window_s=window)
     if kind == "can":
         interface = cfg.pop("interface", None)
         channel = cfg.pop("channel", None)

@@ -40,10 +40,19 @@ def test_an_slcan_adapter_that_is_not_there_is_a_one_line_user_error(tmp_path):
 
 
 @pytest.mark.parametrize("config", [{"kind": "usb"}, {"kind": "serial"}, {"kind": "can", "channel": "x"},
-                                    {"kind": "serial", "port": "loop://", "baud": 1}])
+                                    {"kind": "serial", "port": "loop://", "baud": 1},
+                                    {"kind": "serial", "port": "loop://", "spin": 2.5},
+                                    {"kind": "serial", "port": "loop://", "spin": "fast"}])
 def test_incomplete_or_unknown_configs_are_user_errors(config):
     with pytest.raises(LinkError):
         open_link(config)
+
+
+def test_a_spin_window_in_ms_is_kept_in_seconds():
+    with open_link({"kind": "serial", "port": "loop://", "spin": 0.5}) as link:
+        assert link.spin is True and link.spin_window_s == pytest.approx(5e-4)
+    with open_link({"kind": "serial", "port": "loop://", "spin": True}) as link:
+        assert link.spin is True and link.spin_window_s is None
 
 
 def test_cli_forms_parse_into_link_configs():

@@ -67,14 +67,16 @@ def test_sixty_seconds_live_at_400_hz_lose_no_sample(make, model_file, tmp_path)
 
 @pytest.mark.pty
 def test_spinning_on_the_port_changes_no_estimate_and_loses_nothing(model_file, tmp_path):
-    """``--spin`` busy-polls the serial port between samples: the same stream gives the same
-    estimate rows, bit for bit, as the sleeping loop (the samples are the clock, not the host)."""
+    """``--spin`` busy-polls the serial port between samples, ``--spin 0.5`` only from 0.5 ms
+    before each sample is due: the same stream gives the same estimate rows, bit for bit, as the
+    sleeping loop (the samples are the clock, not the host)."""
     rows = {}
-    for mode in ("sleep", "spin"):
+    flags = {"sleep": (), "spin": ("--spin",), "spin_tail": ("--spin", "0.5")}
+    for mode in flags:
         tmp = tmp_path / mode
         tmp.mkdir()
         with SerialDaq(daq_stream("random", seed=7)) as dev:
-            proc = start_observe(dev, model_file, tmp, "--seconds", "8", *(("--spin",) if mode == "spin" else ()))
+            proc = start_observe(dev, model_file, tmp, "--seconds", "8", *flags[mode])
             _, err = proc.communicate(timeout=60)
         assert proc.returncode == 0, err
         s = json.loads((tmp / "summary.json").read_text())
@@ -82,6 +84,15 @@ def test_spinning_on_the_port_changes_no_estimate_and_loses_nothing(model_file, 
         rows[mode] = [r.split(",") for r in estimate_rows(tmp / "estimates.csv")]
     cut = lambda table: [r[:3] + r[4:] for r in table]     # noqa: E731  (t_us, the device clock, aside)
     assert len(rows["spin"]) == 3200 and cut(rows["spin"]) == cut(rows["sleep"])
+    assert cut(rows["spin_tail"]) == cut(rows["sleep"])
+
+
+@pytest.mark.parametrize("window", ["0", "2.5", "x"])
+def test_a_spin_window_outside_one_period_is_one_line_and_exit_2(model_file, capsys, window):
+    with pytest.raises(SystemExit) as exc:
+        main(["observe", "--serial", "/dev/null", "--model", str(model_file), "--spin", window])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.count("--spin: ") == 1
 
 
 def test_spin_on_a_can_link_is_one_line_and_exit_2(model_file, capsys):
