@@ -11,7 +11,7 @@ Seven of the eight cases are right and are asserted so, with three mixes compose
 asserts what does hold:
 - ``hysteresis``: named and accepted (alone, as an effect) since the play operator may be driven
   by the quasi-steady lift — this plant's gain follows the flow's state, which lags the command
-  — but only 34 % of the error it added on ``random`` is recovered (131 % on ``sine_k025``). The
+  — but only 36 % of the error it added on ``random`` is recovered (126 % on ``sine_k025``). The
   training record, one sine, cannot tell the play operator's width from a lag of the branch
   (both delay the switch at one frequency); the held-out records can, and they prefer another
   pair than the one training picks.
