@@ -363,7 +363,8 @@ class SerialLink(Link):
         in the cache with it: :meth:`rtlift.observer.Observer.touch`)."""
         self.spin_window_s = spin_window_s
         """With ``spin``: block in the kernel until this long before the next sample is due
-        (the last one's receipt + 1/400 s), and spin only from there (None: spin throughout)."""
+        (the last one's receipt + 1/400 s), and spin only from there (None: spin throughout; so
+        does a port without a file descriptor to wait on, such as some pyserial URLs)."""
         cal = calibration or Calibration()
         self._queue: deque[Sample] = deque()
         self._decoder = SerialDecoder(self._queue.append, cal.counts_per_n, cal.counts_per_nm)
@@ -372,11 +373,16 @@ class SerialLink(Link):
         self.port = self._where = port
         self.reconnect = reconnect
         self._ser = None
+        self._fd: int | None = None
         self._start(port, log)
 
     def _open_device(self, port: str) -> None:
         try:
             self._ser = serial.serial_for_url(port, baudrate=SERIAL_BAUD, timeout=POLL_S)
+            try:        # a file descriptor to wait on for a spin window (a pyserial URL may have none)
+                self._fd = self._ser.fileno()
+            except (AttributeError, OSError, ValueError):
+                self._fd = None
         except serial.SerialException as exc:
             if exc.errno == errno.ENOENT:
                 raise LinkError(f"serial port {port}: no such device") from None
@@ -428,15 +434,15 @@ class SerialLink(Link):
                 if not waiting and deadline is not None and time.perf_counter() >= deadline:
                     return None
                 if not waiting and self.spin:
-                    if self.spin_window_s is not None and self._last is not None:
+                    if self.spin_window_s is not None and self._last is not None and self._fd is not None:
                         rest = self._last.host_time + 1.0 / FS_HZ - self.spin_window_s - time.perf_counter()
                         if deadline is not None:
                             rest = min(rest, deadline - time.perf_counter())
                         if rest > 0.0:              # not due yet: wait in the kernel for data or the window
-                            select.select([ser.fileno()], [], [], rest)
+                            select.select([self._fd], [], [], rest)
                             continue
                         if rest < -1.0 / FS_HZ:     # overdue by a period: the device is late, stop spinning
-                            select.select([ser.fileno()], [], [], POLL_S)
+                            select.select([self._fd], [], [], POLL_S)
                             continue
                     if self.on_idle is not None:
                         self.on_idle()
