@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import math
 import select
 import time
 from abc import ABC, abstractmethod
@@ -566,6 +567,18 @@ class CanLink(Link):
                 return None
 
 
+def spin_window_s(ms: Any) -> float:
+    """A spin window given in ms (link config ``"spin": W``, ``rtlift observe --spin W``), in
+    seconds; ValueError unless it is a number inside one sample period."""
+    try:
+        value = float(ms)
+    except (TypeError, ValueError):
+        value = math.nan
+    if isinstance(ms, bool) or not 0.0 < value < 1e3 / FS_HZ:
+        raise ValueError(f"a window in ms between 0 and {1e3 / FS_HZ:g}, got {ms!r}")
+    return value / 1e3
+
+
 def open_link(config: dict[str, Any]) -> Link:
     """Open the link a config dictionary describes (see the module docstring)."""
     cfg = dict(config)
@@ -582,10 +595,10 @@ def open_link(config: dict[str, Any]) -> Link:
         spin = cfg.pop("spin", False)
         window = None
         if not isinstance(spin, bool):
-            if not isinstance(spin, (int, float)) or not 0.0 < float(spin) < 1e3 / FS_HZ:
-                raise LinkError(f"serial link: spin must be true, false or a window in ms between 0 and "
-                                f"{1e3 / FS_HZ:g}, got {spin!r}")
-            window, spin = float(spin) / 1e3, True
+            try:
+                window, spin = spin_window_s(spin), True
+            except ValueError as exc:
+                raise LinkError(f"serial link: spin must be true, false or {exc}") from None
         if cfg:
             raise LinkError(f"serial link: unknown option {sorted(cfg)[0]!r}")
         return SerialLink(str(port), calibration=calibration, log=log, reconnect=reconnect, spin=spin,

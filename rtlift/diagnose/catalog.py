@@ -423,8 +423,6 @@ def fit_hysteresis(base: HybridModel, train: Record, ctx: Context) -> Fitted | s
                 cost = sse(column(driver, fraction * driver_span, tau))
                 if best is None or cost < best[0]:
                     best = (cost, driver, fraction, tau)
-    if best is None:
-        return "the model's low-frequency part is zero on the training record"
     _, driver, fraction, tau = best
     # the grid's point refined: (w, τ) = (a² · range, b²), Nelder–Mead on the same cost
     scale = spans[driver]

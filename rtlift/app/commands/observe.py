@@ -42,14 +42,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _spin_window(text: str) -> float:
-    """--spin's WINDOW_MS: a number of milliseconds within one 400 Hz period."""
+    """--spin's WINDOW_MS, checked by the link's own rule (:func:`firmware_io.links.spin_window_s`)."""
+    from firmware_io.links import spin_window_s
+
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a window in ms, got {text!r}") from None
-    if not 0.0 < value < 2.5:
-        raise argparse.ArgumentTypeError(f"the window must be between 0 and 2.5 ms, got {text}")
-    return value
+        spin_window_s(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected {exc}") from None
+    return float(text)
 
 
 def run(args: argparse.Namespace) -> int:
