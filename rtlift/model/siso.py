@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from numba import njit
+
 from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
@@ -29,7 +31,7 @@ from rtlift.core.errors import ModelFileError
 
 FORMAT = "rtlift-siso-model"
 VERSION = 1
-STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback")
+STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback", "store_chain")
 
 
 @dataclass(eq=False)
@@ -161,6 +163,124 @@ class FeedbackModel:
         return model_from_dict(self.to_dict())
 
 
+@njit(cache=True)
+def _chain_run(p: np.ndarray, u: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:   # pragma: no cover
+    """:meth:`StoreChainModel.step` over ``u`` (compiled; the same arithmetic in the same order),
+    advancing the state ``x`` = [x₁, x₂] in place; ``p`` as :attr:`StoreChainModel.vector`."""
+    b, a1, p1, r, a2, p2, l1, l2, beta, c, top, h, nsub = p
+    x1, x2 = x[0], x[1]
+    for k in range(u.size):
+        out[k] = min(x2 + c, top)
+        for _ in range(int(nsub)):
+            q1 = a1 * max(x1, 0.0) ** p1
+            x1n = x1 + h * (b * u[k] - q1)
+            spill = max(x1n - l1, 0.0)
+            x1 = min(max(x1n, 0.0), l1)
+            x2 = min(max(x2 + h * (r * q1 - a2 * max(x2, 0.0) ** p2) + beta * spill, 0.0), l2)
+    x[0], x[1] = x1, x2
+
+
+class StoreChainModel:
+    """Two stores in cascade, each emptied through a static power-law outflow (``store_chain``;
+    Cascaded Tanks: a pump fills an upper tank that drains through an orifice into a lower one,
+    Torricelli's outflow a·√level):
+
+        ẋ₁ = b u − q₁,   q₁ = a₁ max(x₁, 0)^p₁
+        ẋ₂ = r q₁ − a₂ max(x₂, 0)^p₂,   y = x₂ + c
+
+    integrated by explicit Euler in ``substeps`` steps of h = 1/(fs · substeps) per sample, u held
+    (zero-order hold), y(k) the level before sample k's update (strictly proper). It is the
+    nonlinear-feedback idea applied to each state: every store's outflow is a static map of its
+    own level, fed back. A store cannot fill beyond its brim (``saturation`` where ``state``):
+    x₁ ≤ L₁, and what would rise above L₁ spills, a share β of it into the lower store
+    (x₂ += β · spill); x₂ ≤ L₂ = ``ceiling`` − c, so y stays at most ``ceiling`` (the lower tank
+    overflows at the level the measurement piles up at; y = min(x₂ + c, ``ceiling``) exactly, not
+    one rounding above it); levels stay ≥ 0. x₁'s scale is not observable (b, a₁, L₁, β
+    trade against it); every other parameter is. State [x₁, x₂], 0 at rest.
+
+    :meth:`step` is one sample in plain float arithmetic (no allocation); :meth:`simulate` runs
+    the same arithmetic compiled (:func:`_chain_run`).
+    """
+
+    structure = "store_chain"
+    state_size = 2
+    NAMES = ("inflow", "outflow_1", "exponent_1", "transfer", "outflow_2", "exponent_2", "brim_1", "ceiling",
+             "spill", "offset")
+
+    def __init__(self, params: dict[str, float], fs_hz: float, substeps: int = 2,
+                 provenance: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None) -> None:
+        try:
+            v = [float(np.inf if params[k] is None else params[k]) for k in self.NAMES]
+        except KeyError as exc:
+            raise ValueError(f"store_chain needs the parameter {exc}") from None
+        b, a1, p1, r, a2, p2, l1, ceiling, beta, c = v
+        l2 = ceiling - c
+        fs, substeps = float(fs_hz), int(substeps)
+        if (not all(np.isfinite(x) for x in (b, a1, p1, r, a2, p2, beta, c, fs)) or min(a1, a2, p1, p2) <= 0
+                or beta < 0 or not (l1 > 0 and l2 > 0) or fs <= 0 or substeps < 1):
+            raise ValueError("store_chain needs finite inflow, transfer, offset, outflows and exponents > 0, "
+                             "spill >= 0, brims > 0, fs_hz > 0 and substeps >= 1")
+        self.params = dict(zip(self.NAMES, v))
+        self.fs_hz, self.substeps = fs, substeps
+        self.provenance, self.metrics = dict(provenance or {}), dict(metrics or {})
+        self.vector = np.array([b, a1, p1, r, a2, p2, l1, l2, beta, c, ceiling, 1.0 / (fs * substeps),
+                                float(substeps)])
+        self._p = tuple(self.vector.tolist())
+        self._x = np.zeros(2)
+        self._x1 = self._x2 = 0.0
+
+    @property
+    def limited(self) -> bool:
+        return bool(np.isfinite(self.params["brim_1"]) or np.isfinite(self.params["ceiling"]))
+
+    def step(self, u: float) -> float:
+        b, a1, p1, r, a2, p2, l1, l2, beta, c, top, h, nsub = self._p
+        x1, x2 = self._x1, self._x2
+        y = min(x2 + c, top)
+        for _ in range(int(nsub)):
+            q1 = a1 * max(x1, 0.0) ** p1
+            x1n = x1 + h * (b * u - q1)
+            spill = max(x1n - l1, 0.0)
+            x1 = min(max(x1n, 0.0), l1)
+            x2 = min(max(x2 + h * (r * q1 - a2 * max(x2, 0.0) ** p2) + beta * spill, 0.0), l2)
+        self._x1, self._x2 = x1, x2
+        return y
+
+    def simulate(self, u: np.ndarray) -> np.ndarray:
+        u = np.ascontiguousarray(u, dtype=float)
+        out = np.empty(u.size)
+        x = np.array([self._x1, self._x2])
+        _chain_run(self.vector, u, x, out)
+        self._x1, self._x2 = float(x[0]), float(x[1])
+        return out
+
+    def reset(self) -> None:
+        self._x1 = self._x2 = 0.0
+
+    def get_state(self) -> np.ndarray:
+        return np.array([self._x1, self._x2])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (2,):
+            raise ValueError(f"model state must have shape (2,), got {s.shape}")
+        self._x1, self._x2 = float(s[0]), float(s[1])
+
+    def limits(self) -> dict[str, Any]:
+        """The lower store's brim as an output level (what the measurement piles up at)."""
+        return {"lower": None, "upper": _finite(self.params["ceiling"]), "where": "state"}
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
+             "fs_hz": self.fs_hz, "substeps": self.substeps,
+             "params": {k: _finite(v) for k, v in self.params.items()},
+             "provenance": self.provenance, "metrics": self.metrics}
+        return {**d, "saturation": self.limits()} if self.limited else d
+
+    def copy(self) -> StoreChainModel:
+        return model_from_dict(self.to_dict())
+
+
 class SaturatedModel:
     """A hard limit on a model's output (``saturation``, where ``output``): a sensor or a stage
     that clips (Cascaded Tanks: the level sensor reads 10 V while the tank overflows):
@@ -217,7 +337,7 @@ def _finite(v: float) -> float | None:
     return float(v) if np.isfinite(v) else None
 
 
-SISO_MODELS = (SisoModel, FeedbackModel, SaturatedModel)
+SISO_MODELS = (SisoModel, FeedbackModel, StoreChainModel, SaturatedModel)
 """The single-input model classes (``isinstance(model, SISO_MODELS)``: a generic model)."""
 
 
@@ -232,12 +352,21 @@ def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | Fee
         try:
             if where != "output":
                 raise ValueError(f"saturation where {where!r} is not built (output, or state of "
-                                 "nonlinear_feedback)")
+                                 "nonlinear_feedback and store_chain)")
             return SaturatedModel(inner, *_limit_pair(sat))
         except (AttributeError, TypeError, ValueError) as exc:
             raise ModelFileError(f"{source}: {exc}") from None
-    if where == "state" and d.get("structure") != "nonlinear_feedback":
-        raise ModelFileError(f"{source}: saturation where 'state' is built for nonlinear_feedback only")
+    if where == "state" and d.get("structure") not in ("nonlinear_feedback", "store_chain"):
+        raise ModelFileError(f"{source}: saturation where 'state' is built for nonlinear_feedback and "
+                             "store_chain only")
+    if d.get("structure") == "store_chain":       # the brims are its own parameters
+        try:
+            return StoreChainModel(d["params"], float(d["fs_hz"]), int(d.get("substeps", 2)), d.get("provenance"),
+                                   d.get("metrics"))
+        except KeyError as exc:
+            raise ModelFileError(f"{source}: missing key {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise ModelFileError(f"{source}: {exc}") from None
     if d.get("structure") == "nonlinear_feedback":
         try:
             return FeedbackModel(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"),

@@ -14,13 +14,17 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
 - ``nonlinear_feedback`` — the output fed back through a static map into the linear block's
   input (an amplitude-dependent resonance, Duffing-like), identified jointly from the ARX fit.
 - ``saturation`` — a hard limit on the output, y = min(max(M(u), lower), upper), or on the
-  state, a store that cannot fill beyond its brim (the nonlinear-feedback recursion clipped
-  inside the loop, :class:`rtlift.model.siso.FeedbackModel`): tried only where the evidence
+  state, a store that cannot fill beyond its brim: the nonlinear-feedback recursion clipped
+  inside the loop (:class:`rtlift.model.siso.FeedbackModel`), or two stores in cascade, each
+  draining through a power-law outflow of its own level, the upper one spilling a share of what
+  would rise above its brim into the lower one, whose brim is the level the measurement piles up
+  at (:class:`rtlift.model.siso.StoreChainModel`: the nonlinear feedback of each state; Cascaded
+  Tanks' two tanks, Torricelli outflows, overflow). Tried only where the evidence
   points to it, a measured output that piles up at a level (its maximum or minimum taken by
   ≥ 0.5 % and ≥ 5 of the training samples, which a continuous sensor reading a signal that only
   passes through its extremes does not do). M is re-identified jointly with the limit in place
   (:func:`rtlift.sysid.identify.identify_siso`; censored samples for an output limit) in each
-  of the three forms with an output limit and in the feedback form with a state limit; the one
+  of the three forms with an output limit and in the two forms with a state limit; the one
   with the lowest validation error stands for ``saturation``, its form in ``params.model`` and
   ``params.where``. A limit on the input is not a separate structure: a Wiener model's static
   map f already saturates where the input's effect does.
@@ -42,21 +46,21 @@ from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
 from rtlift.diagnose.residual import higher_order, input_crosscorr, whiteness
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
-from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel
+from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
 
 HOW = {"output_dynamics": "Wiener-Hammerstein re-identified jointly from the best linear approximation's "
                           "pole/zero splits",
        "nonlinear_feedback": "the output fed back through k2 y^2 + k3 y^3 into a strictly proper linear "
                              "block, all refined jointly from the ARX fit",
-       "saturation": "the output (or the feedback form's state) clipped at the level the measurement piles "
-                     "up at, the model re-identified jointly with the limit in place (censored samples for "
-                     "an output limit) in each form"}
+       "saturation": "the output (or a feedback form's state: one store, or two in cascade) clipped at the "
+                     "level the measurement piles up at, the model re-identified jointly with the limit in "
+                     "place (censored samples for an output limit) in each form"}
 CLIP_MIN_FRACTION = 0.005
 CLIP_MIN_SAMPLES = 5
 FORMS = (("output_dynamics", "wiener_hammerstein"), ("nonlinear_feedback", "nonlinear_feedback"))
 SATURATED_FORMS = (("wiener", "output"), ("wiener_hammerstein", "output"), ("nonlinear_feedback", "output"),
-                   ("nonlinear_feedback", "state"))
+                   ("nonlinear_feedback", "state"), ("store_chain", "state"))
 
 
 def clip_levels(y: np.ndarray, e: np.ndarray | None = None) -> tuple[Limits, str]:
@@ -82,6 +86,8 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
     ``model_params``."""
     if isinstance(model, SaturatedModel):
         return {**model.limits(), "model": model.structure, "model_params": _structure_params(model.inner)}
+    if isinstance(model, StoreChainModel):
+        return {**model.limits(), "model": model.structure, "model_params": _plain_params(model.params)}
     if isinstance(model, FeedbackModel) and model.limited and limited:
         return {**model.limits(), "model": model.structure, "model_params": _structure_params(model, False)}
     if model.structure == "nonlinear_feedback":
@@ -93,6 +99,10 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
     b2, a2 = model.g2.ba
     return {"poles": [[float(p.real), float(p.imag)] for p in np.roots(a2)],
             "zeros": [[float(z.real), float(z.imag)] for z in np.roots(b2)], "order": int(a2.size - 1)}
+
+
+def _plain_params(params: dict[str, float]) -> dict[str, float | None]:
+    return {k: float(v) if np.isfinite(v) else None for k, v in params.items()}
 
 
 def predict(model: SisoModel, rec: SisoRecord) -> np.ndarray:
@@ -172,12 +182,16 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
 
 
 def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: int, options: SisoOptions | None,
-                    limits: Limits) -> SaturatedModel | FeedbackModel:
+                    limits: Limits) -> SaturatedModel | FeedbackModel | StoreChainModel:
     """The ``saturation`` candidate: each form re-identified with the limit in place; the one with
-    the lowest pooled validation RMSE."""
+    the lowest pooled validation RMSE (a form the record cannot have, a store chain fed by an input
+    of negative mean, is left out)."""
     best = None
     for structure, where in SATURATED_FORMS:
-        m = identify_siso(train, structure, options=options, limits=limits, where=where)
+        try:
+            m = identify_siso(train, structure, options=options, limits=limits, where=where)
+        except ValueError:
+            continue
         err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r))[skip:] for r in validate]) ** 2)))
         if best is None or err < best[0]:
             best = (err, m)

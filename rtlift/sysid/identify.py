@@ -15,13 +15,25 @@
    with the lowest held-out RMSE is kept (M. Schoukens, Pintelon & Rolain 2014 initialise the
    same way from a nonparametric BLA).
 
-4. **Saturation** (``limits=(lower, upper)``, the ``saturation`` structure on any of the above):
+4. **Store chain** (``structure="store_chain"``, :class:`.model.StoreChainModel`): two stores in
+   cascade with power-law outflows. Its parameters enter nonlinearly and the simulation error
+   has many local minima (a store that drains too fast or never fills is a flat valley), so it
+   is refined by bounded least squares from ``chain_starts`` starts: exponents ½ (Torricelli),
+   the offset c at the record's 1 % level (the empty lower store), the stores' time constants
+   drawn log-uniformly between 2 samples and a third of the record (a fixed seed), each store's
+   outflow coefficient set so that, linearised about the mean level, it has that time constant,
+   and inflow and transfer so that the mean input holds both stores at that level. The start with
+   the lowest held-out RMSE is kept. Positive parameters are refined in logarithms. With a limit
+   (``where="state"``, the only place a store chain takes one) the lower store is full at the
+   output's limit (``ceiling`` = upper); the upper store's brim and spill share are fitted.
+
+5. **Saturation** (``limits=(lower, upper)``, the ``saturation`` structure on any of the above):
    the output is clipped at the limits, y = min(max(M(u), lower), upper). Samples measured at
    a limit are censored: they say only that M's output is at or beyond it, so f's values are
    fitted on the other samples, and every refinement cost is the simulation error of the
    clipped model, min(max(ŷ, lower), upper) − y, which for a censored sample is nonzero only
    while ŷ has not reached the limit (the censored least squares of a Tobit model).
-   With ``where="state"`` (nonlinear feedback only) the limit acts inside the recursion
+   With ``where="state"`` (nonlinear feedback; for a store chain see 4) the limit acts inside the recursion
    (:class:`.model.FeedbackModel` ``state_limits``): the model's output sits at the limit
    exactly while the store is full, so every sample is fitted, none censored.
 
@@ -33,6 +45,7 @@ unknown); f is refitted on the whole estimation part at the end.
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from dataclasses import dataclass
 
@@ -43,7 +56,7 @@ from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.records import SisoRecord
 from rtlift.identify.pem import denominator_from_theta, theta_from_poles
-from rtlift.model.siso import STRUCTURES, FeedbackModel, SaturatedModel, SisoModel
+from rtlift.model.siso import STRUCTURES, FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 
 
 @dataclass(frozen=True)
@@ -56,6 +69,7 @@ class SisoOptions:
     cost_samples: int = 30000
     max_nfev: int = 400
     feedback_orders: tuple[int, ...] = (2, 3, 4)
+    chain_starts: int = 12
 
 
 def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
@@ -217,9 +231,10 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
     opt = options or SisoOptions()
     if structure not in STRUCTURES:
         raise ValueError(f"unknown structure {structure!r}; expected one of {', '.join(STRUCTURES)}")
-    if where not in ("output", "state") or (where == "state" and structure != "nonlinear_feedback"):
-        raise ValueError(f"a limit where {where!r} is built for the output of any structure and the "
-                         "state of nonlinear_feedback")
+    if not (where == "output" and (structure != "store_chain" or limits == NO_LIMITS)
+            or where == "state" and structure in ("nonlinear_feedback", "store_chain")):
+        raise ValueError(f"a limit where {where!r} is built for the output of wiener, wiener_hammerstein and "
+                         "nonlinear_feedback and for the state of nonlinear_feedback and store_chain")
     t0 = time.perf_counter()
     u, y, fs = rec.u, rec.y, rec.fs_hz
     n_est = int(round((1.0 - opt.holdout) * u.size))
@@ -228,6 +243,12 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
         raise ValueError(f"record too short ({u.size} samples)")
     ue, ye = u[:n_est], y[:n_est]
     cost = slice(0, min(n_est, opt.cost_samples))
+    if structure == "store_chain":
+        model = identify_store_chain(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits)
+        model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout,
+                                identify_seconds=time.perf_counter() - t0)
+        model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
+        return model
     if structure == "nonlinear_feedback":
         model = identify_feedback(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits, where)
         model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout,
@@ -300,5 +321,64 @@ def identify_feedback(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np
         raise ValueError("no stable nonlinear-feedback model found")
     held, model, n = best
     model.provenance = {"structure": "nonlinear_feedback", "order": n}
+    model.metrics = {"holdout_rmse": held}
+    return model
+
+
+def identify_store_chain(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np.ndarray, n_est: int,
+                         skip: int, fs: float, opt: SisoOptions, limits: Limits = NO_LIMITS) -> StoreChainModel:
+    """The ``store_chain`` model (module docstring, 4): fitted on (u, y) from rest, the start kept
+    by the held-out RMSE of (u_all, y_all) from ``n_est`` on; ``limits``' upper side is the lower
+    store's brim as an output level."""
+    u_mean = float(np.mean(u))
+    if not u_mean > 0:
+        raise ValueError("a store chain needs an input of positive mean (a pump's flow)")
+    upper = float(limits[1])
+    c0 = float(np.quantile(y, 0.01))
+    level = float(np.mean(y)) - c0
+    if not level > 0:
+        raise ValueError("a store chain needs an output above its empty level")
+    rng = np.random.default_rng(0)
+    n = u.size
+
+    limited = bool(np.isfinite(upper))
+
+    def unpack(th: np.ndarray) -> dict[str, float]:
+        b, a1, p1, r, a2, p2, c = th[:7]
+        l1, beta = (math.exp(th[7]), th[8]) if limited else (np.inf, 0.0)
+        return {"inflow": math.exp(b), "outflow_1": math.exp(a1), "exponent_1": p1, "transfer": math.exp(r),
+                "outflow_2": math.exp(a2), "exponent_2": p2, "brim_1": l1,
+                "ceiling": upper if limited else np.inf, "spill": beta, "offset": c}
+
+    def res(th: np.ndarray) -> np.ndarray:
+        try:
+            m = StoreChainModel(unpack(th), fs)
+        except (ValueError, OverflowError):
+            return np.full(n - skip, 1e3 * level)
+        r = (m.simulate(u) - y)[skip:]
+        return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3 * level)
+
+    c_hi = upper - 1e-6 * level if limited else np.inf
+    lo = np.array([-40, -40, 0.1, -40, -40, 0.1, -np.inf, -40, 0.0][:9 if limited else 7])
+    hi = np.array([40, 40, 2.0, 40, 40, 2.0, c_hi, 40, 100.0][:9 if limited else 7])
+    best = None
+    for _ in range(opt.chain_starts):
+        t1, t2 = np.exp(rng.uniform(np.log(2.0), np.log(max(3.0, n / 3.0)), 2)) / fs
+        x1 = x2 = level
+        a1, a2 = 2.0 * x1**0.5 / t1, 2.0 * x2**0.5 / t2            # x^(1−p)/(p τ), p = ½
+        b = a1 * x1**0.5 / u_mean
+        r = a2 * x2**0.5 / (a1 * x1**0.5)
+        brim = math.log(3.0 * x1) + rng.normal(0.0, 0.3)
+        th0 = np.array([math.log(b), math.log(a1), 0.5, math.log(r), math.log(a2), 0.5,
+                        min(c0, c_hi - 1e-6 * level), brim, 0.3][:lo.size])
+        sol = optimize.least_squares(res, th0, bounds=(lo, hi), x_scale="jac", max_nfev=opt.max_nfev)
+        model = StoreChainModel(unpack(sol.x), fs)
+        held = _rmse(model, u_all, y_all, n_est)
+        if np.isfinite(held) and (best is None or held < best[0]):
+            best = (held, model)
+    if best is None:
+        raise ValueError("no store chain fits the record")
+    held, model = best
+    model.provenance = {"structure": "store_chain", "starts": opt.chain_starts}
     model.metrics = {"holdout_rmse": held}
     return model

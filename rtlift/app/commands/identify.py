@@ -9,7 +9,7 @@ import time
 from rtlift.core.errors import UserError
 
 LIFT_STRUCTURES = ("paper", "interaction")
-GENERIC_STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback")
+GENERIC_STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback", "store_chain")
 DEFAULT_LIFT_STRUCTURE = "paper"
 
 
