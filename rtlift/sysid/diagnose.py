@@ -87,7 +87,7 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
     if isinstance(model, SaturatedModel):
         return {**model.limits(), "model": model.structure, "model_params": _structure_params(model.inner)}
     if isinstance(model, StoreChainModel):
-        return {**model.limits(), "model": model.structure, "model_params": _plain_params(model.params)}
+        return {**model.limits(), "model": model.structure, "model_params": model.to_dict()["params"]}
     if isinstance(model, FeedbackModel) and model.limited and limited:
         return {**model.limits(), "model": model.structure, "model_params": _structure_params(model, False)}
     if model.structure == "nonlinear_feedback":
@@ -99,10 +99,6 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
     b2, a2 = model.g2.ba
     return {"poles": [[float(p.real), float(p.imag)] for p in np.roots(a2)],
             "zeros": [[float(z.real), float(z.imag)] for z in np.roots(b2)], "order": int(a2.size - 1)}
-
-
-def _plain_params(params: dict[str, float]) -> dict[str, float | None]:
-    return {k: float(v) if np.isfinite(v) else None for k, v in params.items()}
 
 
 def predict(model: SisoModel, rec: SisoRecord) -> np.ndarray:
