@@ -8,6 +8,10 @@
    effect added on sine_k025 and random (against the same model on ``clean``), or, where the
    effect added < 10 %, is no worse than the model.
 
+``--scaled`` runs it on cases whose imprint is scaled by a factor: a hysteresis of half or 1.5
+times the magnitude, a drift of half or twice the amplitude, a pickup of half the amplitude (the
+imprint of each is proportional to that parameter, so the case is exact).
+
 ``--mixes`` runs the protocol on mixes the set does not show, composed from it: all cases share
 one noise seed, so a case minus ``clean`` is its effect's exact imprint, and ``clean`` plus two
 imprints is the mix (exact for effects that add to the measured lift — drift, pickup; an
@@ -31,24 +35,26 @@ from benchmarks._common import run_cli  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "independent_plant"
 CASES = ("clean", "delay", "resonance", "fade", "drift", "mains", "hysteresis", "delay_mains")
+SCALED = (("hysteresis", 0.5), ("hysteresis", 1.5), ("drift", 0.5), ("drift", 2.0), ("mains", 0.5))
 MIXES = (("drift", "mains"), ("fade", "mains"), ("resonance", "drift"), ("fade", "drift"),
          ("hysteresis", "mains"), ("delay", "drift"))
 SCORED = ("sine_k025", "random")
 FS = 400.0
 
 
-def compose(data: Path, parts: tuple[str, ...], out: Path) -> Path:
-    """``clean`` plus each part's imprint (case − clean, same noise seed) as a new case folder."""
+def compose(data: Path, parts: tuple[str, ...], out: Path, scale: float = 1.0) -> Path:
+    """``clean`` plus each part's imprint (case − clean, same noise seed) times ``scale`` as a new
+    case folder."""
     from rtlift.core.records import read_record, write_record
 
-    case = out / "+".join(parts)
+    case = out / ("+".join(parts) + ("" if scale == 1.0 else f"x{scale:g}"))
     case.mkdir(parents=True, exist_ok=True)
     names = [e for p in parts for e in json.loads((data / p / "truth.json").read_text())["interfaces_equivalent"]]
     (case / "truth.json").write_text(json.dumps({"interfaces_equivalent": names, "composed_of": list(parts)}))
     for r in (*SCORED, "sine_k0125"):
         clean = read_record(data / "clean" / f"{r}.csv")
         mix = read_record(data / "clean" / f"{r}.csv")
-        mix.dcl = clean.dcl + sum(read_record(data / p / f"{r}.csv").dcl - clean.dcl for p in parts)
+        mix.dcl = clean.dcl + scale * sum(read_record(data / p / f"{r}.csv").dcl - clean.dcl for p in parts)
         write_record(case / f"{r}.csv", mix)
     return case
 
@@ -110,6 +116,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", nargs="*", default=list(CASES))
     ap.add_argument("--work", type=Path, help="keep the outputs here (default: a temporary folder)")
     ap.add_argument("--mixes", action="store_true", help="also run mixes composed from the cases")
+    ap.add_argument("--scaled", action="store_true",
+                    help="also run cases whose imprint is scaled (exact for a hysteresis's magnitude, a "
+                         "drift's amplitude and a pickup's amplitude: other parameters of the same plant)")
     args = ap.parse_args(argv)
     if not (args.data / "campaign" / "static.csv").exists():
         print(f"no independent plant data at {args.data}", file=sys.stderr)
@@ -128,6 +137,8 @@ def main(argv: list[str] | None = None) -> int:
         cases = [args.data / c for c in args.cases]
         if args.mixes:
             cases += [compose(args.data, parts, work / "mixes") for parts in MIXES]
+        if args.scaled:
+            cases += [compose(args.data, (name,), work / "scaled", k) for name, k in SCALED]
         for d in cases:
             case = d.name
             out = work / case

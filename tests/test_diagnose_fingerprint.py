@@ -108,3 +108,39 @@ def test_a_record_is_compared_with_its_own_type_and_says_so_otherwise(fp):
     entry, note = print_for(model_print, rec)
     assert entry["n"] == 900 and "no x record" in note
     assert print_for({}, rec)[0] is None
+
+
+def test_a_repeated_experiment_meets_the_models_own_misfit_on_it_and_another_does_not(tmp_path):
+    """Known answer: the identification run is the model's output plus a systematic misfit the
+    model has on that input plus noise; a later run of the same experiment (read back from its
+    file) gives back exactly that run's misfit, so ΔCL − m is the model's output plus what
+    changed (and the two runs' noise); a run of another input repeats nothing."""
+    from rtlift.core.records import read_record, write_record
+    from rtlift.diagnose.fingerprint import fingerprint, input_digest, repeat_misfit
+    from rtlift.model.validation import predict_record
+    from testkit.synthetic import burst_input, make_model
+
+    rng = np.random.default_rng(5)
+    model = make_model(rng)
+    n = 4000
+    cmu, env = burst_input(rng, n)
+    t = np.arange(n) / FS
+    yhat_id = predict_record(model, Record(t, cmu, env, np.zeros(n))).total
+    misfit = 0.01 * np.sin(2 * np.pi * 0.5 * t)                     # what the model gets wrong on this input
+    noise_id, noise_later = 0.002 * rng.normal(size=(2, n))
+    change = 0.005 * (t > 5.0)                                      # what happens after identification
+    fp = fingerprint(model, [Record(t, cmu, env, yhat_id + misfit + noise_id)], start=400)
+
+    path = tmp_path / "later.csv"
+    write_record(path, Record(t, cmu.copy(), env.copy(), yhat_id + misfit + change + noise_later))
+    later = read_record(path)
+    m, note = repeat_misfit(fp, model, later)
+    assert m is not None and "repeats" in note
+    assert np.max(np.abs(m - (misfit + noise_id))) < 1e-12
+    assert np.max(np.abs(later.dcl - m - (yhat_id + change + noise_later - noise_id))) < 1e-12
+
+    other = Record(t, 0.5 * cmu, 0.5 * env, yhat_id)
+    assert input_digest(other) != input_digest(later)
+    m_other, note_other = repeat_misfit(fp, model, other)
+    assert m_other is None and "no identification experiment" in note_other
+    assert repeat_misfit(None, model, later)[0] is None              # a model file from before repeats were kept

@@ -577,6 +577,11 @@ class Effect:
     evidence: Callable[[dict[str, TestResult], dict | None, Fitted], Departure]
     n_params: Callable[[dict[str, Any]], int]
     excludes: tuple[str, ...] = ()
+    fits_change: bool = False
+    """Replaces the model's static map: fitted to what changed since identification where the
+    training record repeats an identification experiment (:func:`.fingerprint.repeat_misfit`),
+    since the model's own misfit on that input is a misfit of the map too and a fit to the raw
+    residual takes it for part of the effect."""
 
     @property
     def schema(self) -> EffectSchema:
@@ -590,9 +595,9 @@ def _count(n: int) -> Callable[[dict[str, Any]], int]:
 CATALOG: tuple[Effect, ...] = (      # in the order a combination is built: time, gain, filter, additive
     Effect("delay", fit_delay, evidence_delay, _count(1)),
     Effect("actuator_fade", fit_actuator_fade, evidence_fade, _count(2)),
-    Effect("hysteresis", fit_hysteresis, evidence_hysteresis, _count(4), ("output_nonlinearity",)),
+    Effect("hysteresis", fit_hysteresis, evidence_hysteresis, _count(4), ("output_nonlinearity",), True),
     Effect("output_nonlinearity", fit_output_nonlinearity, evidence_output_nonlinearity, _count(10),
-           ("hysteresis",)),
+           ("hysteresis",), True),
     Effect("sensor_resonance", fit_sensor_resonance, evidence_resonance, _count(2)),
     Effect("zero_drift", fit_zero_drift, evidence_drift, lambda p: 2 if "rate_per_s" in p else 3),
     Effect("periodic_disturbance", fit_periodic_disturbance, evidence_pickup,

@@ -87,6 +87,7 @@ def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
     lines = ["# Diagnosis report", "",
              f"Scores: {r['scoring']}. Residual tests from sample {diag.start} on.", "",
              f"Fingerprint: {r['fingerprint']}.", "",
+             f"Fits: {r['fit_target']}.", "",
              "## Error before and after", "",
              "| record | ρ before | ρ after | NRMSE before | NRMSE after | RMSE before | RMSE after |",
              "|---|---|---|---|---|---|---|"]

@@ -1,6 +1,14 @@
 """Closing the loop: residual tests → candidate effects → model selection on held-out records.
 
-1. **Candidates.** Every effect of the catalog is fitted alone on the training record.
+1. **Candidates.** Every effect of the catalog is fitted alone on the training record, to its
+   residual — except an effect that replaces the model's static map (hysteresis, an output
+   nonlinearity: ``Effect.fits_change``) where the record repeats an identification experiment:
+   it is fitted to what changed since identification (:func:`.fingerprint.repeat_misfit`: ΔCL
+   minus the model's own misfit on that run). That target is free of the model's systematic
+   misfit, itself a misfit of the map that a map-shaped effect would absorb, but carries the
+   noise of both runs, which costs more than it gains for a slow additive or linear effect
+   (fitted so everywhere, a fade took a drift's place on the independent plant). The residual
+   tests and the fingerprint comparison use the record as measured.
 2. **Pool.** A candidate enters the pool when its fit is interior (no parameter on a bound of
    its range: a fade to 0, a "mode" damped like a lag) and it either lowers the validation
    error or its evidence departs from the fingerprint; then each other candidate fitted beside
@@ -37,6 +45,7 @@ report's numbers are the ones ``rtlift validate`` prints for the same model file
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -58,6 +67,7 @@ from rtlift.diagnose.fingerprint import (
     print_for,
     psd_departure,
     record_tests,
+    repeat_misfit,
 )
 from rtlift.diagnose.residual import TestResult, cluster_ols
 from rtlift.model.hybrid import HybridModel
@@ -214,8 +224,9 @@ class _Search:
     """Fits combinations by extending their prefixes (each fitted once, cached)."""
 
     def __init__(self, base: HybridModel, train: Record, judge: _Judge, start: int,
-                 fp: dict[str, Any] | None) -> None:
+                 fp: dict[str, Any] | None, target: Record | None = None) -> None:
         self.train, self.judge, self.start, self.fp = train, judge, start, fp
+        self.target = target or train          # what the fits explain (module docstring, 1)
         self.lines = input_lines_hz(train)
         self.nodes: dict[tuple[str, ...], _Node] = {(): _Node((), {}, base, judge.errors(base))}
         self._tests: dict[tuple[str, ...], dict[str, TestResult]] = {}
@@ -236,14 +247,27 @@ class _Search:
         if parent.failed:
             node = _Node(members, parent.fits, parent.model, parent.errors, parent.failed)
         else:
-            fitted = EFFECTS[name].fit(parent.model, self.train, self.context(members[:-1]))
-            if isinstance(fitted, Fitted):
-                node = _Node(members, {**parent.fits, name: fitted}, fitted.model,
-                             self.judge.errors(fitted.model))
+            fitted = self._fit(name, parent.model, self.context(members[:-1]))
+            if isinstance(fitted, tuple):
+                node = _Node(members, {**parent.fits, name: fitted[0]}, fitted[0].model, fitted[1])
             else:
                 node = _Node(members, parent.fits, parent.model, parent.errors, f"{name}: {fitted}")
         self.nodes[members] = node
         return node
+
+    def _fit(self, name: str, model: HybridModel, ctx: Context) -> tuple[Fitted, list[np.ndarray]] | str:
+        """``name`` fitted on ``model``: to what changed since identification for an effect that
+        replaces the static map (``Effect.fits_change``) where the record repeats an identification
+        experiment, to the training residual otherwise (module docstring, 1); with its errors on
+        the validation records."""
+        change = EFFECTS[name].fits_change and self.target is not self.train
+        fitted = EFFECTS[name].fit(model, self.target if change else self.train, ctx)
+        if not isinstance(fitted, Fitted):
+            return fitted
+        if change:
+            fitted = dataclasses.replace(fitted, note="; ".join(
+                n for n in (fitted.note, "fitted to what changed since identification") if n))
+        return fitted, self.judge.errors(fitted.model)
 
     def without(self, members: tuple[str, ...], name: str) -> _Node:
         return self.node(tuple(m for m in members if m != name))
@@ -286,8 +310,10 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
     fs = model.fs_hz
     start = int(round(float(model.fingerprint.get("start", FINGERPRINT_START_S * fs))))
     fp, fp_note = print_for(model.fingerprint, train)
+    misfit, target_note = repeat_misfit(model.fingerprint, model, train)
+    target = train if misfit is None else dataclasses.replace(train, dcl=train.dcl - misfit)
     judge = _Judge(validate, fs)
-    search = _Search(model, train, judge, start, fp)
+    search = _Search(model, train, judge, start, fp, target)
     base = search.node(())
     rb = judge.pooled(base.errors)
     tests_base = search.tests(())
@@ -400,6 +426,7 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
         "effects": [t.to_dict() for t in trials],
         "unexplained": unexplained(search.tests(best.members), fp, trials),
         "fingerprint": fp_note,
+        "fit_target": target_note,
         "reestimation": refit,
         "selection": {"pool": pool, "chosen": list(best.members), "combinations": table,
                       "rule": "every member lowers the validation error significantly; within "
