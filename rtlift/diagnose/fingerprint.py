@@ -19,8 +19,8 @@ physical events. ``rtlift identify`` therefore stores, per record type of its ca
   m(k) = ΔCL_id(k) − ŷ(k), ŷ the model's output for that input. :func:`repeat_misfit` returns it,
   and the diagnosis fits its candidates to ΔCL − m, what changed since identification (and
   twice the measurement noise), not to a misfit the model already had (on the independent
-  plant, the model's misfit on its training sine is 0.008 against a hysteresis imprint of
-  0.012, and a direction-dependent gain fitted to both took the misfit for half the effect).
+  plant, the model's misfit on its training sine is 0.008 RMS against a hysteresis imprint of
+  0.016, and a direction-dependent gain fitted to both took the misfit for part of the effect).
 
 :func:`departure` functions compare a new record's statistics with these. Two independent
 estimates b₁ ± s₁ and b₂ ± s₂ of one coefficient differ significantly when

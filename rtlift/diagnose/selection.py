@@ -20,7 +20,11 @@
 4. **Every member earns its place.** A combination is admissible only if removing any one
    member makes the validation error significantly worse (:meth:`_Judge.verdict`: relative
    RMSE gain ≥ ``min_gain``, a Diebold–Mariano t ≥ ``min_t`` over 1 s blocks, no record worse
-   by more than 1 %, ρ not lower by more than 0.005). Among the admissible combinations (the
+   by more than 1 %, ρ not lower by more than 0.005). A member whose own evidence departs from
+   the fingerprint (step 5) needs t ≥ ``min_t_confirm`` only: the training record formed the
+   hypothesis, independently of the held-out records, which then confirm it; a member without
+   such evidence is a search over the catalog and needs the stricter ``min_t``
+   (:meth:`_Search.earns`). Among the admissible combinations (the
    empty one included) within ``parsimony`` of the lowest validation RMSE, the one the others
    cannot replace wins (an encompassing test on the held-out records,
    :meth:`_Judge.encompassing`), then the one ranked first by step 5, then the one with fewer
@@ -79,6 +83,7 @@ REPORT_VERSION = 1
 class DiagnoseOptions:
     min_gain: float = 0.015       # relative validation RMSE decrease a member must bring
     min_t: float = 3.0            # significance of that decrease (1 s blocks)
+    min_t_confirm: float = 2.0    # the same for a member whose own evidence departs from the fingerprint
     max_effects: int = 3          # largest combination compared
     pool_size: int = 5            # candidates that enter the combinations
     parsimony: float = 0.02       # combinations this close to the best compete on evidence, then size
@@ -269,6 +274,18 @@ class _Search:
                 n for n in (fitted.note, "fitted to what changed since identification") if n))
         return fitted, self.judge.errors(fitted.model)
 
+    def earns(self, node: _Node, name: str, opt: DiagnoseOptions) -> tuple[bool, str]:
+        """Does member ``name`` earn its place in ``node`` (module docstring, 4)? Its removal must
+        make the validation error significantly worse: t ≥ ``opt.min_t``, or t ≥
+        ``opt.min_t_confirm`` where its own evidence on the training record departs from the
+        fingerprint (the held-out records then confirm a hypothesis the training record formed)."""
+        before = self.without(node.members, name).errors
+        ok, why = self.judge.verdict(before, node.errors, opt)
+        if ok or opt.min_t_confirm >= opt.min_t or not self.classify(node, name).specific.departs:
+            return ok, why
+        ok, why = self.judge.verdict(before, node.errors, dataclasses.replace(opt, min_t=opt.min_t_confirm))
+        return ok, f"{why} (its evidence departs from the fingerprint: t >= {opt.min_t_confirm:g} confirms it)"
+
     def without(self, members: tuple[str, ...], name: str) -> _Node:
         return self.node(tuple(m for m in members if m != name))
 
@@ -360,8 +377,7 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
             elif node.on_bound:
                 row.update(admissible=False, why=f"on a bound: {node.on_bound}")
             else:
-                weak = [(m, judge.verdict(search.without(combo, m).errors, node.errors, opt))
-                        for m in combo]
+                weak = [(m, search.earns(node, m, opt)) for m in combo]
                 lacking = [f"{m} ({why})" for m, (ok, why) in weak if not ok]
                 row.update(admissible=not lacking,
                            why="every member lowers the error significantly" if not lacking else
@@ -386,7 +402,7 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
             rest = search.without(best.members, eff.name)
             fitted = best.fits[eff.name]
             verdict = search.classify(best, eff.name)
-            _, why_in = judge.verdict(rest.errors, best.errors, opt)
+            _, why_in = search.earns(best, eff.name, opt)
             kind = "effect" if verdict.is_effect else "structure"
             text = f"{verdict.text}; {why_in}" + (f"; {fitted.note}" if fitted.note else "")
             trials.append(Trial(eff.name, True, fitted.params, text, judge.pooled(rest.errors),
