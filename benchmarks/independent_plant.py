@@ -14,8 +14,9 @@ imprint of each is proportional to that parameter, so the case is exact).
 
 ``--mixes`` runs the protocol on mixes the set does not show, composed from it: all cases share
 one noise seed, so a case minus ``clean`` is its effect's exact imprint, and ``clean`` plus two
-imprints is the mix (exact for effects that add to the measured lift — drift, pickup; an
-approximation where one acts on the other, e.g. a mode filtering a drift).
+imprints is the mix (exact for effects that add to the measured lift — drift, pickup — after
+the balance's mode; an approximation where one acts on the other: a mode filtering a drift, a
+delay that in a real plant would delay the other effect's imprint too).
 
 Prints a markdown table and, as its last line, one JSON object. ``--data DIR`` points at the
 development set (default ``../shared/data/independent_plant`` beside the checkout).
@@ -37,7 +38,9 @@ DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "indepe
 CASES = ("clean", "delay", "resonance", "fade", "drift", "mains", "hysteresis", "delay_mains")
 SCALED = (("hysteresis", 0.5), ("hysteresis", 1.5), ("drift", 0.5), ("drift", 2.0), ("mains", 0.5))
 MIXES = (("drift", "mains"), ("fade", "mains"), ("resonance", "drift"), ("fade", "drift"),
-         ("hysteresis", "mains"), ("delay", "drift"))
+         ("hysteresis", "mains"), ("delay", "drift"), ("resonance", "mains"), ("delay", "resonance"),
+         ("delay", "fade"), ("fade", "hysteresis"), ("hysteresis", "drift"), ("delay", "hysteresis"),
+         ("resonance", "hysteresis"))
 SCORED = ("sine_k025", "random")
 FS = 400.0
 

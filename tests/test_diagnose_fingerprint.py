@@ -98,6 +98,19 @@ def test_a_mode_filtering_part_of_the_residual_is_found_from_the_spectrum_excess
     assert _spectral_mode(Context(FS, 0, residual_tests(noise(4)), fp, ()), 5.0, 0.47 * FS, 0.005, 0.7) is None
 
 
+def test_a_pickup_line_beside_a_mode_does_not_pull_the_mode_to_it(fp):
+    """The same mode with a strong 60.02 Hz sinusoid added (a pickup, 10x the line's share of
+    the noise): the line stands far higher above the print than the mode, but a sinusoid has no
+    mode's shape; the mode is still found at 31 Hz, not broadened beside the line."""
+    b, a = resonance_ba(31.0, 0.05, FS)
+    e = np.sqrt(0.7) * signal.lfilter(b, a, noise(2)) + np.sqrt(0.3) * noise(3) + 0.02 * np.sin(2 * np.pi * 60.02 * T)
+    ctx = Context(FS, 0, residual_tests(e), fp, ())
+    assert any(p.kind == "line" and abs(p.frequency_hz - 60.02) < 0.2 for p in ctx.tests["spectrum"].data["peaks"])
+    f0, zeta = _spectral_mode(ctx, 5.0, 0.47 * FS, 0.005, 0.7)
+    assert f0 == pytest.approx(31.0, rel=0.03)
+    assert zeta == pytest.approx(0.05, rel=0.5)
+
+
 def test_a_record_is_compared_with_its_own_type_and_says_so_otherwise(fp):
     model_print = {"version": 1, "start": 0, "records": {"sine_k0125": {**fp, "n": 100},
                                                           "static": {**fp, "n": 900}}}

@@ -121,6 +121,17 @@ def test_a_drift_and_a_pickup_together_are_both_named(model, clean_rmse):
     assert row["right"], row
 
 
+def test_a_resonance_and_a_pickup_together_are_both_named(model, clean_rmse):
+    """Exact (the pickup adds to the measured lift after the balance's mode): the mode is fitted
+    where it is (31 Hz, lightly damped) although the 60 Hz line stands far higher above the print."""
+    mix = compose(DEFAULT_DATA, ("resonance", "mains"), model.parent / "mixes")
+    row, report = run_case(model, clean_rmse, mix)
+    assert sorted(row["accepted"]) == ["periodic_disturbance", "sensor_resonance"]
+    assert row["right"], row
+    mode = next(e for e in report["effects"] if e["name"] == "sensor_resonance")
+    assert mode["params"]["damping_ratio"] == pytest.approx(0.05, rel=0.3)
+
+
 def test_a_resonance_and_a_drift_together_are_both_named(model, clean_rmse):
     mix = compose(DEFAULT_DATA, ("resonance", "drift"), model.parent / "mixes")
     row, _ = run_case(model, clean_rmse, mix)

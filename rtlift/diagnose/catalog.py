@@ -56,7 +56,7 @@ from rtlift.diagnose.fingerprint import (
     level_departure,
     psd_departure,
 )
-from rtlift.diagnose.residual import TestResult
+from rtlift.diagnose.residual import Peak, TestResult
 from rtlift.model.hybrid import HybridModel, HybridOutput
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.model.validation import predict_record
@@ -216,14 +216,16 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
     α the share of the residual's power that passes through the mode; fitted in dB from the
     excess's highest point. At the input's lines (burst and envelope harmonics, ±2 bins) the
     mode multiplies the model's own error there, which is not the print's: those bins say
-    nothing of the mode's shape and are left out of the peak search and the fit; a robust
-    (soft L1) loss takes care of what is left."""
+    nothing of the mode's shape and are left out of the peak search and the fit; so are narrow
+    lines that stand above the print (:func:`_pickup_lines`: a sinusoid added to the
+    measurement, a pickup's, has no mode's shape, and a mode fitted to one ends broad and beside
+    it); a robust (soft L1) loss takes care of what is left."""
     if ctx.fingerprint is None:
         return None
     f = np.asarray(ctx.tests["spectrum"].data["f"])
     df = float(f[1])                                      # the Welch grid starts at 0 Hz
     locked = np.zeros(f.size, dtype=bool)
-    for x in ctx.input_lines_hz:
+    for x in (*ctx.input_lines_hz, *_pickup_lines(ctx)):
         locked |= np.abs(f - x) <= 2.0 * df
     free = (~locked).astype(float)                        # 3-bin mean over the free bins only
     excess = 10.0 / math.log(10.0) * ndimage.uniform_filter1d(_psd_excess(ctx) * free, size=3, mode="reflect") \
@@ -322,11 +324,21 @@ def _line_departs(ctx: Context, f_hz: float) -> Departure:
                          f"line at {f_hz:.2f} Hz") if ctx.fingerprint else Departure(99.0, True, "no print")
 
 
+def _standing_lines(ctx: Context) -> list[tuple[Peak, Departure]]:
+    """The training residual's narrow lines (not at the input's lines) whose power stands above
+    the print, with their departures."""
+    lines = [p for p in ctx.tests["spectrum"].data["peaks"] if p.kind == "line"]
+    return [(p, d) for p, d in ((p, _line_departs(ctx, p.frequency_hz)) for p in lines) if d.departs]
+
+
+def _pickup_lines(ctx: Context) -> list[float]:
+    """Frequencies (Hz) of :func:`_standing_lines`: what a pickup would be fitted to."""
+    return [p.frequency_hz for p, _ in _standing_lines(ctx)]
+
+
 def fit_periodic_disturbance(base: HybridModel, train: Record, ctx: Context) -> Fitted | str:
     spec = ctx.tests["spectrum"].data
-    lines = [p for p in spec["peaks"] if p.kind == "line"]
-    standing = [(p, _line_departs(ctx, p.frequency_hz)) for p in lines]
-    standing = [(p, d) for p, d in standing if d.departs]
+    standing = _standing_lines(ctx)
     if not standing:
         return ("no narrow line stands above the fingerprint's spectrum (lines at burst harmonics "
                 "are input-locked)")
