@@ -6,8 +6,9 @@ campaign, ``rtlift diagnose`` per case (train sine_k0125, validate sine_k025 and
 ``effect`` are exactly the truth's names, the key parameters are close and at least half of the
 error the effect added is recovered (or, where it added < 10 %, the model is no worse).
 
-All eight cases are right and are asserted so, with three mixes composed from them (drift plus
-pickup, resonance plus drift, hysteresis plus pickup).
+All eight cases are right and are asserted so, with four mixes composed from them (drift plus
+pickup, resonance plus drift, resonance plus pickup, hysteresis plus pickup) and a hysteresis of
+half the size.
 
 The hysteresis case became right when the diagnosis began to fit an effect that replaces the
 static map to what changed since identification: the training record repeats the campaign's
