@@ -172,7 +172,7 @@ def test_on_cascaded_tanks_the_diagnosis_fills_two_stores_that_overflow(tmp_path
     """The measured Cascaded Tanks through the command line as ``benchmarks/realdata.py`` runs it:
     the estimation data's first 80 % to identify, the rest (from 50 samples earlier) to
     validate, the official test split to score (free run from rest, the first 50 samples
-    unscored). A Wiener model misses by 1.3 V; the level piles up at the 10 V ceiling, and the
+    unscored). A Wiener model misses by 1.4 V; the level piles up at the 10 V ceiling, and the
     store chain with that ceiling (the two tanks, overflow) reaches 0.31 V (target 0.35 V;
     published: grey box 0.191, CT SUBNET 0.306, PNLSS 0.45)."""
     d = np.load(DATA / "cascaded_tanks.npz")
@@ -193,7 +193,7 @@ def test_on_cascaded_tanks_the_diagnosis_fills_two_stores_that_overflow(tmp_path
         assert main(["validate", "--model", str(model), str(tmp_path / "test.csv"), "--skip", "50",
                      "--json", str(tmp_path / f"{which}.json")]) == 0
         rmse[which] = json.loads((tmp_path / f"{which}.json").read_text())["records"]["test"]["rmse"]
-    assert rmse["before"] > 1.0                                    # 1.32 V
+    assert rmse["before"] > 1.0                                    # 1.38 V
     assert rmse["after"] < 0.35                                    # 0.312 V
 
 
