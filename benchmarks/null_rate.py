@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from hil_sim.experiments import run_experiment
+from benchmarks.effects_table import bench_model, records
 from rtlift.diagnose import diagnose
 from rtlift.identify import identify_hybrid
 
@@ -35,16 +35,10 @@ def accepted(report: dict, kind: str) -> list[str]:
 
 
 def bench_runs(seeds: int, first: int) -> list[dict]:
-    camp = {n: run_experiment(n, seed=1).to_record() for n in ("static", "single_burst", "sine_k0125")}
-    model = identify_hybrid(camp["static"], camp["single_burst"], camp["sine_k0125"]).model
+    model = bench_model()
     runs = []
     for s in range(first, first + seeds):
-        def rec(exp: str, seed: int, name: str):
-            r = run_experiment(exp, seed=seed).to_record()
-            r.name = name
-            return r
-        train = rec("sine_k0125", 3 * s, "train")
-        val = [rec("sine_k0125", 3 * s + 1, "val"), rec("random", 3 * s + 2, "valr")]
+        train, val = records([], (3 * s, 3 * s + 1, 3 * s + 2))
         report = diagnose(model, train, val).report
         runs.append({"plant": "bench", "seed": s, "effects": accepted(report, "effect"),
                      "structure": accepted(report, "structure"), "fit_target": report["fit_target"]})

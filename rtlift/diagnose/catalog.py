@@ -217,7 +217,7 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
     excess's highest point. At the input's lines (burst and envelope harmonics, ±2 bins) the
     mode multiplies the model's own error there, which is not the print's: those bins say
     nothing of the mode's shape and are left out of the peak search and the fit; so are narrow
-    lines that stand above the print (:func:`_pickup_lines`: a sinusoid added to the
+    lines that stand above the print (:func:`_standing_lines`: a sinusoid added to the
     measurement, a pickup's, has no mode's shape, and a mode fitted to one ends broad and beside
     it); a robust (soft L1) loss takes care of what is left."""
     if ctx.fingerprint is None:
@@ -225,7 +225,7 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
     f = np.asarray(ctx.tests["spectrum"].data["f"])
     df = float(f[1])                                      # the Welch grid starts at 0 Hz
     locked = np.zeros(f.size, dtype=bool)
-    for x in (*ctx.input_lines_hz, *_pickup_lines(ctx)):
+    for x in (*ctx.input_lines_hz, *(p.frequency_hz for p, _ in _standing_lines(ctx))):
         locked |= np.abs(f - x) <= 2.0 * df
     free = (~locked).astype(float)                        # 3-bin mean over the free bins only
     excess = 10.0 / math.log(10.0) * ndimage.uniform_filter1d(_psd_excess(ctx) * free, size=3, mode="reflect") \
@@ -329,11 +329,6 @@ def _standing_lines(ctx: Context) -> list[tuple[Peak, Departure]]:
     the print, with their departures."""
     lines = [p for p in ctx.tests["spectrum"].data["peaks"] if p.kind == "line"]
     return [(p, d) for p, d in ((p, _line_departs(ctx, p.frequency_hz)) for p in lines) if d.departs]
-
-
-def _pickup_lines(ctx: Context) -> list[float]:
-    """Frequencies (Hz) of :func:`_standing_lines`: what a pickup would be fitted to."""
-    return [p.frequency_hz for p, _ in _standing_lines(ctx)]
 
 
 def fit_periodic_disturbance(base: HybridModel, train: Record, ctx: Context) -> Fitted | str:
