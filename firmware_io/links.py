@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import errno
 import math
+import os
 import select
 import time
 from abc import ABC, abstractmethod
@@ -71,14 +72,19 @@ class Reconnect:
     """What a link does when its device vanishes (an unplugged or re-enumerating adapter):
     close it, then try to reopen it — the configured port or channel, then each of
     ``also`` in turn — after ``first_delay_s``, doubling to ``max_delay_s`` between tries,
-    until it is back or ``give_up_s`` passed (``None``: forever). ``fs_hz`` is the device's
-    sample rate, for the host-clock check of the gap."""
+    until it is back or ``give_up_s`` passed (``None``: forever). While it is down, every
+    candidate that is a filesystem path (a serial port, an SLCAN adapter's tty, a udev
+    ``/dev/serial/by-id`` link) is looked at every ``watch_s``: one that appears, or now
+    names another device node, is opened at once, so the backoff only limits how often a
+    failing open is retried, never how soon a device that came back is read. ``fs_hz`` is
+    the device's sample rate, for the host-clock check of the gap."""
 
     give_up_s: float | None = None
     first_delay_s: float = 0.05
     max_delay_s: float = 1.0
     also: tuple[str, ...] = ()
     fs_hz: float = FS_HZ
+    watch_s: float = 0.005
 
     @classmethod
     def from_config(cls, value: Any) -> Reconnect | None:
@@ -97,13 +103,26 @@ class Reconnect:
             raise LinkError(f"reconnect: unknown option {unknown[0]!r} (known: {', '.join(sorted(known))})")
         try:
             r = cls(**{**value, "also": tuple(str(p) for p in value.get("also", ()))})
-            ok = (r.give_up_s is None or r.give_up_s >= 0) and 0 < r.first_delay_s <= r.max_delay_s and r.fs_hz > 0
+            ok = ((r.give_up_s is None or r.give_up_s >= 0) and 0 < r.first_delay_s <= r.max_delay_s
+                  and r.fs_hz > 0 and r.watch_s > 0)
         except (TypeError, ValueError):
             ok = False
         if not ok:
-            raise LinkError(f"reconnect: give_up_s >= 0, 0 < first_delay_s <= max_delay_s and fs_hz > 0 "
-                            f"expected, got {value!r}")
+            raise LinkError(f"reconnect: give_up_s >= 0, 0 < first_delay_s <= max_delay_s, fs_hz > 0 and "
+                            f"watch_s > 0 expected, got {value!r}")
         return r
+
+
+def _node(where: Any) -> tuple[int, int, int] | None:
+    """The device node a path names now (device, inode, rdev; a symlink followed), or
+    ``None`` when it is absent or ``where`` is no path (a PCAN channel name, a URL)."""
+    if not (isinstance(where, str) and where.startswith("/")):
+        return None
+    try:
+        st = os.stat(where.split("@", 1)[0])
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_rdev
 
 
 class Link(ABC):
@@ -183,15 +202,23 @@ class Link(ABC):
         self._delay = policy.first_delay_s
         self._next_try = now + self._delay
         self._gap_from = self._last
+        self._watched = {where: _node(where) for where in (self._where, *policy.also)}
 
     def _wait_device(self, deadline: float | None) -> bool:
         """Try to reopen the device until it is back (``True``), ``deadline`` passed or the
-        policy gave up (``False``; then ``disconnected``)."""
+        policy gave up (``False``; then ``disconnected``). A watched path that appeared (or
+        names a new node) since the last look is tried at once; all are tried on the backoff."""
         policy = self.reconnect
         while True:
             now = time.perf_counter()
-            if now >= self._next_try:
-                for where in (self._where, *policy.also):
+            appeared = []
+            for where, before in self._watched.items():
+                node = _node(where)
+                if node is not None and node != before:
+                    appeared.append(where)
+                self._watched[where] = node
+            if appeared or now >= self._next_try:
+                for where in appeared if now < self._next_try else (self._where, *policy.also):
                     try:
                         self._open_device(where)
                     except LinkError:
@@ -206,9 +233,12 @@ class Link(ABC):
                     self.disconnected = True
                     self.close()
                     return False
-                self._delay = min(2 * self._delay, policy.max_delay_s)
-                self._next_try = now + self._delay
+                if now >= self._next_try:
+                    self._delay = min(2 * self._delay, policy.max_delay_s)
+                    self._next_try = now + self._delay
             wake = self._next_try if deadline is None else min(self._next_try, deadline)
+            if any(isinstance(w, str) and w.startswith("/") for w in self._watched):
+                wake = min(wake, now + policy.watch_s)
             if deadline is not None and now >= deadline:
                 return False
             time.sleep(max(0.0, wake - now))

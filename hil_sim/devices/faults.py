@@ -149,6 +149,8 @@ class DeviceStats:
     reached it corrupted (each one also in ``cmd_errors``), ``commands_delayed`` reached it
     late (then counted like the others). Every command packet the host wrote is exactly one of
     dropped, corrupted-or-otherwise-invalid (``cmd_errors``), valid, or still delayed.
+    ``samples_unread`` (a device made with ``unread_lost``) were sampled while no host had the
+    port open, and so never sent.
     """
 
     samples: int = 0
@@ -172,6 +174,7 @@ class DeviceStats:
     commands_corrupted: int = 0
     commands_delayed: int = 0
     watchdog_trips: int = 0
+    samples_unread: int = 0
     disconnected: bool = False
 
     def as_dict(self) -> dict[str, int | bool]:

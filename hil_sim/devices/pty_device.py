@@ -5,6 +5,11 @@ for the host to open. ``start()`` runs the device thread: it answers what the ho
 and emits one sample per period on absolute deadlines (``deadline += period``; it waits
 ``max(0, deadline − perf_counter())`` in ``select`` so host commands are served meanwhile).
 ``stop()`` ends the thread and closes the pty: for the host the device is gone.
+
+With ``unread_lost`` the device keeps no end of the slave open itself, so it can see (a
+hang-up on the master) whether a host has the port open: like a USB DAQ whose clock runs
+whether or not anybody reads it, what it samples while nobody has the port open is lost
+(``stats.samples_unread``) instead of waiting in the pty's buffer.
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ class PtyDevice(ABC):
 
     def __init__(self, samples: Iterator[tuple[int, int, int, tuple[int, ...]]], *, fs_hz: float = FS_HZ,
                  faults: FaultPlan | None = None, seed: int = 0, max_samples: int | None = None,
-                 keep_sent: bool = False) -> None:
+                 keep_sent: bool = False, unread_lost: bool = False) -> None:
         self._samples = samples
         self.fs_hz = float(fs_hz)
         self.faults = faults or FaultPlan()
@@ -47,6 +52,12 @@ class PtyDevice(ABC):
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
+        self._hangup = None
+        if unread_lost:
+            os.close(self._slave)
+            self._slave = None
+            self._hangup = select.poll()
+            self._hangup.register(self._master, select.POLLHUP)
         self._stop = threading.Event()
         self.finished = threading.Event()
         """Set when the device stops streaming (source exhausted, max_samples, disconnect, stop);
@@ -114,7 +125,8 @@ class PtyDevice(ABC):
                     if select.select([master], [], [], 0.05)[0]:
                         self._serve_input()
                     continue
-                readable, _, _ = select.select([master], [], [], max(0.0, deadline - now))
+                hung_up = self._hangup is not None and bool(self._hangup.poll(0))   # no host: nothing to read
+                readable, _, _ = select.select([] if hung_up else [master], [], [], max(0.0, deadline - now))
                 if readable:
                     self._serve_input()
                     continue
@@ -136,7 +148,10 @@ class PtyDevice(ABC):
                     self.finished.set()
                     continue
                 self.stats.samples += 1
-                self._emit(index, sample)
+                if self._hangup is not None and self._hangup.poll(0):
+                    self.stats.samples_unread += 1      # nobody has the port open: lost
+                else:
+                    self._emit(index, sample)
                 deadline += period
         except OSError as exc:
             if exc.errno not in (errno.EIO, errno.EBADF):

@@ -62,9 +62,10 @@ class SerialDaq(PtyDevice):
 
     def __init__(self, chunks: Iterable[object], *, fs_hz: float = FS_HZ, faults: FaultPlan | None = None,
                  seed: int = 0, max_samples: int | None = None, keep_sent: bool = False,
-                 first_seq: int = 0, period_us: int | None = None, first_t_us: int = 0) -> None:
+                 first_seq: int = 0, period_us: int | None = None, first_t_us: int = 0,
+                 unread_lost: bool = False) -> None:
         super().__init__(wire_samples(chunks, serial_wire), fs_hz=fs_hz, faults=faults, seed=seed,
-                         max_samples=max_samples, keep_sent=keep_sent)
+                         max_samples=max_samples, keep_sent=keep_sent, unread_lost=unread_lost)
         self.first_seq = first_seq
         self.first_t_us = first_t_us
         self.period_us = period_us if period_us is not None else int(round(1e6 / fs_hz))
