@@ -1,4 +1,4 @@
-"""The compiled 400 Hz step of the hybrid model (numba ``@njit(cache=True)``).
+"""The compiled 400 Hz step of the hybrid model (numba, through :func:`rtlift.core.jit.njit_cached`).
 
 :func:`hybrid_step` is :meth:`rtlift.model.hybrid.HybridModel.reference_step` for a model whose
 only augmentation stage is at most one input ``delay`` (what ``rtlift identify`` writes), as
@@ -29,15 +29,17 @@ sample's recursions through memory) and 10–12 ms for the numpy/scipy chain.
 from __future__ import annotations
 
 import numpy as np
-from numba import carray, njit, types
+from numba import carray, types
 from numba.core import cgutils
 from numba.extending import intrinsic
+
+from rtlift.core.jit import njit_cached
 
 _COUNT_MAX = 128
 """Grids up to this many points are searched by counting (:func:`_segment`)."""
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _segment(xs, v):
     """``bisect_right(xs, v) − 1``: the grid segment holding v (−1 below the grid). A grid of up
     to ``_COUNT_MAX`` points is searched by counting the points v is not below: the same number
@@ -60,7 +62,7 @@ def _segment(xs, v):
     return lo - 1
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _table(xs, fs, slopes, v, extrapolate):
     """The piecewise-linear table of :class:`rtlift.blocks.wiener._Table` (bisect_right search)."""
     j = _segment(xs, v)
@@ -86,7 +88,7 @@ def pack_parameters(taps: np.ndarray, coef: np.ndarray, A: np.ndarray, B: np.nda
     return np.concatenate([head, taps, coef.ravel(), A.ravel(), B, C, xs, fs, slopes, np.zeros(B.size)])
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _delayed(cmu, env, d_cmu, d_env, d_pos):
     """The ``delay`` stage: (Cμ(k − D), Cμ_env(k − D)) out of its rings (length D; empty: D = 0),
     (Cμ(k), Cμ_env(k)) in."""
@@ -101,7 +103,7 @@ def _delayed(cmu, env, d_cmu, d_env, d_pos):
     return c, e
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _push(buf, pos, u):
     """Cμ(k) into the convolution's mirrored buffer; returns the position p of the newest input
     (the last L inputs, newest first, are ``buf[p:p + L]``)."""
@@ -115,7 +117,7 @@ def _push(buf, pos, u):
     return p
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _highpass(par, o, z, v):
     """One sample through the SOS cascade (TDF-II, sosfilt's recurrences) whose rows start at
     ``par[o]``; advances z."""
@@ -128,7 +130,7 @@ def _highpass(par, o, z, v):
     return v
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _wiener_table(par, o, n):
     """Views of ``par`` for the Wiener block of order n whose A starts at ``par[o]``: the table's
     (grid, values, slopes) and the LTI's scratch. Taken once per call, not per sample: each view
@@ -139,7 +141,7 @@ def _wiener_table(par, o, n):
             par[o + 3 * n_table - 1:o + 3 * n_table - 1 + n])
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _wiener(par, o, xs, fs, slopes, scratch, x, env):
     """ΔCL_L(k) of the Wiener block whose A starts at ``par[o]`` (then B, C; the table's views
     from :func:`_wiener_table`); advances x."""
@@ -159,7 +161,7 @@ def _wiener(par, o, xs, fs, slopes, scratch, x, env):
     return _table(xs, fs, slopes, y, True)
 
 
-@njit(cache=True)
+@njit_cached
 def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, buf, pos, z, x):
     """One sample: (ΔCL, ΔCL_H, ΔCL_L); advances the delay rings, the convolution buffer and
     position, the filter state z and the LTI state x in place (``par``: :func:`pack_parameters`).
@@ -200,7 +202,7 @@ def state_slots(z: np.ndarray, x: np.ndarray) -> tuple[tuple[float, ...], ...]:
     return (0.0,) * z.size, (0.0,) * x.size, (0.0,) * (2 + 5 * (z.size // 2) + x.size * (x.size + 2))
 
 
-@njit(cache=True)
+@njit_cached
 def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, pos, z, x, z_slots, x_slots,
                     p_slots):
     """:func:`hybrid_step` over whole arrays in one loop, into ``total``, ``high`` and ``low``
@@ -267,7 +269,7 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, p
     x[:] = x_local
 
 
-@njit(cache=True)
+@njit_cached
 def fir_scatter(ext, taps, out):
     """``out = np.convolve(ext, taps, 'valid')`` by scattering each non-zero input over the
     outputs it reaches (``out[i − L + 1 + j] += ext[i] · taps[j]``): nnz(ext)·L multiply-adds

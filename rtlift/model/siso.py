@@ -22,12 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from numba import njit
-
 from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.errors import ModelFileError
+from rtlift.core.jit import njit_cached
 
 FORMAT = "rtlift-siso-model"
 VERSION = 1
@@ -163,7 +162,7 @@ class FeedbackModel:
         return model_from_dict(self.to_dict())
 
 
-@njit(cache=True)
+@njit_cached
 def _chain_run(p: np.ndarray, u: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:   # pragma: no cover
     """:meth:`StoreChainModel.step` over ``u`` (compiled; the same arithmetic in the same order),
     advancing the state ``x`` = [x₁, x₂] in place; ``p`` as :attr:`StoreChainModel.vector`."""

@@ -1,4 +1,4 @@
-"""The compiled 400 Hz observer step (numba ``@njit(cache=True)``).
+"""The compiled 400 Hz observer step (numba, through :func:`rtlift.core.jit.njit_cached`).
 
 :func:`observer_step` is :meth:`rtlift.observer.Observer.reference_step` as one machine-code
 call, for an observer whose model takes the compiled model step (``model.compiled``): it calls
@@ -19,9 +19,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from rtlift.blocks.compiled import _segment, _table, hybrid_step
+from rtlift.core.jit import njit_cached
 from rtlift.observer import config
 
 # slots of the scalar state s
@@ -53,7 +53,7 @@ def pack_layout(layout, R: float, gate: float, max_rejections: int) -> tuple[np.
     return ipar, fpar
 
 
-@njit(cache=True)
+@njit_cached
 def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, buf, pos, z, xm,
                   ipar, fpar, Q, xi, P, H, T, work, tab, s):
     """One sample (Cμ, Cμ_env, measured ΔCL or NaN): returns (ΔĈL, open-loop ΔCL, ν, NIS,
@@ -222,7 +222,7 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, buf, pos, z, xm,
     return est, total, innovation, nis, flags, xi[ipar[BIAS]]
 
 
-@njit(cache=True)
+@njit_cached
 def _touch(a):
     """Σ of one float per 64-byte cache line of a C-contiguous array (any rank, read only)."""
     flat = a.reshape(a.size)
@@ -232,7 +232,7 @@ def _touch(a):
     return acc
 
 
-@njit(cache=True)
+@njit_cached
 def observer_touch(mpar, d_cmu, d_env, d_pos, buf, pos, z, xm, ipar, fpar, Q, xi, P, H, T, work, tab, s):
     """Read every cache line :func:`observer_step` will read or write (same arguments after
     Cμ, Cμ_env, ΔCL), changing nothing: called while a spinning loop waits for the next
@@ -243,20 +243,20 @@ def observer_touch(mpar, d_cmu, d_env, d_pos, buf, pos, z, xm, ipar, fpar, Q, xi
             + _touch(H) + _touch(T) + _touch(work) + _touch(tab) + _touch(s))
 
 
-@njit(cache=True)
+@njit_cached
 def _table_offset(mpar, n_taps, n_sections, n):
     """Where the Wiener table starts in :func:`rtlift.blocks.compiled.pack_parameters`'s array."""
     return 2 + n_taps + 5 * n_sections + n * n + 2 * n
 
 
-@njit(cache=True)
+@njit_cached
 def _slope(xs, slopes, y):
     """df/dy of the table at y: the slope of the segment holding y, the end ones beyond the grid
     (``OutputNonlinearity.slope_at``)."""
     return slopes[min(max(_segment(xs, y), 0), xs.shape[0] - 2)]
 
 
-@njit(cache=True)
+@njit_cached
 def _phase_step(cmu, s, harmonics, max_period, tab):
     """:meth:`BurstPhase.step` on ``s[PHASE:PHASE + 3]``: the row of ``tab`` at φ(k), or −1
     where undefined; rebuilds ``tab`` when the period changes."""
