@@ -101,3 +101,39 @@ def test_record_without_bursts_is_a_one_line_error_with_exit_2(campaign, tmp_pat
     rc = main(args)
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and err.startswith("rtlift: error:")
+
+
+def test_a_stage_that_makes_a_nan_stops_identify_with_one_line_naming_it(campaign, tmp_path, monkeypatch, capsys):
+    """Issue 26: a non-finite number is caught where it arises, not by the JSON writer: exit 1,
+    one line naming the stage and the record, no model file and no temporary file left."""
+    import numpy as np
+
+    from rtlift.identify import campaign as stages
+
+    real = stages.fit_kernel
+
+    def poisoned(*args, **kwargs):
+        k = real(*args, **kwargs)
+        k.kernel[3] = np.nan
+        return k
+
+    monkeypatch.setattr(stages, "fit_kernel", poisoned)
+    _, paths = campaign
+    out = tmp_path / "m.json"
+    assert main(identify_args(paths, out)) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"rtlift: error: single-burst kernel on {paths['single_burst'].stem}: kernel[3] is not finite "
+                   "(NaN or Inf); nothing was written"]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_model_file_is_written_whole_or_not_at_all(model_file, tmp_path):
+    from rtlift.core.errors import NumericalError
+    from rtlift.model.modelfile import save_model
+
+    m = load_model(model_file)
+    m.provenance["wiener"]["uncertainty"]["poles_std"] = [0.1, float("inf")]
+    out = tmp_path / "m.json"
+    with pytest.raises(NumericalError, match=r"provenance\.wiener\.uncertainty\.poles_std\[1\] is not finite"):
+        save_model(m, out)
+    assert list(tmp_path.iterdir()) == []

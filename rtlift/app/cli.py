@@ -14,7 +14,7 @@ import os
 import sys
 import traceback
 
-from rtlift.core.errors import UserError
+from rtlift.core.errors import NumericalError, UserError
 
 COMMANDS = ("demo", "bench", "identify", "validate", "diagnose", "observe", "control", "replay")
 
@@ -59,6 +59,9 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"rtlift: error: {exc}", file=sys.stderr)
         return 2
+    except NumericalError as exc:
+        print(f"rtlift: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("rtlift: interrupted", file=sys.stderr)
         return 130

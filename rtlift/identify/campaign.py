@@ -45,6 +45,7 @@ from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.stages import Delay
 from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
+from rtlift.core.errors import require_finite
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
 from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
@@ -255,7 +256,9 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
         raise ValueError(f"dead time {opt.dead_time} samples is out of range")
     fs = _check_rate([static_rec, burst_rec, train_rec])
     static = fit_static_map(static_rec.cmu_envelope, static_rec.dcl, fs)
+    require_finite("static map", static_rec.name, cmu=static.cmu, dcl=static.dcl, rmse=static.fit_rmse)
     kernel = fit_kernel(burst_rec.cmu, burst_rec.dcl, fs)
+    require_finite("single-burst kernel", burst_rec.name, kernel=kernel.kernel, phi=kernel.phi)
 
     n = train_rec.dcl.size
     n_est = int(round((1.0 - opt.holdout_fraction) * n))
@@ -277,6 +280,8 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     scored = [first[form] if d == dead_times[0] else
               _fit_structure(static, kernel, data(d), opt, form, d, skip, fs, fixed=first[form])
               for form in forms for d in dead_times]
+    require_finite("structure search (high-pass, Wiener order)", train_rec.name,
+                   holdout_rmse=[f.holdout_rmse for f in scored])
     pick = choose_structure(scored, opt.structure_tolerance)
     fit = first[pick.form] if pick.dead_time == dead_times[0] else \
         _fit_structure(static, kernel, data(pick.dead_time), opt, pick.form, pick.dead_time, skip, fs)
@@ -293,6 +298,8 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     pem = fit_wiener(env, dcl if refine else dcl - high, choice.order, form=form, fs_hz=fs,
                      gain=gain, table=table, skip=skip, theta0=fit.candidates[choice.order][0].theta,
                      extra=high if refine else None, cost=full)
+    require_finite("Wiener PEM", train_rec.name, a=pem.lti.a, c=pem.lti.c, rmse=pem.rmse,
+                   extra_coef=pem.extra_coef, uncertainty=pem.uncertainty)
     phi = kernel.phi * (float(pem.extra_coef[0]) if refine else 1.0)
 
     lti = pem.lti
@@ -303,6 +310,7 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     model.convolution = RingConvolution(refined.kernel, phi)
     out = model.simulate(train_rec.cmu, train_rec.cmu_envelope)
     model.reset()
+    require_finite("kernel refinement and simulation", train_rec.name, kernel=refined.kernel, output=out.total)
     dcl = train_rec.dcl
     resid = dcl - out.total
     noise_std = quiet_noise_std(burst_rec, fs)
@@ -365,6 +373,8 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
             f"{static.cmu_max:.4g}")
     model.fingerprint = fingerprint(model, [train_rec, static_rec, burst_rec],
                                     int(round(FINGERPRINT_START_S * fs)))
+    require_finite("residual fingerprint", f"{train_rec.name}, {static_rec.name}, {burst_rec.name}",
+                   fingerprint=model.fingerprint, metrics=metrics)
     observer = {"measurement_noise_std": noise_std,
                 "model_residual_std": metrics["residual_std_train"]}
     return Identification(model, static, kernel, hp, choice, pem, provenance, metrics, observer)

@@ -26,6 +26,7 @@ from rtlift.blocks.lti import spectral_radius
 from rtlift.blocks.stages import stage_from_spec
 from rtlift.blocks.wiener import NONLINEARITIES, WienerBlock
 from rtlift.core.errors import ModelFileError
+from rtlift.core.jsonfile import write_json_atomic
 from rtlift.model.hybrid import HybridModel
 
 FORMAT = "rtlift-model"
@@ -163,19 +164,15 @@ def load_any_model(path: str | os.PathLike):
 
 def save_model(model: HybridModel, path: str | os.PathLike, *, provenance: dict[str, Any] | None = None,
                metrics: dict[str, Any] | None = None, observer: dict[str, Any] | None = None) -> None:
-    """Write ``model`` (updating its provenance/metrics/observer dicts when given)."""
+    """Write ``model`` (updating its provenance/metrics/observer dicts when given): whole or not
+    at all, :class:`~rtlift.core.errors.NumericalError` naming the first non-finite entry."""
     if provenance is not None:
         model.provenance = dict(provenance)
     if metrics is not None:
         model.metrics = dict(metrics)
     if observer is not None:
         model.observer_config = dict(observer)
-    d = model_to_dict(model)
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(d, f, indent=1, allow_nan=False, default=_jsonable)
-        f.write("\n")
-    os.replace(tmp, path)
+    write_json_atomic(path, model_to_dict(model), stage="model file", default=_jsonable)
 
 
 def _jsonable(o: Any) -> Any:

@@ -15,7 +15,6 @@ twin; both carry one explicit state. A model file is JSON with ``"kind": "siso"`
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,6 +26,7 @@ from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.errors import ModelFileError
 from rtlift.core.jit import njit_cached
+from rtlift.core.jsonfile import write_json_atomic
 
 FORMAT = "rtlift-siso-model"
 VERSION = 1
@@ -394,8 +394,4 @@ def _limit_pair(sat: dict[str, Any]) -> tuple[float, float]:
 
 
 def save_siso_model(model: SisoModel | FeedbackModel | SaturatedModel, path: str | os.PathLike) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(model.to_dict(), fh, indent=1, allow_nan=False)
-        fh.write("\n")
-    os.replace(tmp, path)
+    write_json_atomic(path, model.to_dict(), stage="model file")

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -235,7 +234,6 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
             or where == "state" and structure in ("nonlinear_feedback", "store_chain")):
         raise ValueError(f"a limit where {where!r} is built for the output of wiener, wiener_hammerstein and "
                          "nonlinear_feedback and for the state of nonlinear_feedback and store_chain")
-    t0 = time.perf_counter()
     u, y, fs = rec.u, rec.y, rec.fs_hz
     n_est = int(round((1.0 - opt.holdout) * u.size))
     skip = min(opt.skip, n_est // 10)
@@ -245,14 +243,12 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
     cost = slice(0, min(n_est, opt.cost_samples))
     if structure == "store_chain":
         model = identify_store_chain(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits)
-        model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout,
-                                identify_seconds=time.perf_counter() - t0)
+        model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout)
         model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
         return model
     if structure == "nonlinear_feedback":
         model = identify_feedback(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits, where)
-        model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout,
-                                identify_seconds=time.perf_counter() - t0)
+        model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout)
         model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
         return model
     orders = (order,) if order else opt.orders
@@ -286,7 +282,7 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
     held, model = best
     model.provenance = {"tool": "rtlift identify --record", "record": rec.name, "structure": structure,
                         "bla_order": n, "bla_holdout_rmse": bla_holdout, "holdout_fraction": opt.holdout,
-                        "splits_refined": len(starts), "identify_seconds": time.perf_counter() - t0}
+                        "splits_refined": len(starts)}
     model.metrics = {"holdout_rmse": held, "train_rmse": _rmse(model, ue, ye, skip)}
     return model
 

@@ -6,7 +6,7 @@ import argparse
 import sys
 import time
 
-from rtlift.core.errors import UserError
+from rtlift.core.errors import UserError, require_finite
 
 LIFT_STRUCTURES = ("paper", "interaction")
 GENERIC_STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback", "store_chain")
@@ -98,10 +98,10 @@ def run(args: argparse.Namespace) -> int:
                         f"{args.train}: {exc}") from None
     seconds = time.perf_counter() - t0
     observer = {**idf.observer, **tune_observer(idf.model, [train])}   # Q, R from the data, for rtlift observe
+    require_finite("observer tuning", train.name, observer=observer)
     idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
                                "train": str(args.train)}
-    idf.provenance["identify_seconds"] = seconds
-    _save(idf, args.out, observer)
+    _save(idf, args.out, observer)     # no clock in the file: the same inputs give the same bytes
     print(summary(idf, args.out, seconds))
     return 0
 
@@ -124,9 +124,9 @@ def run_interaction(args: argparse.Namespace, static, burst, trains, train) -> i
         raise UserError(f"cannot identify from {names}: {exc}") from None
     seconds = time.perf_counter() - t0
     observer = {**idf.observer, **tune_observer(idf.model, [train])}
+    require_finite("observer tuning", train.name, observer=observer)
     idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
                                "trains": [str(f) for f in args.trains or ()], "train": str(args.train)}
-    idf.provenance["identify_seconds"] = seconds
     _save(idf, args.out, observer)
     st, w, dom = idf.provenance["structure"], idf.provenance["wiener"], idf.provenance["domain"]
     lines = [f"identified interaction model in {seconds:.2f} s -> {args.out}",
@@ -203,6 +203,7 @@ def run_generic(args: argparse.Namespace) -> int:
     if args.order is not None and not 1 <= args.order <= 8:
         raise UserError(f"--order {args.order}: must be between 1 and 8")
     rec = read_siso_record(args.record, min_samples=500)
+    t0 = time.perf_counter()
     try:
         model = identify_siso(rec, args.structure, args.order)
     except ValueError as exc:
@@ -212,7 +213,7 @@ def run_generic(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"{args.out}: cannot write model file ({exc.strerror})") from None
     p = model.provenance
-    lines = [f"identified {model.structure} model in {p['identify_seconds']:.1f} s -> {args.out}"]
+    lines = [f"identified {model.structure} model in {time.perf_counter() - t0:.1f} s -> {args.out}"]
     if "bla_order" in p:
         lines.append(f"  best linear approximation: order {p['bla_order']}, held-out RMSE {p['bla_holdout_rmse']:.5g}")
     lines.append(f"  held-out RMSE {model.metrics['holdout_rmse']:.5g} (last {100 * p['holdout_fraction']:.0f} % "
