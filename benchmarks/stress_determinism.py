@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import os
 import subprocess
 import sys
@@ -33,6 +34,25 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "independent_
 
 def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _json_difference(a: object, b: object, where: str = "") -> str | None:
+    """The path of the first value that differs between two JSON documents."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            if k not in a or k not in b:
+                return f"{where}.{k}"
+            d = _json_difference(a[k], b[k], f"{where}.{k}")
+            if d:
+                return d
+        return None
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            d = _json_difference(x, y, f"{where}[{i}]")
+            if d:
+                return d
+        return None
+    return None if a == b else f"{where or '.'}: {a!r} vs {b!r}"[:200]
 
 
 def _rtlift(argv: list[str], env: dict) -> tuple[int, str, float]:
@@ -67,13 +87,24 @@ def _batch(label: str, argvs: list[list[str]], outputs: list[list[Path]], parall
         results = list(pool.map(lambda a: _rtlift(a, env), argvs))
     failures = [f"run {i}: exit {code}: {err}" for i, (code, err, _) in enumerate(results) if code != 0]
     ok = [i for i, (code, _, _) in enumerate(results) if code == 0]
-    digests = {tuple(_digest(p) for p in outputs[i]) for i in ok}
+    by_digest: dict = {}
+    for i in ok:
+        by_digest.setdefault(tuple(_digest(p) for p in outputs[i]), i)
+    digests = set(by_digest)
+    differences = []
+    if len(by_digest) > 1:
+        first, *others = by_digest.values()
+        for i in others:
+            for pa, pb in zip(outputs[first], outputs[i], strict=True):
+                d = _json_difference(json.loads(pa.read_text()), json.loads(pb.read_text()))
+                if d:
+                    differences.append(f"{pb.name} of run {i} vs run {first}: {d}")
     seconds = sorted(s for _, _, s in results)
-    for line in failures:
+    for line in failures + differences:
         print(f"{label}: {line}", file=sys.stderr)
     print(f"{label}: {len(ok)} of {len(argvs)} succeeded, {len(digests)} distinct output(s), "
           f"median {seconds[len(seconds) // 2]:.1f} s", file=sys.stderr)
-    return {"runs": len(argvs), "succeeded": len(ok), "failures": failures,
+    return {"runs": len(argvs), "succeeded": len(ok), "failures": failures, "differences": differences,
             "distinct_outputs": len(digests), "identical": len(ok) == len(argvs) and len(digests) == 1,
             "median_seconds": round(seconds[len(seconds) // 2], 2)}
 
