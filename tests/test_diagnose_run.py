@@ -17,9 +17,15 @@ from hil_sim.experiments import run_experiment, write_bench_record
 from rtlift.app.cli import main
 from rtlift.core.records import SisoRecord, write_siso_record
 
-pytestmark = pytest.mark.slow
 MODEL = Path(__file__).parent / "data" / "bench_model.json"
 FADE = "actuator_fade:final_fraction=0.7,time_constant_s=1.0"
+
+
+@pytest.fixture(scope="module")
+def clean_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("clean") / "clean.csv"
+    write_bench_record(run_experiment("random", seed=32), path)
+    return path
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +42,7 @@ def runs(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_a_fade_in_one_run_is_named_with_its_parameters(runs):
     rep = runs["fade"]
     acc = [e for e in rep["effects"] if e["accepted"]]
@@ -50,6 +57,7 @@ def test_a_fade_in_one_run_is_named_with_its_parameters(runs):
     assert rep["augmented"]["records"]["fade_validate"]["rmse"] <= acc[0]["validation_rmse_after"] * (1 + 1e-9)
 
 
+@pytest.mark.slow
 def test_the_report_says_which_samples_trained_and_which_validated(runs):
     split = runs["fade"]["split"]
     assert split["fraction"] == 0.6 and split["samples"] == 24000
@@ -58,12 +66,14 @@ def test_the_report_says_which_samples_trained_and_which_validated(runs):
     assert "split at sample 14400" in runs["fade"]["scoring"]
 
 
+@pytest.mark.slow
 def test_a_clean_run_accepts_nothing(runs):
     assert [e["name"] for e in runs["clean"]["effects"] if e["accepted"]] == []
     b, a = runs["clean"]["baseline"]["records"], runs["clean"]["augmented"]["records"]
     assert a == b
 
 
+@pytest.mark.slow
 def test_the_split_moves_the_boundary(runs, tmp_path):
     out = tmp_path / "o"
     assert main(["diagnose", "--model", str(MODEL), "--run", str(runs["dir"] / "clean.csv"), "--split", "0.5",
@@ -88,15 +98,15 @@ def _one_line_exit_2(argv, capsys) -> str:
     (["--train", "R"], "--run F"),
     ([], "--run F"),
 ])
-def test_bad_combinations_are_one_line_and_exit_2(runs, extra, says, tmp_path, capsys):
-    rec = str(runs["dir"] / "clean.csv")
+def test_bad_combinations_are_one_line_and_exit_2(clean_csv, extra, says, tmp_path, capsys):
+    rec = str(clean_csv)
     argv = ["diagnose", "--model", str(MODEL), *[rec if a == "R" else a for a in extra], "--out", str(tmp_path)]
     assert says in _one_line_exit_2(argv, capsys)
 
 
-def test_a_run_too_short_to_split_is_one_line_and_exit_2(runs, tmp_path, capsys):
+def test_a_run_too_short_to_split_is_one_line_and_exit_2(clean_csv, tmp_path, capsys):
     short = tmp_path / "short.csv"
-    lines = (runs["dir"] / "clean.csv").read_text().splitlines()
+    lines = clean_csv.read_text().splitlines()
     header = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
     short.write_text("\n".join(lines[:header + 1 + 20 * 400]) + "\n")       # 20 s: 12 s + 8 s at 0.6
     err = _one_line_exit_2(["diagnose", "--model", str(MODEL), "--run", str(short), "--out", str(tmp_path / "o")],
@@ -110,3 +120,18 @@ def test_a_generic_record_for_a_lift_model_is_one_line_and_exit_2(tmp_path, caps
     err = _one_line_exit_2(["diagnose", "--model", str(MODEL), "--run", str(tmp_path / "g.csv"),
                             "--out", str(tmp_path / "o")], capsys)
     assert "generic" in err
+
+
+def test_a_generic_run_too_short_to_split_is_one_line_and_exit_2(tmp_path, capsys):
+    from rtlift.model.siso import save_siso_model
+    from tests.test_sysid import random_model
+
+    save_siso_model(random_model(np.random.default_rng(1), False), tmp_path / "w.json")
+    u = np.sin(np.arange(120) * 0.1)
+    write_siso_record(tmp_path / "g.csv", SisoRecord(np.arange(120) * 1e-3, u, u, {}, "g"))
+    err = _one_line_exit_2(["diagnose", "--model", str(tmp_path / "w.json"), "--run", str(tmp_path / "g.csv"),
+                            "--out", str(tmp_path / "o")], capsys)
+    assert "120 samples split at 0.6 leave 72 to fit (--skip 0) and 48 to judge" in err
+    err = _one_line_exit_2(["diagnose", "--model", str(tmp_path / "w.json"), "--run", str(tmp_path / "none.csv"),
+                            "--out", str(tmp_path / "o")], capsys)
+    assert "none.csv: no such file" in err

@@ -165,7 +165,7 @@ def run_generic(args: argparse.Namespace, model) -> int:
 
     paths = [args.run] if args.run is not None else [args.train, *args.validate]
     for path in paths:
-        if record_kind(path) != "siso":
+        if os.path.isfile(path) and record_kind(path) != "siso":
             raise UserError(f"{path}: a lift record, but {args.model} is a generic (t,u,y) model")
     split = None
     if args.run is not None:
