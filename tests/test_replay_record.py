@@ -83,7 +83,7 @@ def test_the_record_is_uniform_on_the_device_counter_with_the_gaps_marked(replay
 def test_the_inputs_and_the_measured_dcl_are_what_the_loop_was_fed_bit_for_bit(replayed):
     rec, rows, _ = replayed
     for col in ("cmu", "cmu_envelope"):          # held through a gap, as the loop holds them
-        assert rec.__getattribute__(col).tolist() == [float(r[col]) for r in rows]
+        assert getattr(rec, col).tolist() == [float(r[col]) for r in rows]
     measured = [(i, float(r["dcl_meas"])) for i, r in enumerate(rows) if r["dcl_meas"]]
     assert len(measured) == N - TARE - 4
     assert all(rec.dcl[i] == d for i, d in measured)
