@@ -12,6 +12,12 @@
 times the magnitude, a drift of half or twice the amplitude, a pickup of half the amplitude (the
 imprint of each is proportional to that parameter, so the case is exact).
 
+``--field`` runs the protocol's second form, as a user's files arrive: each case's three records
+copied to a temporary folder under names that say nothing (``run_a.csv`` ← ``random``,
+``run_b.csv`` ← ``sine_k0125``, ``run_c.csv`` ← ``sine_k025``; any ``# experiment:`` line
+dropped), ``rtlift diagnose --train run_a.csv --validate run_b.csv run_c.csv``: the training
+record repeats no identification input. Judged as above, the recovery on the two held-out sines.
+
 ``--mixes`` runs the protocol on mixes the set does not show, composed from it: all cases share
 one noise seed, so a case minus ``clean`` is its effect's exact imprint, and ``clean`` plus two
 imprints is the mix (exact for effects that add to the measured lift — drift, pickup — after
@@ -43,6 +49,10 @@ MIXES = (("drift", "mains"), ("fade", "mains"), ("resonance", "drift"), ("fade",
          ("resonance", "hysteresis"))
 SCORED = ("sine_k025", "random")
 FS = 400.0
+FIELD_NAMES = {"random": "run_a", "sine_k0125": "run_b", "sine_k025": "run_c"}
+"""The second form: what each record is called in the user's folder (module docstring)."""
+FIELD_TRAIN = "random"
+FIELD_SCORED = ("sine_k0125", "sine_k025")
 
 
 def compose(data: Path, parts: tuple[str, ...], out: Path, scale: float = 1.0) -> Path:
@@ -62,9 +72,24 @@ def compose(data: Path, parts: tuple[str, ...], out: Path, scale: float = 1.0) -
     return case
 
 
-def validate(model: Path, case_dir: Path, out: Path) -> dict[str, float]:
-    run_cli("validate", "--model", model, *(case_dir / f"{r}.csv" for r in SCORED), "--json", out)
-    return {k: v["rmse"] for k, v in json.loads(out.read_text())["records"].items()}
+def validate(model: Path, case_dir: Path, out: Path, scored: tuple[str, ...] = SCORED,
+             names: dict[str, str] | None = None) -> dict[str, float]:
+    """``rtlift validate`` RMSE per record of ``scored`` (files named ``names[r]``, default ``r``)."""
+    names = names or {r: r for r in scored}
+    run_cli("validate", "--model", model, *(case_dir / f"{names[r]}.csv" for r in scored), "--json", out)
+    got = json.loads(out.read_text())["records"]
+    return {r: got[names[r]]["rmse"] for r in scored}
+
+
+def anonymize(case_dir: Path, out: Path) -> Path:
+    """The case's records as a user's files (module docstring, ``--field``): renamed, any
+    ``# experiment:`` line dropped, everything else byte for byte."""
+    out.mkdir(parents=True, exist_ok=True)
+    for record, name in FIELD_NAMES.items():
+        lines = (case_dir / f"{record}.csv").read_text().splitlines(keepends=True)
+        kept = [ln for ln in lines if not (ln.startswith("#") and ln[1:].split(":", 1)[0].strip() == "experiment")]
+        (out / f"{name}.csv").write_text("".join(kept))
+    return out
 
 
 def params_close(name: str, got: dict, want: dict) -> tuple[bool, str]:
@@ -82,7 +107,7 @@ def params_close(name: str, got: dict, want: dict) -> tuple[bool, str]:
 
 
 def judge_case(case: str, report: dict, truth: dict, rmse_case: dict, rmse_aug: dict,
-               rmse_clean: dict) -> dict:
+               rmse_clean: dict, scored: tuple[str, ...] = SCORED) -> dict:
     accepted = [e for e in report["effects"] if e["accepted"] and e.get("kind", "effect") == "effect"]
     want = {e["name"]: e["params"] for e in truth["interfaces_equivalent"]}
     names_ok = sorted(e["name"] for e in accepted) == sorted(want)
@@ -94,7 +119,7 @@ def judge_case(case: str, report: dict, truth: dict, rmse_case: dict, rmse_aug: 
             if text:
                 notes.append(f"{e['name']} {text}")
     recovery, recovery_ok = {}, True
-    for r in SCORED:
+    for r in scored:
         added = rmse_case[r] - rmse_clean[r]
         if added < 0.10 * rmse_clean[r]:
             ok = rmse_aug[r] <= rmse_case[r] * (1 + 1e-9)
@@ -122,6 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scaled", action="store_true",
                     help="also run cases whose imprint is scaled (exact for a hysteresis's magnitude, a "
                          "drift's amplitude and a pickup's amplitude: other parameters of the same plant)")
+    ap.add_argument("--field", action="store_true",
+                    help="the second form: records renamed run_a/b/c, training on random, validating on the "
+                         "two sines")
     args = ap.parse_args(argv)
     if not (args.data / "campaign" / "static.csv").exists():
         print(f"no independent plant data at {args.data}", file=sys.stderr)
@@ -135,7 +163,10 @@ def main(argv: list[str] | None = None) -> int:
         run_cli("identify", "--static", camp / "static.csv", "--single-burst", camp / "single_burst.csv",
                 "--train", camp / "sine_k0125.csv", "-o", model)
         identify_s = time.perf_counter() - t0
-        rmse_clean = validate(model, args.data / "clean", work / "clean_val.json")
+        scored = FIELD_SCORED if args.field else SCORED
+        names = FIELD_NAMES if args.field else None
+        clean_dir = anonymize(args.data / "clean", work / "field" / "clean") if args.field else args.data / "clean"
+        rmse_clean = validate(model, clean_dir, work / "clean_val.json", scored, names)
         rows = []
         cases = [args.data / c for c in args.cases]
         if args.mixes:
@@ -145,20 +176,25 @@ def main(argv: list[str] | None = None) -> int:
         for d in cases:
             case = d.name
             out = work / case
+            truth = json.loads((d / "truth.json").read_text())
+            if args.field:
+                d = anonymize(d, work / "field" / case)
+                train, held_out = d / f"{FIELD_NAMES[FIELD_TRAIN]}.csv", [d / f"{names[r]}.csv" for r in scored]
+            else:
+                train, held_out = d / "sine_k0125.csv", [d / f"{r}.csv" for r in scored]
             t1 = time.perf_counter()
-            run_cli("diagnose", "--model", model, "--train", d / "sine_k0125.csv",
-                    "--validate", *(d / f"{r}.csv" for r in SCORED), "--out", out)
+            run_cli("diagnose", "--model", model, "--train", train, "--validate", *held_out, "--out", out)
             secs = time.perf_counter() - t1
             report = json.loads((out / "report.json").read_text())
-            truth = json.loads((d / "truth.json").read_text())
-            rmse_case = validate(model, d, out / "val_model.json")
-            rmse_aug = validate(out / "model_augmented.json", d, out / "val_augmented.json")
-            row = judge_case(case, report, truth, rmse_case, rmse_aug, rmse_clean)
+            rmse_case = validate(model, d, out / "val_model.json", scored, names)
+            rmse_aug = validate(out / "model_augmented.json", d, out / "val_augmented.json", scored, names)
+            row = judge_case(case, report, truth, rmse_case, rmse_aug, rmse_clean, scored)
             row["diagnose_seconds"] = secs
             row["structure"] = [e["name"] for e in report["effects"]
                                 if e["accepted"] and e.get("kind") == "structure"]
             rows.append(row)
-    print("| case | truth | accepted effects | structure | parameters | recovered (sine_k025, random) | right |")
+    print(("field form: run_a (random) trains, run_b, run_c (the sines) validate\n\n" if args.field else "")
+          + f"| case | truth | accepted effects | structure | parameters | recovered ({', '.join(scored)}) | right |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
         rec = ", ".join("n/a (<10 %)" if v is None else f"{100 * v:.0f} %" for v in r["recovered"].values())
@@ -167,7 +203,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{'yes' if r['right'] else 'no'} |")
     right = sum(r["right"] for r in rows)
     print(f"\n{right} of {len(rows)} cases right; identify {identify_s:.1f} s")
-    print(json.dumps({"cases_right": right, "cases": len(rows), "identify_seconds": identify_s,
+    print(json.dumps({"form": "field" if args.field else "development", "cases_right": right, "cases": len(rows),
+                      "identify_seconds": identify_s,
                       "rows": rows}))
     return 0
 

@@ -135,14 +135,15 @@ def _plain(d: Any) -> Any:
 
 
 class _Judge:
-    """Scores models on the validation records (whole records, :func:`predict`)."""
+    """Scores models on the validation records (:func:`predict` over whole records from rest,
+    each scored from its ``score_from`` sample on: 0 for a record of its own)."""
 
-    def __init__(self, records: list[Record], fs: float) -> None:
-        self.records, self.block = records, int(fs)
-        self._meas = np.concatenate([r.dcl for r in records])
+    def __init__(self, records: list[Record], fs: float, score_from: list[int]) -> None:
+        self.records, self.block, self.score_from = records, int(fs), score_from
+        self._meas = np.concatenate([r.dcl[k:] for r, k in zip(records, score_from, strict=True)])
 
     def errors(self, model: HybridModel) -> list[np.ndarray]:
-        return [r.dcl - predict(model, r).total for r in self.records]
+        return [(r.dcl - predict(model, r).total)[k:] for r, k in zip(self.records, self.score_from, strict=True)]
 
     @staticmethod
     def pooled(errs: list[np.ndarray]) -> float:
@@ -321,15 +322,22 @@ def _compatible(names: tuple[str, ...]) -> bool:
 
 
 def diagnose(model: HybridModel, train: Record, validate: list[Record],
-             options: DiagnoseOptions | None = None) -> Diagnosis:
-    """Candidates, combinations, selection and classification (module docstring)."""
+             options: DiagnoseOptions | None = None, score_from: list[int] | None = None) -> Diagnosis:
+    """Candidates, combinations, selection and classification (module docstring).
+
+    ``score_from`` (one per validation record, default 0): the samples before it are run
+    through from rest but not scored nor tested — the validation part of one long run is the
+    whole run scored after its training part, so the model's state (a fade's accumulated
+    on-time, a drift's clock, the slow states) at the split is the one the run led to."""
     opt = options or DiagnoseOptions()
     fs = model.fs_hz
     start = int(round(float(model.fingerprint.get("start", FINGERPRINT_START_S * fs))))
+    score_from = list(score_from) if score_from is not None else [0] * len(validate)
+    first = {r.name: k for r, k in zip(validate, score_from, strict=True)}
     fp, fp_note = print_for(model.fingerprint, train)
     misfit, target_note = repeat_misfit(model.fingerprint, model, train)
     target = train if misfit is None else dataclasses.replace(train, dcl=train.dcl - misfit)
-    judge = _Judge(validate, fs)
+    judge = _Judge(validate, fs, score_from)
     search = _Search(model, train, judge, start, fp, target)
     base = search.node(())
     rb = judge.pooled(base.errors)
@@ -431,14 +439,15 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
         refit.update(scales, kept=better, why=why)
         if better:
             augmented = again
-    tests_before = {r.name: record_tests(model, r, start)[0] for r in records}
-    tests_after = {r.name: record_tests(augmented, r, start)[0] for r in records}
-    resid_before = {r.name: r.dcl - predict(model, r).total for r in records}
-    resid_after = {r.name: r.dcl - predict(augmented, r).total for r in records}
+    tests_before = {r.name: record_tests(model, r, max(start, first.get(r.name, 0)))[0] for r in records}
+    tests_after = {r.name: record_tests(augmented, r, max(start, first.get(r.name, 0)))[0] for r in records}
+    resid_before = {r.name: (r.dcl - predict(model, r).total)[first.get(r.name, 0):] for r in records}
+    resid_after = {r.name: (r.dcl - predict(augmented, r).total)[first.get(r.name, 0):] for r in records}
+    measured = {r.name: r.dcl[first.get(r.name, 0):] for r in records}
     report = {
         "version": REPORT_VERSION,
-        "baseline": {"records": {r.name: scores(r.dcl, r.dcl - resid_before[r.name]) for r in records}},
-        "augmented": {"records": {r.name: scores(r.dcl, r.dcl - resid_after[r.name]) for r in records}},
+        "baseline": {"records": {n: scores(z, z - resid_before[n]) for n, z in measured.items()}},
+        "augmented": {"records": {n: scores(z, z - resid_after[n]) for n, z in measured.items()}},
         "effects": [t.to_dict() for t in trials],
         "unexplained": unexplained(search.tests(best.members), fp, trials),
         "fingerprint": fp_note,

@@ -115,8 +115,12 @@ def record_scores(model: SisoModel, rec: SisoRecord, skip: int) -> dict[str, flo
 
 
 def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
-                  skip: int = 0, options: SisoOptions | None = None) -> tuple[dict[str, Any], SisoModel]:
-    """The report (INTERFACES.md schema) and the augmented model (module docstring)."""
+                  skip: int = 0, options: SisoOptions | None = None,
+                  validate_skip: list[int] | None = None) -> tuple[dict[str, Any], SisoModel]:
+    """The report (INTERFACES.md schema) and the augmented model (module docstring).
+    ``validate_skip``: per validation record, the samples left unscored (default ``skip``; one
+    long run's validation part is the whole run scored after its training part)."""
+    vskip = list(validate_skip) if validate_skip is not None else [skip] * len(validate)
     e = train.y - predict(model, train)
     s = max(skip, 1)
     tests = {"whiteness": whiteness(e[s:]), "input_crosscorr": input_crosscorr(e[s:], train.u[s:], label="u")}
@@ -126,23 +130,23 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
                          if k in ("input_crosscorr", "bv_u2_e", "bv_y2_e"))
     # blocks for the significance test: about 40 over the validation data (the residual's
     # correlation time is the system's, unknown here; a lift record's 1 s blocks are 400 samples)
-    block = max(50, sum(len(r) - skip for r in validate) // 40)
-    before = [(r.y - predict(model, r))[skip:] for r in validate]
+    block = max(50, sum(len(r) - k for r, k in zip(validate, vskip, strict=True)) // 40)
+    before = [(r.y - predict(model, r))[k:] for r, k in zip(validate, vskip, strict=True)]
     rb = float(np.sqrt(np.mean(np.concatenate(before) ** 2)))
     effects = []
     augmented = model
     not_built = []
     if model.structure == "wiener" and not isinstance(model, SaturatedModel):
-        measured = np.concatenate([r.y[skip:] for r in validate])
+        measured = np.concatenate([r.y[k:] for r, k in zip(validate, vskip, strict=True)])
         limits, clip_evidence = clip_levels(train.y, e)
         candidates = [(name, lambda structure=structure: identify_siso(train, structure, options=options))
                       for name, structure in FORMS]
         if limits != NO_LIMITS:
-            candidates.append(("saturation", lambda: _best_saturated(train, validate, skip, options, limits)))
+            candidates.append(("saturation", lambda: _best_saturated(train, validate, vskip, options, limits)))
         tried = []
         for name, fit in candidates:
             candidate = fit()
-            after = [(r.y - predict(candidate, r))[skip:] for r in validate]
+            after = [(r.y - predict(candidate, r))[k:] for r, k in zip(validate, vskip, strict=True)]
             ok, why = significant_gain(before, after, measured, block, DiagnoseOptions())
             ra = float(np.sqrt(np.mean(np.concatenate(after) ** 2)))
             tried.append((ok, ra, candidate))
@@ -163,11 +167,11 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
                             "evidence": f"not tried: no clipping level ({clip_evidence})",
                             "validation_rmse_before": rb, "validation_rmse_after": rb})
     unexplained = [f"{k}: {t.detail}" for k, t in tests.items() if t.significant] if augmented is model else []
-    records = [train, *validate]
+    records = [(train, skip), *zip(validate, vskip, strict=True)]
     report = {
         "version": 1,
-        "baseline": {"records": {r.name: record_scores(model, r, skip) for r in records}},
-        "augmented": {"records": {r.name: record_scores(augmented, r, skip) for r in records}},
+        "baseline": {"records": {r.name: record_scores(model, r, k) for r, k in records}},
+        "augmented": {"records": {r.name: record_scores(augmented, r, k) for r, k in records}},
         "effects": effects,
         "unexplained": unexplained,
         "scoring": f"free run from rest over whole records, the first {skip} samples unscored "
@@ -177,7 +181,7 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
     return report, augmented
 
 
-def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: int, options: SisoOptions | None,
+def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[int], options: SisoOptions | None,
                     limits: Limits) -> SaturatedModel | FeedbackModel | StoreChainModel:
     """The ``saturation`` candidate: each form re-identified with the limit in place; the one with
     the lowest pooled validation RMSE (a form the record cannot have, a store chain fed by an input
@@ -188,7 +192,8 @@ def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: int, op
             m = identify_siso(train, structure, options=options, limits=limits, where=where)
         except ValueError:
             continue
-        err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r))[skip:] for r in validate]) ** 2)))
+        err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r))[k:]
+                                                    for r, k in zip(validate, skip, strict=True)]) ** 2)))
         if best is None or err < best[0]:
             best = (err, m)
     return best[1]

@@ -11,6 +11,11 @@ setting, the observer fed exactly the samples the live loop fed it — and check
 the same commands after the same samples (``cmd_seq``, envelope, flags); the summary says how
 many were logged and replayed and where they first differ (exit 1 if they do). ``--no-control``
 replays the observer alone over every sample.
+
+``--record F.csv`` writes what the loop converted as a record file (Cμ and envelope as the
+device applied them, ΔCL as measured, time from the device's sample counter; short gaps
+filled and marked, long ones refused: :mod:`rtlift.app.log_record`), which ``rtlift diagnose``
+reads (``--run F.csv`` for one long run).
 """
 
 from __future__ import annotations
@@ -36,6 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="SUMMARY.json", help="counters and observer monitors")
     p.add_argument("--no-control", action="store_true",
                    help="do not rerun the controller of a log written by rtlift control")
+    p.add_argument("--record", metavar="F.csv",
+                   help="write the log as a record file (t, cmu, cmu_envelope, dcl) for rtlift diagnose")
     add_view_argument(p)
     p.set_defaults(func=run)
 
@@ -164,11 +171,34 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibr
             "first_difference": difference, "reference": meta["reference"], **closed.tracking()}
 
 
+def _write_record(args, converter, source, fs_hz: float, data: dict, commands) -> None:
+    """``--record``: the samples the loop converted as a record file (:mod:`rtlift.app.log_record`)."""
+    from pathlib import Path
+
+    from rtlift.app.log_record import loop_record
+    from rtlift.core.records import write_record
+
+    meta = {"source_log": args.log, "log_kind": source.kind,
+            "loop": "control" if commands is not None else "observe", "model": args.model,
+            **{k: data[k] for k in ("received", "lost", "crc_errors", "duplicates", "resyncs", "events") if k in data}}
+    if commands is not None:
+        meta.update({f"control_{k}": commands[0][k] for k in ("reference", "feedback") if k in commands[0]},
+                    commands_logged=len(commands[1]))
+    rec = loop_record(converter, source.seq_modulus, fs_hz, Path(args.record).stem, meta)
+    try:
+        write_record(args.record, rec)
+    except OSError as exc:
+        raise UserError(f"{args.record}: cannot write record ({exc.strerror or exc})") from None
+    print(f"rtlift replay: record {args.record}: {len(rec)} samples ({len(rec) / fs_hz:.1f} s), "
+          f"{rec.meta['filled']} filled in {rec.meta['gaps']} gap(s)")
+
+
 def run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
     from firmware_io.logs import read_command_log, read_log
     from rtlift.app.live import EstimateWriter, ObserverLoop, summary, write_summary
+    from rtlift.app.log_record import RecordingConverter
     from rtlift.app.view.arguments import start_view
     from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
@@ -190,8 +220,10 @@ def run(args: argparse.Namespace) -> int:
     data = None
     try:
         writer = EstimateWriter(args.out, {"model": args.model, "log": args.log, "fs_hz": "400"}) if args.out else None
-        loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), source.seq_modulus, writer=writer,
-                            fs_hz=model.fs_hz)
+        converter = Converter(calibration, model.fs_hz)
+        if args.record:
+            converter = RecordingConverter(converter)
+        loop = ObserverLoop(observer, converter, source.seq_modulus, writer=writer, fs_hz=model.fs_hz)
         if view is not None:
             view.counters = lambda: {**counters_of.counters.as_dict(), "estimates": loop.stats.estimates}
             loop.tap = view.tap
@@ -220,6 +252,8 @@ def run(args: argparse.Namespace) -> int:
             view.close(data)
     if loop.stats.samples == 0:
         raise UserError(f"{args.log}: no samples in the log")
+    if args.record:
+        _write_record(args, converter, source, model.fs_hz, data, commands)
     o = data["observer"]
     print(f"rtlift replay: {args.log}: {loop.stats.samples} samples ({data['device_seconds']:.1f} s device "
           f"time) in {seconds:.2f} s; received {data['received']} lost {data['lost']} crc_errors "
