@@ -3,10 +3,14 @@ bench renders exactly, program files round-trip, and a bad program file is one l
 
 from __future__ import annotations
 
+import os
 import re
+import tempfile
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from firmware_io.calibration import Calibration
 from hil_sim.experiments import TARE_SAMPLES, run_experiment
@@ -115,3 +119,20 @@ def test_the_shipped_calibration_example_is_the_default_bench():
     for key in ("counts_per_n", "counts_per_nm", "matrix", "chord_m", "span_m", "alpha_deg", "u_inf_m_s",
                 "rho_kg_m3", "sign_fx", "sign_fz", "tare_cl", "tare_seconds", "kappa", "cmu_table_v", "cmu_table"):
         assert f"{key} " in text or f"{key} =" in text, key
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.floats(-1, 5), st.floats(-10, 250), st.integers(-5, 70000)), min_size=0, max_size=6),
+       st.sampled_from(["t,envelope_v,burst_period_ms", "t,envelope_v", "burst_period_ms,t,envelope_v"]))
+def test_any_table_is_a_program_or_a_one_line_program_error(rows, header):
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "p.csv")
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(header + "\n" + "".join(",".join(repr(v) for v in row) + "\n" for row in rows))
+        try:
+            program = read_program(path)
+        except ProgramError as exc:
+            assert "\n" not in str(exc) and path in str(exc)
+        else:
+            assert program.samples() >= 1 and program.envelope_v[-1] == 0
+            assert all(0 <= o.sample < program.samples() for o in program.onsets())
