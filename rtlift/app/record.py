@@ -228,6 +228,9 @@ class Recorder:
             raise
         finally:
             if bar is not None:
+                if not reason:
+                    bar.n = bar.total
+                    bar.refresh()
                 bar.close()
             off = self.switch_off()
             result = self._finish(name, program, out_path, samples, run, reason, started, c0, off, meta)
@@ -344,7 +347,7 @@ class _Run:
             i = rec._index
             if i >= t0 + rec.settle_samples:
                 samples.append((i, s))
-            if bar is not None:
+            if bar is not None and bar.n + 1 < bar.total:
                 bar.update(1)
             got += 1
             if self._onset_of and s.cmd_seq in self._onset_of:
