@@ -121,7 +121,6 @@ class Recorder:
         self._last_sent_at = -10**9
         self._index = -1
         self._last_seq: int | None = None
-        self._echoed = 0
 
     # -- the device's clock --------------------------------------------------------------
     def _next(self) -> Any:
@@ -137,8 +136,6 @@ class Recorder:
         self._last_seq = s.seq
         if s.cmd_seq and s.cmd_seq == self._in_flight:
             self._in_flight = None
-        if s.cmd_seq:
-            self._echoed = s.cmd_seq
         return s
 
     # -- commands ------------------------------------------------------------------------
