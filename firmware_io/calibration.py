@@ -12,7 +12,8 @@ Equations (SI units):
   from a hot-wire calibration.
 
 A calibration file is TOML with any of the field names of :class:`Calibration` at top level,
-for example ``alpha_deg = 20.0`` or ``cmu_table_v = [0, 30, 60]`` with ``cmu_table = [...]``.
+for example ``alpha_deg = 20.0`` or ``cmu_table_v = [0, 30, 60]`` with ``cmu_table = [...]``;
+:data:`EXAMPLE_PATH` (``firmware_io/calibration_example.toml``) has every key, commented.
 """
 
 from __future__ import annotations
@@ -24,13 +25,16 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from rtlift.core.errors import UserError
+from rtlift.core.programs import CMU_AT_60V as CMU_AT_60V  # 60 V ↔ Cμ 0.0022 (the paper's actuators)
 
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
-CMU_AT_60V = 0.0022
+
+EXAMPLE_PATH = os.path.join(os.path.dirname(__file__), "calibration_example.toml")
+"""The example calibration file shipped with the package: every key, commented, with units."""
 
 
 class CalibrationError(UserError):

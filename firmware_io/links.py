@@ -58,6 +58,10 @@ from rtlift.core.rate import FS_HZ
 
 SERIAL_BAUD = 921_600
 CAN_BITRATE = 500_000
+SAMPLE_WIRE_BYTES = 43
+"""A version-2 sample packet on the serial wire: 41 bytes, COBS code byte and 0x00 delimiter."""
+CAN_SAMPLE_WIRE_BYTES = 66
+"""A sample's three frames as SLCAN lines (``tIIIL`` + 16 hex digits + CR, 22 bytes each)."""
 POLL_S = 0.02
 """Longest single wait inside the serial reader; ``recv(timeout)`` is accurate to this."""
 
@@ -340,6 +344,28 @@ class Link(ABC):
             if self._command_log is not None:
                 self._command_log.close()
 
+    def switch_log(self, log: str | None) -> None:
+        """Close the frame log (and its command log) and log from now on to ``log`` (``None``:
+        stop logging); the link, its counters and its ``cmd_seq`` go on."""
+        old, self._log = self._log, None
+        commands, self._command_log = self._command_log, None
+        self._log_path = None
+        try:
+            if old is not None:
+                old.close()
+        finally:
+            if commands is not None:
+                commands.close()
+        if log:
+            self._log = open_link_log(log, self.kind)
+            self._log_path = log
+
+    def backlog(self) -> int:
+        """Samples already received by the host that ``recv`` has not returned yet (a lower
+        bound from the bytes waiting; 0 where the interface does not say): how far the device is
+        ahead of the sample in hand."""
+        return 0
+
     @property
     def events(self) -> list[str]:
         """Firmware event texts received so far (the most recent ones)."""
@@ -445,6 +471,14 @@ class SerialLink(Link):
             return False
         return True
 
+    def backlog(self) -> int:
+        ser = self._ser
+        try:
+            waiting = ser.in_waiting if ser is not None else 0
+        except (serial.SerialException, OSError):
+            waiting = 0
+        return len(self._queue) + waiting // SAMPLE_WIRE_BYTES
+
     @property
     def events(self) -> list[str]:
         return list(self._decoder.events)
@@ -548,6 +582,10 @@ class CanLink(Link):
 
     def _restart_stream(self) -> None:
         self._assembler.restart()
+
+    def backlog(self) -> int:
+        bus = self._bus
+        return bus.pending_bytes() // CAN_SAMPLE_WIRE_BYTES if isinstance(bus, ChunkedSlcanBus) else 0
 
     def _encode_command(self, cmd_seq: int, envelope_cv: int, burst_period_ms: int, enable: bool,
                         watchdog_ms_div10: int) -> can.Message:

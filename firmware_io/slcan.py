@@ -33,6 +33,15 @@ class ChunkedSlcanBus(slcanBus):
         if self._chunked:
             self._terminators = (self._OK[0], self._ERROR[0])
 
+    def pending_bytes(self) -> int:
+        """Bytes received (in the driver's buffer and the port's) that no ``recv`` returned yet."""
+        if not self._chunked:
+            return 0
+        try:
+            return len(self._buffer) + self.serialPortOrig.in_waiting
+        except (OSError, ValueError, AttributeError):
+            return len(self._buffer)
+
     def _line(self) -> str | None:
         """The first complete line in the buffer, removed from it (None if there is none)."""
         buf = self._buffer

@@ -8,9 +8,7 @@ emulators in ``hil_sim.devices``.
 
 from __future__ import annotations
 
+from rtlift.core.programs import CHORD_M as CHORD_M  # the paper's wing and flow (t⁺ = t / T_CONV_S)
+from rtlift.core.programs import T_CONV_S as T_CONV_S
+from rtlift.core.programs import U_INF_M_S as U_INF_M_S
 from rtlift.core.rate import FS_HZ as FS_HZ  # the bench samples at the DAQ's rate
-
-CHORD_M = 0.245
-U_INF_M_S = 3.0
-T_CONV_S = CHORD_M / U_INF_M_S
-"""Convective time c/U∞ ≈ 0.0817 s (the paper's t_convect); t⁺ = t / T_CONV_S."""

@@ -15,17 +15,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_io.calibration import CMU_AT_60V, Calibration
+from firmware_io.calibration import Calibration
 from hil_sim import FS_HZ, T_CONV_S
+from rtlift.core.programs import CMU_AT_60V, OPTIMAL_PERIOD_MS, samples_of_ms
+from rtlift.core.programs import CMU_MAX as CMU_MAX
 
 BURST_SAMPLES = 4
 """Δt_b = 0.01 s at 400 Hz (paper: Δt_b = 0.125 t⁺)."""
-OPTIMAL_PERIOD_SAMPLES = 50
-"""The lift-optimal 8 Hz burst rate (paper: T = 1.56 t⁺) at 400 Hz."""
+OPTIMAL_PERIOD_SAMPLES = samples_of_ms(OPTIMAL_PERIOD_MS)
+"""The lift-optimal 8 Hz burst rate (paper: T = 1.56 t⁺) at 400 Hz: 50 samples."""
 SINGLE_BURST_CMU = CMU_AT_60V
 """The paper's single-burst and burst-train amplitude: 60 V ↔ Cμ 0.0022."""
-CMU_MAX = 0.022
-"""Top of the paper's static map."""
 VOLT_STEP = 0.01
 """PROTOCOL.md: volt_cv and envelope_cv in 0.01 V."""
 
@@ -68,7 +68,12 @@ def quantise_volts(volts: np.ndarray) -> np.ndarray:
 
 def actuate(cmu_envelope: np.ndarray, gate: np.ndarray, calibration: Calibration) -> Actuation:
     """Envelope (as Cμ) and burst gate → voltages and the Cμ the host will compute from them."""
-    env_v = quantise_volts(calibration.volts_from_cmu(np.asarray(cmu_envelope, dtype=float)))
+    return actuate_volts(calibration.volts_from_cmu(np.asarray(cmu_envelope, dtype=float)), gate, calibration)
+
+
+def actuate_volts(envelope_volts: np.ndarray, gate: np.ndarray, calibration: Calibration) -> Actuation:
+    """Envelope (as a drive amplitude, V) and burst gate → quantised voltages and their Cμ."""
+    env_v = quantise_volts(envelope_volts)
     volts = np.where(gate, env_v, 0.0)
     cmu_env = np.asarray(calibration.cmu_from_volts(env_v), dtype=float)
     cmu = np.where(volts != 0.0, cmu_env, 0.0)

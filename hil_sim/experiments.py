@@ -1,10 +1,13 @@
-"""The standard campaign at 400 Hz, and the bench that runs it (docs/BENCH.md).
+"""The standard campaign at 400 Hz on the bench that runs it (docs/BENCH.md).
 
-Every experiment starts with ``TARE_S`` = 2 s actuator-off for the tare. Programs (envelope
-as Cμ, burst gate):
+The experiments are programs (:mod:`rtlift.core.programs`: one definition for the bench,
+``rtlift bench serve`` and ``rtlift record``). The bench puts ``TARE_S`` = 2 s actuator-off in
+front of each and renders it per sample (:meth:`~rtlift.core.programs.Program.render`): the
+envelope as the program gives it, bursts of 4 samples at the program's onsets. Programs
+(envelope as Cμ, burst rate):
 
 - ``static``: bursts at 8 Hz, envelope ramped 0 → 0.022 in 40 s, held 2 s, back to 0 in 40 s
-  (slow against the ≈ 1 s reattachment, so the branches coincide);
+  (slow against the ≈ 1 s reattachment, so the branches coincide), then 2 s off;
 - ``single_burst``: 20 isolated bursts at Cμ 0.0022 (60 V), 12 t⁺ apart (phase averaging);
 - ``train_T1p75`` / ``train_T3p5`` / ``train_T7``: 10 bursts at 60 V every T, three times,
   with 15 t⁺ rests;
@@ -18,26 +21,15 @@ The whole campaign is ≈ 301 s of data.
 
 from __future__ import annotations
 
-import math
 import os
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from types import MappingProxyType
 
 import numpy as np
-from scipy import signal
 
 from firmware_io.calibration import Calibration
-from hil_sim import FS_HZ, T_CONV_S, U_INF_M_S
-from hil_sim.actuation import (
-    BURST_SAMPLES,
-    CMU_MAX,
-    OPTIMAL_PERIOD_SAMPLES,
-    SINGLE_BURST_CMU,
-    actuate,
-    burst_gate,
-    period_samples,
-)
+from hil_sim import FS_HZ, T_CONV_S
+from hil_sim.actuation import BURST_SAMPLES, actuate_volts
 from hil_sim.effects import Effect, as_effect, processor
 from hil_sim.plant import PlantParams, TruthPlant
 from hil_sim.sensors import (
@@ -50,99 +42,25 @@ from hil_sim.sensors import (
     transducer,
 )
 from rtlift.core.errors import UserError
+from rtlift.core.programs import (  # noqa: F401 - the campaign's names, as the bench's users know them
+    EXPERIMENTS,
+    SINE_CMU_AMPLITUDE,
+    SINE_CMU_MEAN,
+    SINGLE_BURSTS,
+    SINGLE_SPACING_TPLUS,
+    STATIC_RAMP_S,
+    TARE_S,
+    TRAIN_BURSTS,
+    TRAIN_REPEATS,
+    TRAIN_REST_TPLUS,
+    Experiment,
+    Program,
+    reduced_frequency_hz,
+    standard_program,
+)
 from rtlift.core.records import Record
 
-TARE_S = 2.0
 TARE_SAMPLES = int(TARE_S * FS_HZ)
-STATIC_RAMP_S = 40.0
-SINE_CMU_MEAN = 0.011
-SINE_CMU_AMPLITUDE = 0.010
-TRAIN_BURSTS = 10
-TRAIN_REPEATS = 3
-TRAIN_REST_TPLUS = 15.0
-SINGLE_BURSTS = 20
-SINGLE_SPACING_TPLUS = 12.0
-
-Program = tuple[np.ndarray, np.ndarray]
-"""(envelope as Cμ, burst gate) at 400 Hz."""
-
-
-def reduced_frequency_hz(k: float, chord_m: float = 0.245, u_inf: float = U_INF_M_S) -> float:
-    """f = k U∞ / (π c) (paper: k = π f c / U∞)."""
-    return k * u_inf / (math.pi * chord_m)
-
-
-def _static(rng: np.random.Generator) -> Program:
-    up = int(STATIC_RAMP_S * FS_HZ)
-    hold = int(2.0 * FS_HZ)
-    ramp = np.linspace(0.0, CMU_MAX, up + 1)[1:]  # no zero-amplitude burst at the ends
-    env = np.concatenate([np.zeros(TARE_SAMPLES), ramp, np.full(hold, CMU_MAX), ramp[::-1],
-                          np.zeros(TARE_SAMPLES)])
-    return env, burst_gate(len(env), OPTIMAL_PERIOD_SAMPLES, TARE_SAMPLES)
-
-
-def _single_burst(rng: np.random.Generator) -> Program:
-    spacing = period_samples(SINGLE_SPACING_TPLUS)
-    n = TARE_SAMPLES + SINGLE_BURSTS * spacing
-    env = np.where(np.arange(n) >= TARE_SAMPLES, SINGLE_BURST_CMU, 0.0)
-    return env, burst_gate(n, spacing, TARE_SAMPLES, SINGLE_BURSTS)
-
-
-def _train(t_plus: float) -> Callable[[np.random.Generator], Program]:
-    def program(rng: np.random.Generator) -> Program:
-        period = period_samples(t_plus)
-        on = TRAIN_BURSTS * period
-        rest = period_samples(TRAIN_REST_TPLUS)
-        env_parts = [np.zeros(TARE_SAMPLES)]
-        gate_parts = [np.zeros(TARE_SAMPLES, bool)]
-        for _ in range(TRAIN_REPEATS):
-            env_parts += [np.full(on, SINGLE_BURST_CMU), np.zeros(rest)]
-            gate_parts += [burst_gate(on, period), np.zeros(rest, bool)]
-        return np.concatenate(env_parts), np.concatenate(gate_parts)
-    return program
-
-
-def _sine(k: float, periods: int) -> Callable[[np.random.Generator], Program]:
-    def program(rng: np.random.Generator) -> Program:
-        f = reduced_frequency_hz(k)
-        n_on = int(round(periods / f * FS_HZ))
-        t = np.arange(n_on) / FS_HZ
-        env = np.concatenate([np.zeros(TARE_SAMPLES),
-                              SINE_CMU_MEAN - SINE_CMU_AMPLITUDE * np.cos(2.0 * math.pi * f * t)])
-        return env, burst_gate(len(env), OPTIMAL_PERIOD_SAMPLES, TARE_SAMPLES)
-    return program
-
-
-def _random(rng: np.random.Generator) -> Program:
-    n_on = int(58.0 * FS_HZ)
-    settle = int(4.0 * FS_HZ)
-    b, a = signal.butter(2, 1.0, fs=FS_HZ)
-    x = signal.lfilter(b, a, rng.standard_normal(n_on + settle))[settle:]
-    x = (x - x.mean()) / x.std()
-    env = np.concatenate([np.zeros(TARE_SAMPLES), np.clip(0.011 + 0.0055 * x, 0.0005, 0.0215)])
-    return env, burst_gate(len(env), OPTIMAL_PERIOD_SAMPLES, TARE_SAMPLES)
-
-
-@dataclass(frozen=True)
-class Experiment:
-    name: str
-    description: str
-    program: Callable[[np.random.Generator], Program]
-
-
-EXPERIMENTS: Mapping[str, Experiment] = MappingProxyType({
-    e.name: e for e in (
-        Experiment("static", "slow sweep of the 8 Hz burst amplitude up and down", _static),
-        Experiment("single_burst", "isolated bursts at Cμ 0.0022, 12 t⁺ apart", _single_burst),
-        Experiment("train_T1p75", "10 bursts at 60 V every 1.75 t⁺, three times",
-                   _train(1.75)),
-        Experiment("train_T3p5", "10 bursts at 60 V every 3.5 t⁺, three times", _train(3.5)),
-        Experiment("train_T7", "10 bursts at 60 V every 7 t⁺, three times", _train(7.0)),
-        Experiment("sine_k0125", "sinusoidal envelope, k = 0.125", _sine(0.125, 20)),
-        Experiment("sine_k025", "sinusoidal envelope, k = 0.25", _sine(0.25, 40)),
-        Experiment("random", "band-limited random envelope", _random),
-    )
-})
 
 
 @dataclass
@@ -200,9 +118,10 @@ class Bench:
                 self.stages[e.stage].append(
                     processor(e, self.fs_hz, np.random.Generator(np.random.PCG64(s))))
 
-    def process(self, t: np.ndarray, env_cmu: np.ndarray, gate: np.ndarray,
+    def process(self, t: np.ndarray, env_volts: np.ndarray, gate: np.ndarray,
                 meta: dict[str, str]) -> BenchRun:
-        act = actuate(env_cmu, gate, self.calibration)
+        """Envelope (V) and burst gate per sample through the actuator, plant and sensor chains."""
+        act = actuate_volts(env_volts, gate, self.calibration)
         delivered = act.cmu
         for stage in self.stages["actuator"]:
             delivered = stage.process(delivered)
@@ -221,21 +140,27 @@ class Bench:
                         counts, status, dict(meta), self.calibration, self.fs_hz)
 
 
+def bench_program(program: Program) -> tuple[np.ndarray, np.ndarray]:
+    """``TARE_S`` off, then the program rendered per sample: (envelope V, burst gate)."""
+    env, gate = program.render(FS_HZ, BURST_SAMPLES)
+    return (np.concatenate([np.zeros(TARE_SAMPLES), env]),
+            np.concatenate([np.zeros(TARE_SAMPLES, dtype=bool), gate]))
+
+
 def _setup(name: str, seed: int, effects: Iterable[Effect | str],
-           calibration: Calibration | None) -> tuple[Program, Bench, dict[str, str]]:
+           calibration: Calibration | None) -> tuple[tuple[np.ndarray, np.ndarray], Bench, dict[str, str]]:
     if name not in EXPERIMENTS:
         raise UserError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise UserError(f"seed must be a non-negative integer, got {seed!r}")
     effs = [as_effect(e) for e in effects]
     cal = calibration or Calibration()
-    program_rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), 1])))
-    program = EXPERIMENTS[name].program(program_rng)
+    program = standard_program(name, cal.volts_from_cmu, int(seed), FS_HZ)
     meta = {"experiment": name, "fs_hz": f"{FS_HZ:g}", "seed": str(int(seed)),
             "effects": "; ".join(e.spec() for e in effs) or "none",
             "source": "hil_sim truth plant (docs/BENCH.md)",
             "t_conv_s": f"{T_CONV_S:.6f}", "burst_samples": str(BURST_SAMPLES)}
-    return program, Bench(int(seed), effs, cal), meta
+    return bench_program(program), Bench(int(seed), effs, cal), meta
 
 
 def run_experiment(name: str, seed: int = 0, effects: Iterable[Effect | str] = (),

@@ -113,7 +113,6 @@ class HilStream:
         yield from self._host_controlled(k)
 
     def _host_controlled(self, k: int) -> Iterator[SimpleNamespace]:
-        cal = self.calibration
         ctl = self.control
         while True:
             ms = ctl.burst_period_ms
@@ -121,9 +120,8 @@ class HilStream:
                                                                int(round(ms * FS_HZ / 1000.0)))
             env_cv = ctl.envelope_cv if ctl.enabled else 0
             self.envelope_cv_applied = env_cv
-            cmu = float(cal.cmu_from_volts(env_cv / 100.0))
             idx = np.arange(k, k + period)
-            run = self.bench.process(idx / FS_HZ, np.full(period, cmu), burst_gate(period, period),
+            run = self.bench.process(idx / FS_HZ, np.full(period, env_cv / 100.0), burst_gate(period, period),
                                      self.meta)
             self.truth.append((k, run.dcl_true))
             self.envelope.append((k, run.envelope_volts))

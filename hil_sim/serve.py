@@ -1,5 +1,5 @@
 """``rtlift bench serve --serial | --slcan [--experiment NAME] [--effect SPEC]... [--fault SPEC]...
-[--seed N]``: run the simulated DAQ on a new pseudo-terminal, print its path (one line,
+[--seed N] [--protocol 1|2] [--speed X]``: run the simulated DAQ on a new pseudo-terminal, print its path (one line,
 flushed), stream at 400 Hz until SIGINT or SIGTERM.
 
 ``--serial`` emulates the DAQ's serial link (open the path with ``--serial PATH``);
@@ -11,7 +11,9 @@ command faults (``cmd_drop:rate=0.05``, ``cmd_corrupt:rate=0.05``,
 
 The device is a protocol-version-2 device and a real-time HIL plant (:mod:`hil_sim.hil`): it
 streams the experiment as version 1 until the first command, then the simulated plant follows
-the commanded envelope from the next burst onset.
+the commanded envelope and burst period from the next burst onset. ``--protocol 1`` serves a
+version-1 device instead (it reads no commands). ``--speed X`` paces the samples X times
+faster than real time (the device's clock still counts 400 Hz; the watchdog keeps host time).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import signal
 import sys
 import threading
 
+from hil_sim import FS_HZ
 from hil_sim.devices import SerialDaq, SlcanAdapter, parse_faults
 from rtlift.core.errors import UserError
 
@@ -39,15 +42,23 @@ def serve_main(args: argparse.Namespace) -> int:
     effects = [parse_effect(spec) for spec in (getattr(args, "effect", None) or [])]
     faults = parse_faults(getattr(args, "fault", None) or [])
     seed = int(getattr(args, "seed", 0) or 0)
+    speed = float(getattr(args, "speed", None) or 1.0)
+    if not 0.1 <= speed <= 20.0:
+        raise UserError(f"bench serve: --speed must be between 0.1 and 20, got {speed:g}")
+    protocol = int(getattr(args, "protocol", None) or 2)
+    if protocol not in (1, 2):
+        raise UserError(f"bench serve: --protocol must be 1 or 2, got {protocol}")
     chunks = HilStream(experiment, seed=seed, effects=effects)
+    pace = FS_HZ * speed
     if getattr(args, "slcan", False):
-        device = SlcanAdapter(chunks, faults=faults, seed=seed)
+        device = SlcanAdapter(chunks, faults=faults, seed=seed, fs_hz=pace, clock_hz=FS_HZ)
         how = "slcan"
     elif getattr(args, "serial", False):
-        device = SerialDaq(chunks, faults=faults, seed=seed)
+        device = SerialDaq(chunks, faults=faults, seed=seed, fs_hz=pace, period_us=int(round(1e6 / FS_HZ)))
         how = "serial"
     else:
         raise UserError("bench serve: give --serial or --slcan")
+    device.control.accepts_commands = protocol == 2
     chunks.control = device.control
 
     stop = threading.Event()
@@ -60,8 +71,9 @@ def serve_main(args: argparse.Namespace) -> int:
         with device:
             device.start()
             print(device.path, flush=True)
-            print(f"rtlift bench serve: {how} DAQ on {device.path}, experiment {experiment}, "
-                  "400 Hz; Ctrl-C stops", file=sys.stderr, flush=True)
+            print(f"rtlift bench serve: {how} DAQ on {device.path}, protocol version {protocol}, "
+                  f"experiment {experiment}, {FS_HZ:g} Hz at {speed:g}x real time; Ctrl-C stops",
+                  file=sys.stderr, flush=True)
             while not stop.is_set() and not device.finished.is_set():
                 stop.wait(0.2)
     finally:

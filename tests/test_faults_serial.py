@@ -190,7 +190,7 @@ def test_sensor_fault_and_saturation_flags(replay, record_property):
     flagged = set(fault) | set(saturated)
     assert run.summary["received"] == N and run.summary["observer"]["missing"] == len(flagged)
     missing = {i for i, r in enumerate(run.rows) if int(r["flags"]) & FLAG_MISSING}
-    assert missing == flagged and all(run.rows[i]["dcl_meas"] == "" for i in flagged)
+    assert missing == flagged and all(run.rows[i]["dcl"] == "" for i in flagged)
     assert all(math.isfinite(float(r["dcl_hat"])) for r in run.rows)
     record_property("measured", f"{len(flagged)} flagged samples: observer missing "
                                 f"{run.summary['observer']['missing']}, exactly those rows predict-only")

@@ -90,6 +90,9 @@ class HostControl:
         """The watchdog's ramp in samples (40 at 400 Hz)."""
         self._ramp: tuple[int, int] | None = None
         """(firing sample, envelope then) while the watchdog's ramp runs."""
+        self.accepts_commands = True
+        """``False``: a protocol-version-1 firmware, which reads no commands (``rtlift bench
+        serve --protocol 1``): whatever the host writes is ignored, nothing is echoed."""
 
     @property
     def version(self) -> int:
@@ -100,6 +103,8 @@ class HostControl:
         """A command as its wire carries it arrived before sample ``index``, through the
         command faults: dropped (never decoded), corrupted by ``corrupt`` (so ``decode`` fails:
         a ``cmd_errors``), late (held ``cmd_delay_ms``), or handed to :meth:`receive`."""
+        if not self.accepts_commands:
+            return
         st = self.stats
         f = self.faults
         fault = f.command_fault(index, float(self._rng.random())) if f.any_command else None

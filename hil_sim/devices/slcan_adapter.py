@@ -54,7 +54,8 @@ class SlcanAdapter(PtyDevice):
 
     def __init__(self, chunks: Iterable[object], *, fs_hz: float = FS_HZ, faults: FaultPlan | None = None,
                  seed: int = 0, max_samples: int | None = None, keep_sent: bool = False,
-                 first_seq: int = 0, calibration: Calibration | None = None) -> None:
+                 first_seq: int = 0, calibration: Calibration | None = None,
+                 clock_hz: float | None = None) -> None:
         cal = calibration or Calibration()
         super().__init__(wire_samples(chunks, lambda c: can_wire(c, cal)), fs_hz=fs_hz, faults=faults,
                          seed=seed, max_samples=max_samples, keep_sent=keep_sent)
@@ -67,7 +68,8 @@ class SlcanAdapter(PtyDevice):
         self.frames_from_host: list[str] = []
         self._line = bytearray()
         self._db = load_dbc()
-        self._t10_per_sample = int(round(1e5 / fs_hz))
+        self._t10_per_sample = int(round(1e5 / (clock_hz or fs_hz)))
+        """Device clock per sample in 10 µs (``clock_hz``: the DAQ's rate when paced faster)."""
         self.control = HostControl(self.stats, CAN_CMD_SEQ_MODULUS, self.fs_hz, self.faults, seed)
         """What the host commanded (version 2): the applied command, envelope and watchdog."""
 

@@ -1,7 +1,8 @@
 """``rtlift demo``: the whole product on the simulated bench, end to end.
 
-1. serve the simulated DAQ on a pseudo-terminal and record the standard campaign through
-   firmware_io (the serial link, COBS + CRC, exact counters), faster than real time;
+1. serve the simulated DAQ on a pseudo-terminal as a protocol-version-2 HIL device and record
+   the standard campaign as ``rtlift record`` does: the host commands each program (envelope,
+   burst period) over the serial link (COBS + CRC, exact counters), faster than real time;
 2. identify the hybrid model (static map, single-burst kernel, HPF, PEM) and tune the
    observer's Q and R from the same records;
 3. validate with the paper's protocol (identify on sine_k0125; ρ on sine_k0125, sine_k025,
@@ -71,42 +72,46 @@ class _Progress:
                     disable=not self.enabled, mininterval=0.5)
 
 
-def record_through_link(name: str, seed: int, effects: tuple[str, ...], speedup: float,
-                        progress: _Progress) -> tuple[Record, dict[str, int]]:
-    """One experiment from the bench, streamed over a real pty and read back through firmware_io.
+def record_through_link(names: tuple[str, ...], seed: int, effects: tuple[str, ...], speedup: float,
+                        progress: _Progress) -> tuple[dict[str, Record], dict[str, int]]:
+    """Experiments recorded as ``rtlift record`` records them (:class:`rtlift.app.record.Recorder`):
+    the bench served as a protocol-version-2 HIL device on a real pty (``rtlift bench serve``'s
+    device), the host commanding each program over the serial link, at ``speedup`` × real time
+    (the device's clock stays 400 Hz).
 
-    The record's ``dcl`` is what the host computed from the transducer counts on the wire;
-    the bench's noise-free truth is added as ``extra["dcl_true"]`` (matched by sample index).
+    The records' ``dcl`` is what the host computed from the transducer counts on the wire; the
+    bench's noise-free truth is added as ``extra["dcl_true"]`` (matched by device sample index).
     """
     from firmware_io.calibration import Calibration
-    from firmware_io.convert import record_from_samples
     from firmware_io.links import open_link
     from hil_sim.devices import SerialDaq
-    from hil_sim.experiments import run_experiment
+    from hil_sim.hil import HilStream
+    from rtlift.app.record import OFF_PERIOD_MS, Recorder
+    from rtlift.core.programs import standard_program
 
-    run = run_experiment(name, seed=seed, effects=effects)
-    n = len(run)
     cal = Calibration()
-    samples = []
-    with SerialDaq([run], fs_hz=FS_HZ * speedup, period_us=2500, max_samples=n) as device:
+    stream = HilStream("random", seed=seed, effects=effects)
+    records: dict[str, Record] = {}
+    with SerialDaq(stream, fs_hz=FS_HZ * speedup, period_us=int(round(1e6 / FS_HZ)), seed=seed) as device:
+        stream.control = device.control
         with open_link({"kind": "serial", "port": device.path, "calibration": cal}) as link:
             device.start()
-            with progress.bar(n, f"recording {name}") as bar:
-                while len(samples) < n:
-                    s = link.recv(2.0)
-                    if s is None:
-                        break
-                    samples.append(s)
-                    bar.update(1)
-            counters = dict(link.counters.as_dict()) if hasattr(link.counters, "as_dict") else \
-                {k: getattr(link.counters, k) for k in ("received", "crc_errors", "lost", "duplicates",
-                                                         "events", "resyncs")}
-    meta = {"experiment": name, "seed": str(seed), "effects": ";".join(effects) or "none",
-            "source": "simulated bench over a serial pty through firmware_io"}
-    rec = record_from_samples(samples, cal, name=name, meta=meta)
-    index = np.rint(rec.t * FS_HZ).astype(int)
-    rec.extra["dcl_true"] = run.dcl_true[index]
-    return rec, counters
+            rec = Recorder(link, cal, meta={"link": "serial (simulated bench on a pty)", "seed": str(seed),
+                                            "effects": ";".join(effects) or "none"},
+                           progress=lambda total, name: progress.bar(total, f"recording {name}"))
+            rec.check_protocol(OFF_PERIOD_MS)
+            results = [rec.run(standard_program(name, cal.volts_from_cmu, seed), None) for name in names]
+            counters = dict(link.counters.as_dict())
+    idx, truth = stream.truth_array()
+    lookup = np.full(int(idx.max()) + 1, np.nan)
+    lookup[idx] = truth
+    for r in results:
+        if not r.complete or r.record is None:
+            raise RuntimeError(f"demo: recording {r.name} over the pty did not complete ({r.reason})")
+        index = r.first_index + np.rint(r.record.t * FS_HZ).astype(int)
+        r.record.extra["dcl_true"] = lookup[index]
+        records[r.name] = r.record
+    return records, counters
 
 
 def run_demo(opt: DemoOptions) -> dict[str, Any]:
@@ -124,15 +129,11 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
     summary: dict[str, Any] = {"version": 1, "seed": opt.seed}
 
     # 1. the standard campaign through the serial link ---------------------------------------
-    prog.say(f"1/6 recording the standard campaign through a serial pty at {opt.speedup:g}x real time")
-    records: dict[str, Record] = {}
-    link_totals: dict[str, int] = {}
-    for name in CAMPAIGN:
-        rec, counters = record_through_link(name, opt.seed, (), opt.speedup, prog)
-        records[name] = rec
+    prog.say(f"1/6 recording the standard campaign host-commanded through a serial pty at {opt.speedup:g}x "
+             "real time")
+    records, link_totals = record_through_link(CAMPAIGN, opt.seed, (), opt.speedup, prog)
+    for name, rec in records.items():
         write_record(os.path.join(out, "records", f"{name}.csv"), rec)
-        for k, v in counters.items():
-            link_totals[k] = link_totals.get(k, 0) + int(v)
     summary["campaign"] = {"records": list(CAMPAIGN), "seconds": sum(len(r) for r in records.values()) / FS_HZ,
                            "link": link_totals}
     prog.say(f"    {link_totals.get('received', 0)} samples received, {link_totals.get('lost', 0)} lost, "
@@ -163,12 +164,10 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
 
     # 5. close the loop on a record with an undeclared effect ----------------------------------
     prog.say(f"5/6 recording with an undeclared effect ({opt.effect}) and diagnosing it")
-    eff_records = {}
-    for name in DIAGNOSE_RECORDS:
-        rec, _ = record_through_link(name, opt.seed + 1, (opt.effect,), opt.speedup, prog)
-        rec.name = f"{name}_effect"
+    eff_records, _ = record_through_link(DIAGNOSE_RECORDS, opt.seed + 1, (opt.effect,), opt.speedup, prog)
+    for rec in eff_records.values():
+        rec.name = f"{rec.name}_effect"
         write_record(os.path.join(out, "records", f"{rec.name}.csv"), rec)
-        eff_records[name] = rec
     train = eff_records["sine_k0125"]
     validate = [eff_records["sine_k025"], eff_records["random"]]
     diag = diagnose(idf.model, train, validate, DiagnoseOptions())
@@ -436,10 +435,13 @@ def report_markdown(summary: dict[str, Any]) -> str:
           "Everything below was measured in this run on the simulated bench (seed "
           f"{summary['seed']}); `summary.json` holds the same numbers.", "",
           "## 1. The standard campaign, recorded through the serial link", "",
-          f"{len(c['records'])} experiments, {c['seconds']:.0f} s of 400 Hz data, streamed by the emulated DAQ "
-          "over a pseudo-terminal and decoded by `firmware_io` (COBS + CRC-16).", "",
-          "| received | lost | bad frames | duplicates | resyncs | events |", "|---|---|---|---|---|---|",
-          "| {received} | {lost} | {crc_errors} | {duplicates} | {resyncs} | {events} |".format(**c["link"]), "",
+          f"{len(c['records'])} experiments, {c['seconds']:.0f} s of 400 Hz data, recorded as `rtlift record` "
+          "records a rig: the host commands each program (envelope, burst period) over protocol version 2 to the "
+          "emulated DAQ on a pseudo-terminal, and `firmware_io` decodes what it streams (COBS + CRC-16).", "",
+          "| received | lost | bad frames | duplicates | resyncs | events | commands sent | commands applied |",
+          "|---|---|---|---|---|---|---|---|",
+          "| {received} | {lost} | {crc_errors} | {duplicates} | {resyncs} | {events} | {commands_sent} | "
+          "{commands_applied} |".format(**c["link"]), "",
           "## 2. Identification", "",
           f"Identified in {idn['seconds']:.1f} s: high-pass filter order {idn['highpass']['order']} at "
           f"{idn['highpass']['cutoff_hz']:g} Hz (chosen by held-out error), Wiener LTI order "

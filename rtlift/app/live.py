@@ -42,8 +42,10 @@ FLAG_LINK_GAP = 16
 """Estimate-row flag (beside the observer's FLAG_* bits 1–8): a predict-only step across a
 gap while the device was gone (``--reconnect``)."""
 FLUSH_S = 0.05
-COLUMNS = ("index", "t", "seq", "t_us", "cmu", "cmu_envelope", "dcl_meas", "dcl_hat", "model_dcl",
+COLUMNS = ("index", "t", "seq", "t_us", "cmu", "cmu_envelope", "dcl", "dcl_hat", "model_dcl",
            "innovation", "nis", "flags")
+"""Estimate-file columns; ``t, cmu, cmu_envelope, dcl`` are the record format's (``dcl`` the measured
+ΔCL, empty while taring or on a flagged sample), so one tool reads both."""
 
 
 class EstimateWriter(FlushedFile):

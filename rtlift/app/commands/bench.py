@@ -30,6 +30,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="link fault: corrupt|drop|duplicate|garbage:rate=R or disconnect:after_s=S; "
                             "command fault: cmd_drop|cmd_corrupt:rate=R or "
                             "cmd_late:rate=R[,delay_ms=MS]")
+    serve.add_argument("--protocol", type=int, choices=(1, 2), default=2,
+                       help="protocol version of the device (1: it reads no commands; default 2)")
+    serve.add_argument("--speed", type=float, default=1.0, metavar="X",
+                       help="pace the samples X times faster than real time (default 1)")
     _common(serve)
     serve.set_defaults(func=_serve)
 
