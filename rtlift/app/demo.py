@@ -146,7 +146,6 @@ def run_demo(opt: DemoOptions) -> dict[str, Any]:
     identify_s = time.perf_counter() - t0
     observer_cfg = tune_observer(idf.model, [records[n] for n in ("sine_k0125", "random", "train_T1p75")])
     model_path = os.path.join(out, "model.json")
-    idf.provenance["identify_seconds"] = identify_s
     save_model(idf.model, model_path, provenance=idf.provenance, metrics=idf.metrics,
                observer={**idf.observer, **observer_cfg})
     summary["identify"] = {"seconds": identify_s, "model": model_path,
