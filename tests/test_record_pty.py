@@ -2,7 +2,9 @@
 (serial DAQ, and python-can's slcan driver against the SLCAN adapter): the recorded ΔCL is what
 the device sent, every command is applied, the bursts come where the program puts them; Ctrl-C,
 SIGTERM and an unplug leave the actuator off and a flagged partial record; a version-1 device is
-refused before anything is recorded."""
+refused before anything is recorded. That a campaign recorded so identifies as well as the
+bench's own records (issue 28: ρ within 0.005 on the paper's table) takes a campaign of minutes
+and is measured by ``benchmarks/record_vs_bench.py``, not here."""
 
 from __future__ import annotations
 
@@ -215,38 +217,3 @@ def test_a_version_1_slcan_device_from_bench_serve_is_refused(tmp_path):
     assert not list((tmp_path / "out").glob("*.csv"))
     assert "protocol version 1" in serve_err and "commands_applied=0" in serve_err
 
-
-PAPER_TABLE = ("static", "single_burst", "sine_k0125", "sine_k025", "random")
-
-
-@pytest.mark.slow
-def test_a_campaign_recorded_over_serial_identifies_as_well_as_the_bench_records(tmp_path):
-    """The paper's table (identify on static + single bursts + k = 0.125, validate on the sines
-    and random) from ``rtlift record`` over a pty against ``rtlift bench serve`` (paced 2× real
-    time) and from ``rtlift bench record`` with the same seed: ρ within 0.005 on every record."""
-    from rtlift.identify.campaign import identify_hybrid
-    from rtlift.model.validation import validate_record
-
-    seed = 0
-    serve = subprocess.Popen([sys.executable, "-m", "rtlift", "bench", "serve", "--serial", "--seed", str(seed),
-                              "--speed", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        path = serve.stdout.readline().strip()
-        run = subprocess.run([sys.executable, "-m", "rtlift", "record", "--serial", path, *PAPER_TABLE,
-                              "--out", str(tmp_path), "--seed", str(seed)], capture_output=True, text=True,
-                             timeout=900)
-    finally:
-        serve.send_signal(signal.SIGINT)
-        serve.communicate(timeout=30)
-    assert run.returncode == 0, run.stderr[-2000:]
-    recorded = {n: read_record(tmp_path / f"{n}.csv") for n in PAPER_TABLE}
-    for rec in recorded.values():
-        assert rec.meta["complete"] == "true" and rec.meta["lost"] == "0"
-        assert rec.meta["commands_sent"] == rec.meta["commands_applied"]
-    bench = {n: run_experiment(n, seed=seed).to_record() for n in PAPER_TABLE}
-    corr = {}
-    for kind, recs in (("recorded", recorded), ("bench", bench)):
-        model = identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"]).model
-        corr[kind] = {n: validate_record(model, recs[n]).scores["corr"] for n in PAPER_TABLE[2:]}
-    for n in PAPER_TABLE[2:]:
-        assert abs(corr["recorded"][n] - corr["bench"][n]) < 0.005, corr
