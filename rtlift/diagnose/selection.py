@@ -64,14 +64,14 @@ from rtlift.diagnose.fingerprint import (
     FINGERPRINT_START_S,
     Z_DEPART,
     Departure,
+    change_misfit,
     coef_departure,
     error_departure,
     input_lines_hz,
     level_departure,
-    print_for,
     psd_departure,
     record_tests,
-    repeat_misfit,
+    reference,
 )
 from rtlift.diagnose.residual import TestResult, cluster_ols
 from rtlift.model.hybrid import HybridModel
@@ -326,8 +326,9 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
     opt = options or DiagnoseOptions()
     fs = model.fs_hz
     start = int(round(float(model.fingerprint.get("start", FINGERPRINT_START_S * fs))))
-    fp, fp_note = print_for(model.fingerprint, train)
-    misfit, target_note = repeat_misfit(model.fingerprint, model, train)
+    ref = reference(model.fingerprint, model, train, start)
+    fp, fp_note = ref.entry, ref.text
+    misfit, target_note = change_misfit(model.fingerprint, model, train, ref)
     target = train if misfit is None else dataclasses.replace(train, dcl=train.dcl - misfit)
     judge = _Judge(validate, fs)
     search = _Search(model, train, judge, start, fp, target)
@@ -440,8 +441,10 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
         "baseline": {"records": {r.name: scores(r.dcl, r.dcl - resid_before[r.name]) for r in records}},
         "augmented": {"records": {r.name: scores(r.dcl, r.dcl - resid_after[r.name]) for r in records}},
         "effects": [t.to_dict() for t in trials],
-        "unexplained": unexplained(search.tests(best.members), fp, trials),
+        "unexplained": unexplained(search.tests(best.members), fp, trials, (len(train) - start) / fs),
         "fingerprint": fp_note,
+        "references": {train.name: ref.to_dict(),
+                       **{r.name: reference(model.fingerprint, model, r, start).to_dict() for r in validate}},
         "fit_target": target_note,
         "reestimation": refit,
         "selection": {"pool": pool, "chosen": list(best.members), "combinations": table,
@@ -455,10 +458,12 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
                      resid_after, start, table)
 
 
-def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials: list[Trial]) -> list[str]:
+def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials: list[Trial],
+                seconds: float = 0.0) -> list[str]:
     """One plain line per feature of the final training residual that still departs from the
-    fingerprint, and per candidate whose evidence departs but whose fit the validation records
-    did not support."""
+    fingerprint, per candidate whose evidence departs but whose fit the validation records
+    did not support, and for a slow trend the record is too short to separate
+    (:func:`slow_trend_line`)."""
     if fp is None:
         return [f"{k}: {tests[k].detail}" for k in ("slow_trend", "gain_trend", "direction", "level")
                 if tests[k].significant]
@@ -467,6 +472,8 @@ def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials:
              ("direction", "falling-Cmu gain difference"))]
     deps.append(level_departure(tests["level"], fp))
     lines = [f"{d.text}: no accepted entry explains it" for d in deps if d.departs]
+    slow = slow_trend_line(tests["slow_trend"], fp, seconds, trials)
+    lines += [slow] if slow else []
     spec = tests["spectrum"].data
     f = np.asarray(spec["f"])
     df = float(f[1])
@@ -478,3 +485,31 @@ def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials:
     lines += [f"{t.name} is pointed at by the evidence but not accepted: {t.evidence}"
               for t in trials if not t.accepted and t.params and t.kind == "effect"]
     return lines
+
+
+Z_NOTE = 2.0
+"""|z| of the offset drift against the print from which an unseparated slow trend is reported
+(a line in ``unexplained``, never an accepted entry): the two-sided 95 % point of the z-test's own
+null (N(0, 1)), checked on clean runs (``benchmarks.null_rate``)."""
+
+
+def slow_trend_line(test: TestResult, fp: dict[str, Any] | None, seconds: float, trials: list[Trial]) -> str:
+    """The line for a slow trend the training record cannot tell from the model's own slow
+    misfit: the residual's offset drift b (ΔCL/s, :func:`.residual.slow_trend`) stands
+    ``Z_NOTE`` ≤ |z| < ``Z_DEPART`` from the print's, and no accepted ``zero_drift`` takes it.
+
+    How long a record would tell: both standard errors of a trend fitted over T seconds of a
+    stationary misfit fall as T^(−3/2) (OLS slope over 1 s blocks); a drift that approaches its
+    end value (the slow kind: thermal) adds a fixed change Δ = b T however long the record, its
+    slope falls as 1/T, so z grows as √T and reaches ``Z_DEPART`` at
+    N = T (Z_DEPART / |z|)² (a drift that kept its rate would tell sooner: T (Z_DEPART/|z|)^(2/3))."""
+    if fp is None or seconds <= 0 or any(t.accepted and t.name == "zero_drift" for t in trials):
+        return ""
+    dep = coef_departure(test, fp, "offset drift", "/s")
+    z = dep.z
+    if dep.departs or abs(z) < Z_NOTE:
+        return ""
+    change = float(test.data["coef"]) * seconds
+    need = seconds * (Z_DEPART / abs(z)) ** 2
+    return (f"slow trend {change:+.3f} dCL over the record ({seconds:.0f} s; {dep.text}), not separable from the "
+            f"model's own misfit on a record this short; a record of >= {math.ceil(need):.0f} s would tell")
