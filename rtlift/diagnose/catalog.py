@@ -597,9 +597,9 @@ class Effect:
     excludes: tuple[str, ...] = ()
     fits_change: bool = False
     """Replaces the model's static map: fitted to what changed since identification where the
-    training record repeats an identification experiment (:func:`.fingerprint.repeat_misfit`),
-    since the model's own misfit on that input is a misfit of the map too and a fit to the raw
-    residual takes it for part of the effect."""
+    model's own misfit on the training input is known (:func:`.fingerprint.change_misfit`: the
+    identification run it repeats, or the misfit predicted for its input), since that misfit is a
+    misfit of the map too and a fit to the raw residual takes it for part of the effect."""
 
     @property
     def schema(self) -> EffectSchema:

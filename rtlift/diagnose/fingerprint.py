@@ -247,8 +247,9 @@ def error_departure(e: np.ndarray, fp: dict[str, Any], fs: float) -> Departure:
 
 
 def print_for(fp: dict[str, Any] | None, rec: Record) -> tuple[dict[str, Any] | None, str]:
-    """The fingerprint entry to compare ``rec`` with: its own record type's, else the entry with
-    the most samples (said in the note); None if the model has no fingerprint."""
+    """The rule for a model file without input descriptors (fingerprint version 1; :func:`reference`
+    finds the entry from the input otherwise): the entry of ``rec``'s record type by name, else
+    the entry with the most samples (said in the note); None if the model has no fingerprint."""
     if not fp or not fp.get("records"):
         return None, "the model file has no residual fingerprint (identified before rtlift 0.2): " \
                      "every accepted entry is reported as kind 'effect' against a white residual"

@@ -1,10 +1,16 @@
 """Closing the loop: residual tests → candidate effects → model selection on held-out records.
 
+0. **Reference.** The training record is compared with the fingerprint entry its *input*
+   points at (:func:`.fingerprint.reference`): an identification run it repeats bit for bit, else
+   one whose input descriptor it matches, else the print predicted for its input (the model's own
+   misfit carried over from the campaign, :mod:`.misfit`). Its name plays no part.
 1. **Candidates.** Every effect of the catalog is fitted alone on the training record, to its
    residual — except an effect that replaces the model's static map (hysteresis, an output
-   nonlinearity: ``Effect.fits_change``) where the record repeats an identification experiment:
-   it is fitted to what changed since identification (:func:`.fingerprint.repeat_misfit`: ΔCL
-   minus the model's own misfit on that run). That target is free of the model's systematic
+   nonlinearity: ``Effect.fits_change``) where the model's own misfit on the record's input is
+   known (:func:`.fingerprint.change_misfit`): it is fitted to what changed since identification,
+   ΔCL minus that misfit — the identification run's own where the record repeats one (the best
+   case), else the misfit predicted for its input where the campaign says it carries to other
+   inputs (λ > 0). That target is free of the model's systematic
    misfit, itself a misfit of the map that a map-shaped effect would absorb, but carries the
    noise of both runs, which costs more than it gains for a slow additive or linear effect
    (fitted so everywhere, a fade took a drift's place on the independent plant). The residual
