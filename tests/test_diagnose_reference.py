@@ -130,6 +130,23 @@ def test_a_renamed_record_finds_its_reference_from_its_input(campaign):
     assert ref.source == "repeat" and ref.key == "random"
 
 
+
+def test_a_run_of_the_same_kind_meets_that_records_own_misfit(campaign):
+    """Another run of the campaign's sine (another phase and length: no bit-for-bit repeat) is
+    fitted around the misfit function of the identification's sine, fitted on that record alone."""
+    model, theta, recs = campaign
+    fp = fingerprint(model, recs, 800)
+    own = fp["misfit"]["per_record"]["sine_k0125"]
+    assert np.asarray(own["theta"]) == pytest.approx(theta, abs=0.01)
+    assert own["transfer"] == pytest.approx(1.0, abs=0.05)
+    later = record(*sine_input(7000, 0.5, phase=0.4), name="run_c")
+    ref = reference(fp, model, later, 800)
+    m, note = change_misfit(fp, model, later, ref)
+    assert ref.source == "input" and "of the identification's sine_k0125 kind" in note
+    P, _ = regressors(model, later, 0.022)
+    truth = (P @ theta)[800:]
+    assert np.sqrt(np.mean((m[800:] - truth) ** 2)) < 0.1 * np.sqrt(np.mean(truth**2))
+
 def test_an_unknown_input_is_compared_with_the_predicted_print_of_its_own_misfit(campaign):
     model, theta, recs = campaign
     fp = fingerprint(model, recs, 800)

@@ -336,14 +336,22 @@ def change_misfit(fp: dict[str, Any] | None, model: HybridModel, rec: Record,
     """The model's own misfit m on ``rec``'s input, which the map-shaped effects are fitted
     around (ΔCL − m: what changed since identification), and a line saying where it comes from:
     the identification run itself where ``rec`` repeats it (:func:`repeat_misfit`, the best
-    case); else the misfit predicted for the input (:func:`.misfit.predicted_misfit`) where the
-    campaign says it carries to other inputs (λ > 0); else None (fitted to the residual)."""
+    case); else, where its input is of an identification record's kind, that record's own misfit
+    function (λ of that record > 0); else the misfit predicted for the input
+    (:func:`.misfit.predicted_misfit`) where the campaign says it carries to other inputs (λ > 0);
+    else None (fitted to the residual)."""
     m, note = repeat_misfit(fp, model, rec)
     if m is not None:
         return m, note
     mm = (fp or {}).get("misfit")
     if not mm:
         return None, note
+    own = mm.get("per_record", {}).get(ref.key) if ref.source == "input" else None
+    if own and own["transfer"] > 0.0:
+        return predicted_misfit(mm, model, rec, ref.key), (
+            f"the training record repeats no identification run bit for bit but its input is of the "
+            f"identification's {ref.key} kind: effects that replace the map are fitted to what changed, the "
+            f"model's own misfit on that kind of input (fitted there, lambda = {own['transfer']:.2f}) taken out")
     lam = mm["transfer"]
     if lam <= 0.0:
         return None, (f"{note}; the model's own misfit does not carry across the campaign's record types "

@@ -17,6 +17,10 @@ out), and λ ∈ [0, 1] is the shrinkage that fits those predictions best,
 keeps λ near 1; one that each record type has its own way leaves λ near 0, and the prediction
 for a new input is then honestly close to nothing.
 
+A later run of the *same kind* of input as one identification record (:mod:`.inputs`), but
+not bit for bit (another length, a measured Cμ column), meets that record's own misfit function:
+θ fitted on that record alone, λ measured on it by fitting one half and predicting the other.
+
 What is left on each record, u = ε − m̂, is its noise (buffeting, balance, and whatever misfit
 does not carry): its Welch PSD is kept per record. :func:`synthetic_residual` draws the residual
 the model would have had on a new input at identification: m̂ + w, w Gaussian noise with the PSD
@@ -64,36 +68,53 @@ def _weighted_fit(parts: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     return theta
 
 
+def transfer(pairs: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """λ ∈ [0, 1]: the shrinkage of out-of-sample predictions m̂ᵢ that fits the residuals εᵢ
+    best, each pair weighing alike: λ = Σᵢ ⟨εᵢ, m̂ᵢ⟩/nᵢ / Σᵢ ‖m̂ᵢ‖²/nᵢ (0 without predictions)."""
+    num = sum(float(e @ m) / e.size for e, m in pairs)
+    den = sum(float(m @ m) / e.size for e, m in pairs)
+    return float(np.clip(num / den, 0.0, 1.0)) if den > 0 else 0.0
+
+
 def fit_misfit(model: HybridModel, records: list[Record], start: int) -> dict[str, Any]:
-    """The misfit model of the module docstring, as a plain dict for the model file."""
+    """The misfit model of the module docstring, as a plain dict for the model file: θ and λ
+    over the campaign (leave one record out), and per record type its own θ and λ (``per_record``:
+    fitted on one half of the record, predicting the other, both ways), for a later run of the
+    same kind of input."""
     cmu_max = max(float(np.max(r.cmu_envelope)) for r in records)
-    parts = []
+    parts, kinds = [], []
     for rec in records:
         P, e = regressors(model, rec, cmu_max)
         parts.append((P[start:], e[start:]))
+        kinds.append(rec.meta.get("experiment") or rec.name)
     theta = _weighted_fit(parts)
-    num = den = 0.0
-    if len(parts) >= 2:
-        for i, (P, e) in enumerate(parts):
-            m = P @ _weighted_fit(parts[:i] + parts[i + 1:])
-            num += float(e @ m) / e.size
-            den += float(m @ m) / e.size
-    lam = float(np.clip(num / den, 0.0, 1.0)) if den > 0 else 0.0
+    lam = transfer([(e, P @ _weighted_fit(parts[:i] + parts[i + 1:])) for i, (P, e) in enumerate(parts)]) \
+        if len(parts) >= 2 else 0.0
+    per_record = {}
+    for kind, (P, e) in zip(kinds, parts, strict=True):
+        h = e.size // 2
+        halves = [(P[:h], e[:h]), (P[h:], e[h:])]
+        per_record[kind] = {"theta": _weighted_fit([(P, e)]).tolist(),
+                            "transfer": transfer([(halves[1 - i][1], halves[1 - i][0] @ _weighted_fit([halves[i]]))
+                                                  for i in range(2)])}
     fs = records[0].fs_hz
     noise = {}
-    for (P, e), rec in zip(parts, records, strict=True):
+    for (P, e), kind in zip(parts, kinds, strict=True):
         u = e - lam * (P @ theta)
         f, p = signal.welch(u - u.mean(), fs=fs, nperseg=min(u.size, 2048), window="hann")
-        noise[rec.meta.get("experiment") or rec.name] = {"f_hz": f.tolist(), "variance": float(np.var(u)),
-                                                         "log10": np.log10(np.maximum(p, 1e-300)).tolist()}
+        noise[kind] = {"f_hz": f.tolist(), "variance": float(np.var(u)),
+                       "log10": np.log10(np.maximum(p, 1e-300)).tolist()}
     return {"version": MISFIT_VERSION, "columns": list(COLUMNS), "theta": theta.tolist(), "transfer": lam,
-            "cmu_max": cmu_max, "noise": noise}
+            "cmu_max": cmu_max, "per_record": per_record, "noise": noise}
 
 
-def predicted_misfit(mm: dict[str, Any], model: HybridModel, rec: Record) -> np.ndarray:
-    """m̂ = λ Φ θ on ``rec`` (module docstring)."""
+def predicted_misfit(mm: dict[str, Any], model: HybridModel, rec: Record, kind: str | None = None) -> np.ndarray:
+    """m̂ = λ Φ θ on ``rec`` (module docstring): the campaign's θ and λ, or those of identification
+    record type ``kind`` where ``rec``'s input is of that kind."""
     P, _ = regressors(model, rec, mm["cmu_max"])
-    return mm["transfer"] * (P @ np.asarray(mm["theta"]))
+    own = mm.get("per_record", {}).get(kind) if kind else None
+    theta, lam = (own["theta"], own["transfer"]) if own else (mm["theta"], mm["transfer"])
+    return lam * (P @ np.asarray(theta))
 
 
 def input_seed(rec: Record) -> int:
