@@ -196,3 +196,32 @@ def test_no_slow_trend_line_when_it_departs_is_small_or_a_drift_takes_it():
     drift = Trial("zero_drift", True, {}, "", 0.0, 0.0)
     assert slow_trend_line(_trend(-3.5e-4, 1.0e-4), print_, 16.0, [drift]) == ""
     assert slow_trend_line(_trend(-3.5e-4, 1.0e-4), print_, 16.0, []) != ""
+
+
+def test_a_slow_trend_the_held_out_records_see_is_said_even_within_the_print():
+    """The drift × 0.5 kind of miss: z = −0.9 against the print, but a drift fitted alone lowers
+    the held-out error: said, with the length that would tell (16 (4/0.9)² = 316.05 s, rounded up)."""
+    print_ = {"slow_trend": {"coef": -1.37e-3, "se": 4.0e-4}}
+    test = _trend(-1.37e-3 - 0.9 * math.hypot(4.0e-4, 4.0e-4), 4.0e-4)
+    assert slow_trend_line(test, print_, 16.0, []) == ""
+    line = slow_trend_line(test, print_, 16.0, [], drift_holds=True)
+    assert "(z = -0.9)" in line and ">= 317 s would tell" in line
+
+
+def test_a_model_file_written_before_descriptors_loads_and_is_read_by_todays_rule():
+    """tests/data/bench_model.json was written by an earlier rtlift (fingerprint version 1, no
+    input descriptors, no misfit model, no repeats): it loads, a record is compared by its name or
+    with the largest entry as before, and the map-shaped effects are fitted to the residual."""
+    from pathlib import Path
+
+    from rtlift.model.modelfile import load_model
+
+    model = load_model(Path(__file__).parent / "data" / "bench_model.json")
+    assert model.fingerprint["version"] == 1 and "misfit" not in model.fingerprint
+    rec = record(*random_input(4000, 1), name="random")
+    ref = reference(model.fingerprint, model, rec, 800)
+    assert ref.source == "largest" and ref.key == "static"
+    rec.name = "sine_k0125"
+    ref = reference(model.fingerprint, model, rec, 800)
+    assert ref.source == "name" and ref.entry is model.fingerprint["records"]["sine_k0125"]
+    assert change_misfit(model.fingerprint, model, rec, ref)[0] is None

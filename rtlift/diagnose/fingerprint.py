@@ -262,7 +262,6 @@ def print_for(fp: dict[str, Any] | None, rec: Record) -> tuple[dict[str, Any] | 
                          f"on {other}")
 
 
-
 @dataclass(frozen=True)
 class Reference:
     """What a record is compared with, and why: ``source`` is ``repeat`` (its input is an

@@ -447,7 +447,8 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
         "baseline": {"records": {r.name: scores(r.dcl, r.dcl - resid_before[r.name]) for r in records}},
         "augmented": {"records": {r.name: scores(r.dcl, r.dcl - resid_after[r.name]) for r in records}},
         "effects": [t.to_dict() for t in trials],
-        "unexplained": unexplained(search.tests(best.members), fp, trials, (len(train) - start) / fs),
+        "unexplained": unexplained(search.tests(best.members), fp, trials, (len(train) - start) / fs,
+                                   drift_holds=_holds_out(singles["zero_drift"], judge, base, opt)),
         "fingerprint": fp_note,
         "references": {train.name: ref.to_dict(),
                        **{r.name: reference(model.fingerprint, model, r, start).to_dict() for r in validate}},
@@ -464,8 +465,17 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
                      resid_after, start, table)
 
 
+def _holds_out(single: tuple, judge: _Judge, base: _Node, opt: DiagnoseOptions) -> bool:
+    """Does a candidate fitted alone (``singles`` entry) lower the held-out error at the bar a
+    member with departing evidence needs (t ≥ ``min_t_confirm``)?"""
+    node, dep, _, _ = single
+    if dep is None or node.failed:
+        return False
+    return judge.verdict(base.errors, node.errors, dataclasses.replace(opt, min_t=opt.min_t_confirm))[0]
+
+
 def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials: list[Trial],
-                seconds: float = 0.0) -> list[str]:
+                seconds: float = 0.0, drift_holds: bool = False) -> list[str]:
     """One plain line per feature of the final training residual that still departs from the
     fingerprint, per candidate whose evidence departs but whose fit the validation records
     did not support, and for a slow trend the record is too short to separate
@@ -478,7 +488,7 @@ def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials:
              ("direction", "falling-Cmu gain difference"))]
     deps.append(level_departure(tests["level"], fp))
     lines = [f"{d.text}: no accepted entry explains it" for d in deps if d.departs]
-    slow = slow_trend_line(tests["slow_trend"], fp, seconds, trials)
+    slow = slow_trend_line(tests["slow_trend"], fp, seconds, trials, drift_holds)
     lines += [slow] if slow else []
     spec = tests["spectrum"].data
     f = np.asarray(spec["f"])
@@ -499,10 +509,13 @@ Z_NOTE = 2.0
 null (N(0, 1)), checked on clean runs (``benchmarks.null_rate``)."""
 
 
-def slow_trend_line(test: TestResult, fp: dict[str, Any] | None, seconds: float, trials: list[Trial]) -> str:
+def slow_trend_line(test: TestResult, fp: dict[str, Any] | None, seconds: float, trials: list[Trial],
+                    drift_holds: bool = False) -> str:
     """The line for a slow trend the training record cannot tell from the model's own slow
-    misfit: the residual's offset drift b (ΔCL/s, :func:`.residual.slow_trend`) stands
-    ``Z_NOTE`` ≤ |z| < ``Z_DEPART`` from the print's, and no accepted ``zero_drift`` takes it.
+    misfit: the residual's offset drift b (ΔCL/s, :func:`.residual.slow_trend`) does not depart
+    from the print's (|z| < ``Z_DEPART``) but either stands ``Z_NOTE`` ≤ |z| from it or a
+    ``zero_drift`` fitted alone lowers the held-out error at the confirmation bar
+    (``drift_holds``: the held-out records see it too), and no accepted ``zero_drift`` takes it.
 
     How long a record would tell: both standard errors of a trend fitted over T seconds of a
     stationary misfit fall as T^(−3/2) (OLS slope over 1 s blocks); a drift that approaches its
@@ -513,7 +526,7 @@ def slow_trend_line(test: TestResult, fp: dict[str, Any] | None, seconds: float,
         return ""
     dep = coef_departure(test, fp, "offset drift", "/s")
     z = dep.z
-    if dep.departs or abs(z) < Z_NOTE:
+    if dep.departs or (abs(z) < Z_NOTE and not drift_holds) or z == 0.0:
         return ""
     change = float(test.data["coef"]) * seconds
     need = seconds * (Z_DEPART / abs(z)) ** 2
