@@ -15,9 +15,11 @@ Two inputs are of one kind when every feature agrees within its tolerance
 (:data:`TOLERANCES`): d = maxᵢ |aᵢ − bᵢ| / tolᵢ(a, b) ≤ 1 (:func:`descriptor_distance`). The
 tolerances are what tells one standard experiment from another, not noise: a burst period is
 set to the sample (a relative 3 %), an on-time to a sample, a periodic envelope's frequency to
-5 % (k = 0.125 and k = 0.25 are a factor 2 apart), a bandwidth to 30 % (a spectrum's 90 % point
-from one record moves that much between seeds), levels to 10 % of the larger top level. The
-record's duration is reported, not matched: a shorter run of one experiment is the same kind.
+5 % (k = 0.125 and k = 0.25 are a factor 2 apart), a bandwidth to 30 % (the 90 % point of one
+record's envelope spectrum moves with the seed: over ten clean bench ``random`` inputs it spread
+from 1.20 to 1.52 Hz, a largest pairwise distance of 0.70), levels to 10 % of the larger top
+level. The record's duration is reported, not matched: a shorter run of one experiment is the
+same kind.
 """
 
 from __future__ import annotations
