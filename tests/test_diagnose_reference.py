@@ -225,3 +225,17 @@ def test_a_model_file_written_before_descriptors_loads_and_is_read_by_todays_rul
     ref = reference(model.fingerprint, model, rec, 800)
     assert ref.source == "name" and ref.entry is model.fingerprint["records"]["sine_k0125"]
     assert change_misfit(model.fingerprint, model, rec, ref)[0] is None
+
+
+def test_the_noise_of_an_unknown_input_comes_from_the_input_that_excites_the_model_alike():
+    """A 1 Hz random envelope takes the noise of the 0.5 Hz sine, not of a 0.02 Hz sweep whose slow
+    period is nearer by descriptor distance, nor of a record with another burst period."""
+    from rtlift.diagnose.inputs import nearest_dynamics
+
+    sweep = input_descriptor(record(*sine_input(40000, 0.01)))
+    sine = input_descriptor(record(*sine_input(8000, 0.5)))
+    cmu, env = sine_input(8000, 1.0)
+    other_bursts = input_descriptor(record(bursts(env, period=200), env))
+    new = input_descriptor(record(*random_input(16000, 9)))
+    assert descriptor_distance(new, sweep)[0] < descriptor_distance(new, sine)[0]
+    assert nearest_dynamics({"static": sweep, "sine_k0125": sine, "trains": other_bursts}, new) == "sine_k0125"

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from rtlift.core.records import Record
-from rtlift.diagnose.inputs import best_match, describe, input_descriptor
+from rtlift.diagnose.inputs import best_match, describe, input_descriptor, nearest_dynamics
 from rtlift.diagnose.misfit import fit_misfit, predicted_misfit, synthetic_residual
 from rtlift.diagnose.residual import TestResult, run_all
 from rtlift.model.hybrid import HybridModel
@@ -287,8 +287,9 @@ class Reference:
 def predicted_print(fp: dict[str, Any], model: HybridModel, rec: Record, start: int,
                     nearest: str) -> dict[str, Any]:
     """The fingerprint entry of the residual the model would have had on ``rec``'s input at
-    identification (:func:`.misfit.synthetic_residual`: its misfit predicted, the noise of the
-    ``nearest`` identification record), summarised as every other entry is."""
+    identification (:func:`.misfit.synthetic_residual`: its misfit predicted, the noise of
+    identification record ``nearest``, :func:`.inputs.nearest_dynamics`), summarised as every other
+    entry is."""
     out = predict_record(model, rec)
     e = synthetic_residual(fp["misfit"], model, rec, nearest)
     s = start
@@ -321,12 +322,15 @@ def reference(fp: dict[str, Any] | None, model: HybridModel, rec: Record, start:
                          f"{dist:.2f} <= 1): compared with the model's residual there")
     away = f"its input ({describe(d)}) matches no identification record (nearest {key}, distance {dist:.1f}, " \
            f"by {worst})"
-    if fp.get("misfit") and key in fp["misfit"].get("noise", {}):
+    noise = (fp.get("misfit") or {}).get("noise", {})
+    like = nearest_dynamics({k: v["input"] for k, v in recs.items() if k in noise}, d)
+    if like is not None:
         lam = fp["misfit"]["transfer"]
-        return Reference(predicted_print(fp, model, rec, start, key), "predicted", None, key, dist,
+        return Reference(predicted_print(fp, model, rec, start, like), "predicted", None, key, dist,
                          f"{away}: compared with the residual the model is predicted to have on this input "
-                         f"(its misfit carried over from the campaign at lambda = {lam:.2f}, the noise "
-                         f"spectrum of {key})")
+                         f"(its misfit carried over from the campaign at lambda = {lam:.2f}, the noise of "
+                         f"{like}, the identification input of the same burst setting and nearest envelope "
+                         f"bandwidth)")
     return Reference(recs[key], "nearest", key, key, dist, f"{away}: compared with the nearest")
 
 

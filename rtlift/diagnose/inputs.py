@@ -112,3 +112,16 @@ def best_match(descriptors: dict[str, dict[str, float]], d: dict[str, float]) ->
         if dist < best[1]:
             best = (key, dist, worst)
     return best
+
+
+def nearest_dynamics(descriptors: dict[str, dict[str, float]], d: dict[str, float]) -> str | None:
+    """The key of ``descriptors`` whose input excites the model most alike: the same burst
+    setting (burst period and on-time within :data:`TOLERANCES`, else any), then the nearest
+    envelope bandwidth on a log scale, |ln(B_a / B_b)|. The model's misfit is dynamic: a 1 Hz
+    random envelope is nearer a 0.5 Hz sine than a 0.02 Hz static sweep, however the sweep's
+    slow period compares in :func:`descriptor_distance`."""
+    def key(k: str) -> tuple[bool, float]:
+        o = descriptors[k]
+        same = all(abs(o[f] - d[f]) <= TOLERANCES[f](o[f], d[f]) for f in ("burst_period_s", "on_time_s"))
+        return (not same, abs(math.log(max(o["bandwidth_hz"], 1e-6) / max(d["bandwidth_hz"], 1e-6))))
+    return min(descriptors, key=key) if descriptors else None

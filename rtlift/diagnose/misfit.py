@@ -24,9 +24,12 @@ not bit for bit (another length, a measured Cμ column), meets that record's own
 What is left on each record, u = ε − m̂, is its noise (buffeting, balance, and whatever misfit
 does not carry): its Welch PSD is kept per record. :func:`synthetic_residual` draws the residual
 the model would have had on a new input at identification: m̂ + w, w Gaussian noise with the PSD
-of the identification record whose input is nearest (:mod:`.inputs`; seeded by the input, so one
-input always gives one print). The noise is borrowed from the nearest record, the misfit is not:
-it is predicted for the input, as far as the campaign says it carries (λ).
+of the identification record whose input excites the model most alike (the same burst setting,
+the nearest envelope bandwidth: :func:`.inputs.nearest_dynamics`; seeded by the input, so one
+input always gives one print), and its power the mean square of u, offset included: the misfit
+that does not carry is noise of unknown sign to a new input, not nothing. The noise is borrowed
+from the nearest record, the misfit is not: it is predicted for the input, as far as the campaign
+says it carries (λ).
 """
 
 from __future__ import annotations
@@ -102,7 +105,7 @@ def fit_misfit(model: HybridModel, records: list[Record], start: int) -> dict[st
     for (P, e), kind in zip(parts, kinds, strict=True):
         u = e - lam * (P @ theta)
         f, p = signal.welch(u - u.mean(), fs=fs, nperseg=min(u.size, 2048), window="hann")
-        noise[kind] = {"f_hz": f.tolist(), "variance": float(np.var(u)),
+        noise[kind] = {"f_hz": f.tolist(), "variance": float(np.mean(u**2)),
                        "log10": np.log10(np.maximum(p, 1e-300)).tolist()}
     return {"version": MISFIT_VERSION, "columns": list(COLUMNS), "theta": theta.tolist(), "transfer": lam,
             "cmu_max": cmu_max, "per_record": per_record, "noise": noise}
@@ -125,7 +128,7 @@ def input_seed(rec: Record) -> int:
 
 def coloured_noise(f_hz: np.ndarray, log10_psd: np.ndarray, variance: float, n: int, fs: float,
                    rng: np.random.Generator) -> np.ndarray:
-    """Gaussian noise of n samples and variance ``variance`` whose one-sided PSD is 10**log10_psd
+    """Zero-mean Gaussian noise of n samples and power ``variance`` whose one-sided PSD is 10**log10_psd
     (a Welch estimate, interpolated) above the Welch grid's first bin f₁; the power the Welch
     segments' means took (variance − ∫P df, what lies below f₁) is spread flat over 0 < f < f₁.
     Synthesised in the frequency domain: X(f) = √P(f) (a + jb), a, b ~ N(0, 1), inverse real FFT."""
