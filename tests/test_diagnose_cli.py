@@ -57,6 +57,25 @@ def test_diagnose_writes_the_report_the_figures_and_a_loadable_augmented_model(f
     assert "RMSE" in md and "NRMSE" in md
 
 
+
+def test_the_report_says_per_record_what_it_was_compared_with_from_its_input(files):
+    """The records are named train, val, valr: nothing in a name says what they are. train and val
+    repeat the campaign's sine input bit for bit; valr (random) matches no identification input and
+    is compared with the residual predicted for its input."""
+    out = files / "out_refs"
+    assert main(["diagnose", "--model", str(files / "model.json"), "--train", str(files / "train.csv"),
+                 "--validate", str(files / "val.csv"), str(files / "valr.csv"), "--out", str(out)]) == 0
+    refs = json.loads((out / "report.json").read_text())["references"]
+    assert set(refs) == {"train", "val", "valr"}
+    for name in ("train", "val"):
+        assert (refs[name]["source"], refs[name]["entry"], refs[name]["distance"]) == ("repeat", "sine_k0125", 0.0)
+    assert refs["valr"]["source"] == "predicted" and refs["valr"]["entry"] is None
+    assert refs["valr"]["distance"] > 1.0
+    for ref in refs.values():
+        assert set(ref) == {"source", "entry", "nearest", "distance", "text"} and "\n" not in ref["text"]
+    md = (out / "report.md").read_text()
+    assert "## What each record is compared with" in md and "| valr | predicted |" in md
+
 def test_bad_input_is_a_one_line_error_with_status_2(files, tmp_path, capsys):
     bad = tmp_path / "bad.csv"
     bad.write_text("t,cmu,cmu_envelope\n0,0,0\n")

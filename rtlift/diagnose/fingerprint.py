@@ -13,6 +13,12 @@ physical events. ``rtlift identify`` therefore stores, per record type of its ca
   (``gain_trend``), direction dependence (``direction``), mean ε per Cμ level (``level``);
 - the lag that best aligns model and measurement, whiteness (Ljung–Box Q), input and
   Billings–Voon correlations;
+- ``input``: each record's input descriptor (:mod:`.inputs`: burst period, on-time, envelope
+  frequency and bandwidth, level range), by which a later record finds its reference from its
+  input, never its name (:func:`reference`);
+- ``misfit``: the model's own misfit as a function of its input (:mod:`.misfit`), fitted over all
+  identification records: where a later record's input matches none of them, its reference is
+  the print of the residual the model would have had on that input (:func:`predicted_print`);
 - ``repeats``: for each identification record of at most ``REPEAT_MAX_SAMPLES`` samples, its
   measured ΔCL and a digest of its input (:func:`input_digest`). A later record that repeats
   the experiment (the same Cμ sequence) meets the model's own misfit on it sample for sample:
@@ -43,11 +49,13 @@ from typing import Any
 import numpy as np
 
 from rtlift.core.records import Record
+from rtlift.diagnose.inputs import best_match, describe, input_descriptor, nearest_dynamics
+from rtlift.diagnose.misfit import fit_misfit, predicted_misfit, synthetic_residual
 from rtlift.diagnose.residual import TestResult, run_all
 from rtlift.model.hybrid import HybridModel
 from rtlift.model.validation import predict_record
 
-FINGERPRINT_VERSION = 1
+FINGERPRINT_VERSION = 2
 Z_DEPART = 4.0                 # |z| beyond which a statistic has left the fingerprint
 FINGERPRINT_START_S = 2.0      # residual tests leave out each record's first seconds (start from rest)
 REPEAT_MAX_SAMPLES = 20_000    # identification records kept for repeats (a long static sweep is not)
@@ -133,10 +141,12 @@ def fingerprint(model: HybridModel, records: list[Record], start: int) -> dict[s
         if len(rec) - start < 4 * int(rec.fs_hz):
             continue
         tests, e = record_tests(model, rec, start)
-        per[record_type(rec)] = summarize(tests, e[start:], rec.fs_hz)
+        per[record_type(rec)] = {**summarize(tests, e[start:], rec.fs_hz), "input": input_descriptor(rec)}
     repeats = [{"type": record_type(rec), "input_sha256": input_digest(rec), "dcl": rec.dcl.tolist()}
                for rec in records if len(rec) <= REPEAT_MAX_SAMPLES]
-    return {"version": FINGERPRINT_VERSION, "start": start, "records": per, "repeats": repeats}
+    usable = [rec for rec in records if len(rec) - start >= 4 * int(rec.fs_hz)]
+    return {"version": FINGERPRINT_VERSION, "start": start, "records": per, "repeats": repeats,
+            "misfit": fit_misfit(model, usable, start) if usable else None}
 
 
 def input_digest(rec: Record) -> str:
@@ -237,8 +247,9 @@ def error_departure(e: np.ndarray, fp: dict[str, Any], fs: float) -> Departure:
 
 
 def print_for(fp: dict[str, Any] | None, rec: Record) -> tuple[dict[str, Any] | None, str]:
-    """The fingerprint entry to compare ``rec`` with: its own record type's, else the entry with
-    the most samples (said in the note); None if the model has no fingerprint."""
+    """The rule for a model file without input descriptors (fingerprint version 1; :func:`reference`
+    finds the entry from the input otherwise): the entry of ``rec``'s record type by name, else
+    the entry with the most samples (said in the note); None if the model has no fingerprint."""
     if not fp or not fp.get("records"):
         return None, "the model file has no residual fingerprint (identified before rtlift 0.2): " \
                      "every accepted entry is reported as kind 'effect' against a white residual"
@@ -250,3 +261,104 @@ def print_for(fp: dict[str, Any] | None, rec: Record) -> tuple[dict[str, Any] | 
     return recs[other], (f"no {kind} record at identification: compared with the model's residual "
                          f"on {other}")
 
+
+@dataclass(frozen=True)
+class Reference:
+    """What a record is compared with, and why: ``source`` is ``repeat`` (its input is an
+    identification record's, bit for bit), ``input`` (its input descriptor matches an
+    identification record's, :mod:`.inputs`), ``predicted`` (it matches none: the print of the
+    residual the model would have had on its input, :func:`predicted_print`), or, for a model
+    file without input descriptors, ``name`` / ``largest`` (today's rule, :func:`print_for`), or
+    ``none`` (no fingerprint)."""
+
+    entry: dict[str, Any] | None
+    source: str
+    key: str | None
+    nearest: str | None
+    distance: float | None
+    text: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"source": self.source, "entry": self.key, "nearest": self.nearest,
+                "distance": None if self.distance is None or not math.isfinite(self.distance)
+                else round(self.distance, 3), "text": self.text}
+
+
+def predicted_print(fp: dict[str, Any], model: HybridModel, rec: Record, start: int,
+                    nearest: str) -> dict[str, Any]:
+    """The fingerprint entry of the residual the model would have had on ``rec``'s input at
+    identification (:func:`.misfit.synthetic_residual`: its misfit predicted, the noise of
+    identification record ``nearest``, :func:`.inputs.nearest_dynamics`), summarised as every other
+    entry is."""
+    out = predict_record(model, rec)
+    e = synthetic_residual(fp["misfit"], model, rec, nearest)
+    s = start
+    tests = run_all(out.total[s:] + e[s:], e[s:], out.total[s:], out.low[s:], rec.cmu_envelope[s:], rec.cmu[s:],
+                    rec.fs_hz, input_lines_hz(rec), envelope_line_hz(rec))
+    return {**summarize(tests, e[s:], rec.fs_hz), "input": input_descriptor(rec)}
+
+
+def reference(fp: dict[str, Any] | None, model: HybridModel, rec: Record, start: int) -> Reference:
+    """The fingerprint entry to compare ``rec`` with, found from its input (:class:`Reference`)."""
+    recs = (fp or {}).get("records") or {}
+    if not recs:
+        entry, note = print_for(fp, rec)
+        return Reference(entry, "none", None, None, None, note)
+    if not all("input" in r for r in recs.values()):           # a model file from before descriptors
+        entry, note = print_for(fp, rec)
+        key = record_type(rec) if record_type(rec) in recs else max(recs, key=lambda k: recs[k]["n"])
+        return Reference(entry, "name" if key == record_type(rec) else "largest", key, None, None, note)
+    digest = input_digest(rec)
+    for r in fp.get("repeats", []):
+        if r.get("input_sha256") == digest and r.get("type") in recs:
+            return Reference(recs[r["type"]], "repeat", r["type"], r["type"], 0.0,
+                             f"its input repeats the identification's {r['type']} record bit for bit: compared "
+                             f"with the model's residual there")
+    d = input_descriptor(rec)
+    key, dist, worst = best_match({k: v["input"] for k, v in recs.items()}, d)
+    if dist <= 1.0:
+        return Reference(recs[key], "input", key, key, dist,
+                         f"its input ({describe(d)}) is of the identification's {key} kind (distance "
+                         f"{dist:.2f} <= 1): compared with the model's residual there")
+    away = f"its input ({describe(d)}) matches no identification record (nearest {key}, distance {dist:.1f}, " \
+           f"by {worst})"
+    noise = (fp.get("misfit") or {}).get("noise", {})
+    like = nearest_dynamics({k: v["input"] for k, v in recs.items() if k in noise}, d)
+    if like is not None:
+        lam = fp["misfit"]["transfer"]
+        return Reference(predicted_print(fp, model, rec, start, like), "predicted", None, key, dist,
+                         f"{away}: compared with the residual the model is predicted to have on this input "
+                         f"(its misfit carried over from the campaign at lambda = {lam:.2f}, the noise of "
+                         f"{like}, the identification input of the same burst setting and nearest envelope "
+                         f"bandwidth)")
+    return Reference(recs[key], "nearest", key, key, dist, f"{away}: compared with the nearest")
+
+
+def change_misfit(fp: dict[str, Any] | None, model: HybridModel, rec: Record,
+                  ref: Reference) -> tuple[np.ndarray | None, str]:
+    """The model's own misfit m on ``rec``'s input, which the map-shaped effects are fitted
+    around (ΔCL − m: what changed since identification), and a line saying where it comes from:
+    the identification run itself where ``rec`` repeats it (:func:`repeat_misfit`, the best
+    case); else, where its input is of an identification record's kind, that record's own misfit
+    function (λ of that record > 0); else the misfit predicted for the input
+    (:func:`.misfit.predicted_misfit`) where the campaign says it carries to other inputs (λ > 0);
+    else None (fitted to the residual)."""
+    m, note = repeat_misfit(fp, model, rec)
+    if m is not None:
+        return m, note
+    mm = (fp or {}).get("misfit")
+    if not mm:
+        return None, note
+    own = mm.get("per_record", {}).get(ref.key) if ref.source == "input" else None
+    if own and own["transfer"] > 0.0:
+        return predicted_misfit(mm, model, rec, ref.key), (
+            f"the training record repeats no identification run bit for bit but its input is of the "
+            f"identification's {ref.key} kind: effects that replace the map are fitted to what changed, the "
+            f"model's own misfit on that kind of input (fitted there, lambda = {own['transfer']:.2f}) taken out")
+    lam = mm["transfer"]
+    if lam <= 0.0:
+        return None, (f"{note}; the model's own misfit does not carry across the campaign's record types "
+                      f"(lambda = {lam:.2f}, leave-one-record-out), so none is predicted for this input")
+    return predicted_misfit(mm, model, rec), (
+        f"the training record repeats no identification experiment: effects that replace the map are fitted "
+        f"to what changed, the model's own misfit predicted for this input (lambda = {lam:.2f}) taken out")

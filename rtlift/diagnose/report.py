@@ -88,9 +88,18 @@ def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
              f"Scores: {r['scoring']}. Residual tests from sample {diag.start} on.", "",
              f"Fingerprint: {r['fingerprint']}.", "",
              f"Fits: {r['fit_target']}.", "",
-             "## Error before and after", "",
-             "| record | ρ before | ρ after | NRMSE before | NRMSE after | RMSE before | RMSE after |",
-             "|---|---|---|---|---|---|---|"]
+             "## What each record is compared with", "",
+             "Found from each record's input (burst period, on-time, envelope, levels), never its name.", "",
+             "| record | reference | identification record | nearest input | distance | why |",
+             "|---|---|---|---|---|---|"]
+    for name, ref in r.get("references", {}).items():
+        dist = "–" if ref["distance"] is None else f"{ref['distance']:.2f}"
+        lines.append(f"| {name} | {ref['source']} | {ref['entry'] or '–'} | {ref['nearest'] or '–'} | {dist} | "
+                     f"{ref['text']} |")
+    lines += ["",
+              "## Error before and after", "",
+              "| record | ρ before | ρ after | NRMSE before | NRMSE after | RMSE before | RMSE after |",
+              "|---|---|---|---|---|---|---|"]
     for name, b in r["baseline"]["records"].items():
         a = r["augmented"]["records"][name]
         lines.append(f"| {name} | {b['corr']:.4f} | {a['corr']:.4f} | {b['nrmse']:.4f} | {a['nrmse']:.4f} "
