@@ -3,7 +3,7 @@
 A serial capture and a CAN log built frame by frame (5 s at 400 Hz; samples lost on the link,
 one flagged by the device): the record is uniform on the device's sample counter, its Cμ,
 envelope and ΔCL are the very values the replayed observer loop was fed (``--out``'s
-``dcl_meas``, bit for bit), the tare window's ΔCL uses the tare the loop found, short gaps are
+``dcl``, bit for bit), the tare window's ΔCL uses the tare the loop found, short gaps are
 filled and marked, and a gap too long to fill is one line and exit 2."""
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def test_the_inputs_and_the_measured_dcl_are_what_the_loop_was_fed_bit_for_bit(r
     rec, rows, _ = replayed
     for col in ("cmu", "cmu_envelope"):          # held through a gap, as the loop holds them
         assert getattr(rec, col).tolist() == [float(r[col]) for r in rows]
-    measured = [(i, float(r["dcl_meas"])) for i, r in enumerate(rows) if r["dcl_meas"]]
+    measured = [(i, float(r["dcl"])) for i, r in enumerate(rows) if r["dcl"]]
     assert len(measured) == N - TARE - 4
     assert all(rec.dcl[i] == d for i, d in measured)
 
@@ -96,7 +96,7 @@ def test_the_tare_window_has_the_tare_the_loop_found(replayed, tmp_path):
     from firmware_io.logs import read_log
 
     rec, rows, kind = replayed
-    assert not any(r["dcl_meas"] for r in rows[:TARE])
+    assert not any(r["dcl"] for r in rows[:TARE])
     log = Path(rec.meta["source_log"])
     samples = list(read_log(log))
     cal = Calibration()
