@@ -8,15 +8,14 @@ import pytest
 
 from hil_sim.experiments import run_experiment, write_bench_record
 from rtlift.app.cli import main
-from rtlift.identify import identify_hybrid
-from rtlift.model.modelfile import load_model, save_model
+from rtlift.model.modelfile import load_model, model_from_dict, save_model
+from tests.test_observer_bench import _identified
 
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("diag")
-    recs = {n: run_experiment(n, seed=1).to_record() for n in ("static", "single_burst", "sine_k0125")}
-    save_model(identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"]).model, d / "model.json")
+    save_model(model_from_dict(_identified()), d / "model.json")   # the clean campaign (seed 1), identified once
     effect = ["periodic_disturbance:frequency_hz=20,amplitude=0.01"]
     write_bench_record(run_experiment("sine_k0125", seed=21, effects=effect), d / "train.csv")
     write_bench_record(run_experiment("sine_k0125", seed=22, effects=effect), d / "val.csv")

@@ -19,7 +19,6 @@ from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import OutputHysteresis
 from rtlift.diagnose import diagnose
 from rtlift.diagnose.catalog import augment, predict
-from rtlift.identify import identify_hybrid
 
 FS = 400.0
 EXPERIMENT = "sine_k0125"
@@ -27,8 +26,12 @@ EXPERIMENT = "sine_k0125"
 
 @pytest.fixture(scope="session")
 def clean_model():
-    recs = {n: run_experiment(n, seed=1).to_record() for n in ("static", "single_burst", "sine_k0125")}
-    return identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"]).model
+    """The clean campaign's model (seed 1), identified once per test session for every module
+    that uses it (identification is deterministic: issue 26)."""
+    from rtlift.model.modelfile import model_from_dict
+    from tests.test_observer_bench import _identified
+
+    return model_from_dict(_identified())
 
 
 def record(seed: int, effects: list, name: str, experiment: str = EXPERIMENT):
