@@ -1,91 +1,294 @@
 """Null rate: how often the diagnosis names an effect where nothing changed.
 
 The hybrid model is identified once on a clean standard campaign of the bench (seed 1), as in
-``benchmarks/effects_table.py``. Then, for each of ``--seeds`` noise seeds, clean records are
-measured again — the training record (sine k = 0.125, the identification's experiment repeated)
-and two validation records (sine k = 0.125 and random) — and diagnosed. Nothing was injected, so
-every accepted entry of kind ``effect`` is a false alarm; entries of kind ``structure`` are
-counted apart (the model's own misfit, which the diagnosis may name as such).
+``benchmarks/effects_table.py`` (``bench_model``). Then, for each of ``--seeds`` seeds and each
+training record type (``--types``, default all three):
 
-With ``--independent``, the same is done on the independent plant's development set (when
-``../shared`` is beside the project): its ``clean`` case as the README's protocol runs it, and
-once more with the campaign's own ``sine_k025`` and ``random`` (another noise seed) as the
-validation records.
+- ``sine_k0125``: its input repeats the identification's sine bit for bit (the exact repeat:
+  the fit target is "what changed" against the identification run itself);
+- ``sine_k025`` and ``random``: no repeat (``random`` draws a new envelope with each seed), so
+  the reference is the input-matched or predicted print,
 
-Prints one line per run, the totals, and, as its last line, one JSON object.
+one clean training record is measured and diagnosed, validated on the *other two* record types
+(fresh noise seeds: every diagnosis has its own three records, no record is shared between
+diagnoses). Named vs unnamed alternates over the runs (half and half, balanced per type): an
+*unnamed* record is renamed ``run_a``/``run_b``/``run_c`` and loses its ``# experiment:``,
+``seed``, ``effects`` and ``source`` metadata, as a user's files would. With ``--twins N`` the
+first N runs are also diagnosed with the other naming on the very same records, and the two
+reports' accepted entries and references are compared (the input, not the name, must decide).
+
+With ``--independent``, the independent plant's clean records (``clean`` and ``campaign`` folders
+of ``../shared/data/independent_plant``, when present) are diagnosed too, with a model
+identified on its campaign: each record type trains once, the folder's other two validate,
+named and unnamed (the unnamed twin is the renaming check there; both are counted as runs).
+
+Nothing was injected, so every accepted entry of kind ``effect`` is a false alarm; entries of
+kind ``structure`` (the model's own misfit, named as such) are counted apart. The false-effect
+rate is false effects per diagnosis, with a **two-sided 95 % Clopper–Pearson interval** on the
+proportion of diagnoses with a false effect (scipy.stats.beta; the upper end is
+``beta.ppf(0.975, k + 1, n − k)``, which is 1 − 0.025^(1/n) for k = 0). The bound counts every
+diagnosis as independent; the unnamed twins of ``--twins`` re-diagnose the same records and are
+left out of the count (they are a check, not more evidence).
+
+Runs in parallel (``--workers``, default 2) and streams each run to ``--jsonl`` as it finishes;
+``--budget`` seconds stops submitting new runs (the result then says how many ran). Prints one
+line per run, the totals and, as its last line, one JSON object.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import pickle
 import sys
 import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
-from benchmarks.effects_table import bench_model, records
-from rtlift.diagnose import diagnose
-from rtlift.identify import identify_hybrid
-
 IP_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "independent_plant"
+TYPES = ("sine_k0125", "sine_k025", "random")
+USER_META = ("experiment", "seed", "effects", "source")
+
+_MODELS: dict[str, object] = {}
 
 
 def accepted(report: dict, kind: str) -> list[str]:
     return [e["name"] for e in report["effects"] if e["accepted"] and e["kind"] == kind]
 
 
-def bench_runs(seeds: int, first: int) -> list[dict]:
-    model = bench_model()
-    runs = []
-    for s in range(first, first + seeds):
-        train, val = records([], (3 * s, 3 * s + 1, 3 * s + 2))
-        report = diagnose(model, train, val).report
-        runs.append({"plant": "bench", "seed": s, "effects": accepted(report, "effect"),
-                     "structure": accepted(report, "structure"), "fit_target": report["fit_target"]})
-    return runs
+def unnamed(rec, name: str):
+    """``rec`` as a user's file would carry it: another name, no experiment metadata."""
+    import dataclasses
+
+    return dataclasses.replace(rec, name=name, meta={k: v for k, v in rec.meta.items() if k not in USER_META})
 
 
-def independent_runs(data: Path) -> list[dict]:
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Two-sided exact (Clopper–Pearson) interval for k successes in n trials."""
+    from scipy.stats import beta
+
+    a = (1.0 - level) / 2.0
+    lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1.0 - a, k + 1, n - k))
+    return lo, hi
+
+
+def _model(key: str, cache: str | None):
+    if key in _MODELS:
+        return _MODELS[key]
+    if key == "bench":
+        path = Path(cache) if cache else None
+        if path is not None and path.exists():
+            model = pickle.loads(path.read_bytes())
+        else:
+            from benchmarks.effects_table import bench_model
+
+            model = bench_model()
+            if path is not None:
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_bytes(pickle.dumps(model))
+                tmp.replace(path)
+    else:
+        from rtlift.core.records import read_record
+        from rtlift.identify import identify_hybrid
+
+        path = Path(cache + ".independent") if cache else None
+        if path is not None and path.exists():
+            model = pickle.loads(path.read_bytes())
+        else:
+            camp = Path(key) / "campaign"
+            model = identify_hybrid(read_record(camp / "static.csv"), read_record(camp / "single_burst.csv"),
+                                    read_record(camp / "sine_k0125.csv")).model
+            if path is not None:
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_bytes(pickle.dumps(model))
+                tmp.replace(path)
+    _MODELS[key] = model
+    return model
+
+
+def _summary(report: dict) -> dict:
+    refs = {name: {k: v for k, v in ref.items() if k in ("source", "key", "nearest", "distance")}
+            for name, ref in report["references"].items()}
+    return {"effects": accepted(report, "effect"), "structure": accepted(report, "structure"),
+            "references": refs, "fit_target": report["fit_target"]}
+
+
+def bench_job(job: dict, cache: str | None) -> dict:
+    """One clean bench diagnosis (and its twin with the other naming, if asked)."""
+    from hil_sim.experiments import run_experiment
+    from rtlift.diagnose import diagnose
+
+    t0 = time.perf_counter()
+    model = _model("bench", cache)
+    ttype, seeds = job["train"], job["noise_seeds"]
+    others = [t for t in TYPES if t != ttype]
+    recs = [run_experiment(n, seed=s).to_record() for n, s in zip([ttype, *others], seeds, strict=True)]
+
+    def named_as(naming: str):
+        if naming == "named":
+            return recs
+        return [unnamed(r, f"run_{c}") for r, c in zip(recs, "abc", strict=True)]
+
+    out = dict(job)
+    rs = named_as(job["naming"])
+    out.update(_summary(diagnose(model, rs[0], rs[1:]).report))
+    if job.get("twin"):
+        other = "unnamed" if job["naming"] == "named" else "named"
+        rs = named_as(other)
+        tw = _summary(diagnose(model, rs[0], rs[1:]).report)
+        same_refs = [(v["source"], v.get("key")) for v in out["references"].values()] == \
+                    [(v["source"], v.get("key")) for v in tw["references"].values()]
+        out["twin"] = {"naming": other, "effects": tw["effects"], "structure": tw["structure"],
+                       "same": tw["effects"] == out["effects"] and tw["structure"] == out["structure"]
+                       and same_refs}
+    out["seconds"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
+def independent_job(job: dict, cache: str | None) -> dict:
     from rtlift.core.records import read_record
+    from rtlift.diagnose import diagnose
 
-    camp = data / "campaign"
-    model = identify_hybrid(read_record(camp / "static.csv"), read_record(camp / "single_burst.csv"),
-                            read_record(camp / "sine_k0125.csv")).model
-    train = read_record(data / "clean" / "sine_k0125.csv")
-    runs = []
-    for label, folder in (("clean case", data / "clean"), ("campaign's validation records", camp)):
-        val = [read_record(folder / f"{r}.csv") for r in ("sine_k025", "random")]
-        report = diagnose(model, train, val).report
-        runs.append({"plant": "independent", "seed": label, "effects": accepted(report, "effect"),
-                     "structure": accepted(report, "structure"), "fit_target": report["fit_target"]})
-    return runs
+    t0 = time.perf_counter()
+    data = Path(job["data"])
+    model = _model(str(data), cache)
+    folder = data / job["folder"]
+    others = [t for t in TYPES if t != job["train"]]
+    recs = [read_record(folder / f"{n}.csv") for n in (job["train"], *others)]
+    if job["naming"] == "unnamed":
+        recs = [unnamed(r, f"run_{c}") for r, c in zip(recs, "abc", strict=True)]
+    out = dict(job)
+    out.update(_summary(diagnose(model, recs[0], recs[1:]).report))
+    out["seconds"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
+def _run(job: dict, cache: str | None) -> dict:
+    try:
+        os.nice(5)
+    except OSError:
+        pass
+    return (bench_job if job["plant"] == "bench" else independent_job)(job, cache)
+
+
+def plan(seeds: int, first: int, types: list[str], twins: int, independent: Path | None) -> list[dict]:
+    """The runs, seed by seed (a run stopped early leaves a balanced sample)."""
+    jobs: list[dict] = []
+    j = 0
+    for s in range(first, first + seeds):
+        for ti, ttype in enumerate(types):
+            base = 3 * first + 3 * j          # every diagnosis its own three noise seeds
+            jobs.append({"plant": "bench", "seed": s, "train": ttype,
+                         "naming": "named" if (s + ti) % 2 == 0 else "unnamed",
+                         "noise_seeds": [base, base + 1, base + 2], "twin": j < twins})
+            j += 1
+    if independent is not None:
+        ip = [{"plant": "independent", "data": str(independent), "seed": f"{folder}/{ttype}", "folder": folder,
+               "train": ttype, "naming": naming}
+              for folder in ("clean", "campaign") if (independent / folder / "random.csv").exists()
+              for ttype in TYPES for naming in ("named", "unnamed")]
+        # interleaved early, so that a budget-stopped run still has them
+        for k, job in enumerate(ip):
+            jobs.insert(min(len(jobs), 2 + 4 * k), job)
+    return jobs
+
+
+def summarize(runs: list[dict], planned: int, seconds: float) -> None:
+    """The totals, per-group counts and the last-line JSON."""
+    n = len(runs)
+    false = sum(len(r["effects"]) for r in runs)
+    hit = sum(bool(r["effects"]) for r in runs)
+    structure = sum(len(r["structure"]) for r in runs)
+    lo, hi = clopper_pearson(hit, n) if n else (0.0, 1.0)
+    twins = [r["twin"] for r in runs if r.get("twin")]
+    by: dict[str, dict[str, int]] = {}
+    for r in runs:
+        for key in (f"{r['plant']}:{r['train']}", f"{r['plant']}:{r['naming']}"):
+            b = by.setdefault(key, {"runs": 0, "false_effects": 0, "structure": 0})
+            b["runs"] += 1
+            b["false_effects"] += len(r["effects"])
+            b["structure"] += len(r["structure"])
+    print(f"\n{n} clean diagnoses ({planned - n} planned runs not run): {hit} with an accepted effect "
+          f"({false} false effects in all, {false / max(n, 1):.2%} per diagnosis; two-sided 95 % Clopper-Pearson "
+          f"interval on the share of diagnoses with one: {lo:.2%} to {hi:.2%}); "
+          f"{sum(bool(r['structure']) for r in runs)} with a structure entry ({structure} in all)")
+    if twins:
+        print(f"renaming check: {sum(t['same'] for t in twins)} of {len(twins)} twin diagnoses on the same records "
+              f"accept the same entries from the same references")
+    for key, b in sorted(by.items()):
+        print(f"  {key:<28} {b['runs']:>4} runs  {b['false_effects']:>3} false effects  {b['structure']:>3} structure")
+    print(json.dumps({"runs": runs, "clean_runs": n, "runs_with_false_effect": hit, "false_effects": false,
+                      "structure_entries": structure, "runs_with_structure": sum(bool(r["structure"]) for r in runs),
+                      "false_effect_rate": false / n if n else None, "upper_95": hi, "lower_95": lo,
+                      "interval": "two-sided 95 % Clopper-Pearson on runs_with_false_effect / clean_runs",
+                      "planned_runs": planned, "twins_same": sum(t["same"] for t in twins), "twins": len(twins),
+                      "by": by, "seconds": round(seconds, 1)}))
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=12, help="clean bench runs (default 12)")
+    ap.add_argument("--seeds", type=int, default=67, help="seeds; one diagnosis per seed and training type "
+                    "(default 67: 201 bench diagnoses)")
     ap.add_argument("--first-seed", type=int, default=200)
+    ap.add_argument("--types", default=",".join(TYPES), help=f"training record types (default {','.join(TYPES)})")
+    ap.add_argument("--twins", type=int, default=6, help="first N runs also diagnosed with the other naming "
+                    "on the same records (default 6)")
     ap.add_argument("--independent", action="store_true", help="also the independent plant's clean records")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--budget", type=float, default=None, help="seconds after which no new run starts")
+    ap.add_argument("--model-cache", default=None, help="pickle of the bench model (written if absent)")
+    ap.add_argument("--jsonl", default=None, help="append each finished run to this file")
+    ap.add_argument("--skip", type=int, default=0, help="start at the plan's run N (continue a budget-stopped run "
+                    "with the same options and --jsonl)")
+    ap.add_argument("--summarize", default=None, help="only the totals of the runs saved in this --jsonl file "
+                    "(the plan given by the other options sets planned_runs)")
     args = ap.parse_args(argv)
-    if args.seeds < 0:
-        print("--seeds must be >= 0", file=sys.stderr)
+    types = [t.strip() for t in args.types.split(",") if t.strip()]
+    if args.seeds < 0 or args.workers < 1 or any(t not in TYPES for t in types):
+        print("--seeds must be >= 0, --workers >= 1, --types among " + ", ".join(TYPES), file=sys.stderr)
+        return 2
+    if args.independent and not (IP_DATA / "campaign" / "static.csv").exists():
+        print(f"no independent plant data at {IP_DATA}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    runs = bench_runs(args.seeds, args.first_seed)
-    if args.independent:
-        if not (IP_DATA / "campaign" / "static.csv").exists():
-            print(f"no independent plant data at {IP_DATA}", file=sys.stderr)
-            return 2
-        runs += independent_runs(IP_DATA)
-    for r in runs:
-        print(f"{r['plant']:<12} {str(r['seed']):<30} effects: {', '.join(r['effects']) or '—':<30} "
-              f"structure: {', '.join(r['structure']) or '—'}")
-    false = sum(len(r["effects"]) for r in runs)
-    hit = sum(bool(r["effects"]) for r in runs)
-    print(f"\n{len(runs)} clean runs: {hit} with an accepted effect ({false} false effects in all); "
-          f"{sum(bool(r['structure']) for r in runs)} with a structure entry")
-    print(json.dumps({"runs": runs, "clean_runs": len(runs), "runs_with_false_effect": hit,
-                      "false_effects": false, "seconds": round(time.perf_counter() - t0, 1)}))
+    jobs = plan(args.seeds, args.first_seed, types, args.twins, IP_DATA if args.independent else None)
+    if args.summarize:
+        runs = [json.loads(line) for line in Path(args.summarize).read_text().splitlines() if line.strip()]
+        summarize(runs, len(jobs), sum(r.get("seconds", 0.0) for r in runs) / max(args.workers, 1))
+        return 0
+    jobs = jobs[args.skip:]
+    if args.model_cache and not Path(args.model_cache).exists() and any(j["plant"] == "bench" for j in jobs):
+        _model("bench", args.model_cache)          # once, before the workers start
+    if args.model_cache and args.independent and not Path(args.model_cache + ".independent").exists():
+        _model(str(IP_DATA), args.model_cache)
+    runs: list[dict] = []
+    sink = open(args.jsonl, "a") if args.jsonl else None
+    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+        pending = set()
+        queue = list(jobs)
+        while queue or pending:
+            while queue and len(pending) < args.workers and \
+                    (args.budget is None or time.perf_counter() - t0 < args.budget):
+                pending.add(pool.submit(_run, queue.pop(0), args.model_cache))
+            if not pending:
+                break
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for f in done:
+                r = f.result()
+                runs.append(r)
+                tw = r.get("twin")
+                print(f"{r['plant']:<11} {str(r['seed']):<22} {r['train']:<10} {r['naming']:<7} "
+                      f"effects: {', '.join(r['effects']) or '—':<24} structure: {', '.join(r['structure']) or '—'}"
+                      + (f"  [twin {tw['naming']}: {'same' if tw['same'] else 'DIFFERENT'}]" if tw else ""),
+                      flush=True)
+                if sink:
+                    sink.write(json.dumps(r) + "\n")
+                    sink.flush()
+    if sink:
+        sink.close()
+    summarize(runs, len(jobs), time.perf_counter() - t0)
     return 0
 
 
