@@ -159,7 +159,6 @@ def test_the_hysteresis_is_right_when_a_renamed_random_record_trains(model, clea
     half of the error it added on both sines (69 % and 87 % measured)."""
     import shutil
 
-    from benchmarks import independent_plant as ip
 
     folders = {}
     for case in ("hysteresis", "clean"):
@@ -182,14 +181,9 @@ def test_the_hysteresis_is_right_when_a_renamed_random_record_trains(model, clea
                 tmp_path / name)
         return {k: v["rmse"] for k, v in json.loads((tmp_path / name).read_text())["records"].items()}
 
-    scored = ip.SCORED
-    try:
-        ip.SCORED = ("run_b", "run_c")
-        row = judge_case("hysteresis", report, json.loads((DEFAULT_DATA / "hysteresis" / "truth.json").read_text()),
-                         rmse(model, d, "m.json"), rmse(out / "model_augmented.json", d, "a.json"),
-                         rmse(model, folders["clean"], "c.json"))
-    finally:
-        ip.SCORED = scored
+    row = judge_case("hysteresis", report, json.loads((DEFAULT_DATA / "hysteresis" / "truth.json").read_text()),
+                     rmse(model, d, "m.json"), rmse(out / "model_augmented.json", d, "a.json"),
+                     rmse(model, folders["clean"], "c.json"), scored=("run_b", "run_c"))
     assert row["accepted"] == ["hysteresis"]
     assert row["recovered"]["run_b"] == pytest.approx(0.69, abs=0.15)
     assert row["recovered"]["run_c"] == pytest.approx(0.87, abs=0.15)

@@ -75,9 +75,9 @@ def test_identification_recovers_the_structure_from_its_own_noise_free_data(mode
     Wiener order and reproduces every record type (measured NRMSE ≤ 0.033)."""
     truth = load_model(model_file)
     recs = {}
-    for name, exp in EXPERIMENTS.items():
-        env, gate = exp.program(np.random.default_rng(0))
-        cmu = np.where(gate, env, 0.0)
+    for name in EXPERIMENTS:
+        commanded = run_experiment(name, seed=0).to_record()      # the program's Cμ, as the bench fires it
+        cmu, env = commanded.cmu, commanded.cmu_envelope
         truth.reset()
         recs[name] = Record(np.arange(env.size) / 400.0, cmu, env, truth.simulate(cmu, env).total, name=name)
     idf = identify_interaction(recs["static"], recs["single_burst"], [recs[t] for t in TRAINS], recs["sine_k0125"])
