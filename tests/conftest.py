@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import signal
+
 import numpy as np
 import pytest
 
@@ -23,3 +25,10 @@ def model_file(tmp_path_factory):
     model = bench_model(("random",))
     save_model(model, path, observer=model.observer_config)
     return path
+
+
+# A run started in the background of a non-interactive shell (`bash -c '... &'`) inherits SIGINT
+# ignored, and so would every rtlift process a test starts: the tests that stop one with Ctrl-C
+# would wait for ever. A Python handler here is reset to the default in each child at exec, so the
+# children see Ctrl-C as a user's terminal delivers it.
+signal.signal(signal.SIGINT, signal.default_int_handler)
