@@ -54,6 +54,11 @@ class EffectInfo:
         return Effect(self.name, self.schema.draw(rng))
 
 
+BENCH_ONLY: Mapping[str, Mapping[str, float]] = MappingProxyType({"actuator_fade": {"onset_s": 0.0}})
+"""Parameters the bench takes beyond the shared schema (what the plant does, not what a model
+fits): ``actuator_fade:onset_s`` — the actuators start heating (on-time counted) from this
+device time on, so a fade can set in during a run."""
+
 STAGE_ON_BENCH = {"delay": "force", "sensor_resonance": "force", "actuator_fade": "actuator",
                   "zero_drift": "offset", "periodic_disturbance": "offset", "hysteresis": "plant"}
 EFFECTS: Mapping[str, EffectInfo] = MappingProxyType({name: EffectInfo(stage, SCHEMAS[name])
@@ -90,6 +95,8 @@ def _check(name: str, params: dict[str, float], spec: str) -> None:
     for key, value in params.items():
         if not math.isfinite(value):
             raise UserError(f"effect {spec!r}: {key} must be a finite number")
+    if params.get("onset_s", 0.0) < 0:
+        raise UserError(f"effect {spec!r}: onset_s must be at least 0, got {params['onset_s']:g}")
     positive = {"seconds", "frequency_hz", "damping_ratio", "time_constant_s"}
     for key in positive & set(params):
         if params[key] <= 0:
@@ -112,7 +119,7 @@ def parse_effect(spec: str) -> Effect:
     if name not in EFFECTS:
         raise UserError(f"unknown effect {name!r} in {spec!r} (known: {', '.join(EFFECTS)})")
     info = EFFECTS[name]
-    known = set(info.ranges)
+    known = set(info.ranges) | set(BENCH_ONLY.get(name, {}))
     given: dict[str, float] = {}
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, eq, value = item.partition("=")
@@ -129,6 +136,7 @@ def parse_effect(spec: str) -> Effect:
         except ValueError:
             raise UserError(f"effect {spec!r}: {key} is not a number: {value.strip()!r}") from None
     params = dict(info.defaults)
+    params.update({k: v for k, v in BENCH_ONLY.get(name, {}).items() if k in given})
     if name == "zero_drift" and given and "rate_per_s" not in given:
         params = {"amplitude": 0.02, "time_constant_s": 20.0}
     params.update(given)
@@ -143,16 +151,22 @@ def as_effect(effect: Effect | str) -> Effect:
 # -- streaming processors (one per effect per bench run, state carried between chunks) ----
 
 class ActuatorFade:
-    """``actuator_fade``: Cμ · (f + (1 − f) exp(−E/τ)), E = burst on-time so far (s)."""
+    """``actuator_fade``: Cμ · (f + (1 − f) exp(−E/τ)), E = burst on-time so far (s),
+    counted from device time ``onset_s`` on (0: from the start)."""
 
     def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
         self.f = params["final_fraction"]
         self.tau = params["time_constant_s"]
         self.dt = 1.0 / fs_hz
         self.on_time = 0.0
+        self.onset = int(round(params.get("onset_s", 0.0) * fs_hz))
+        self.samples = 0
 
     def process(self, cmu: np.ndarray) -> np.ndarray:
         on = np.asarray(cmu) > 0
+        if self.samples < self.onset:
+            on = on & (np.arange(self.samples, self.samples + len(on)) >= self.onset)
+        self.samples += len(on)
         elapsed = self.on_time + self.dt * np.cumsum(on)
         self.on_time = float(elapsed[-1]) if len(elapsed) else self.on_time
         before = elapsed - self.dt * on  # on-time accumulated before this sample

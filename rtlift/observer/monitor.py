@@ -1,0 +1,349 @@
+"""The live departure monitor: a running loop's residual against the model's fingerprint.
+
+``rtlift identify`` stores the model's residual on its own campaign (the fingerprint,
+:mod:`rtlift.diagnose.fingerprint`); its RMSE σ_fp on the records with a loop's kind of input
+(:func:`fingerprint_scale`) is the scale every statistic here is measured in. The monitor watches
+for what changes *while the loop runs*: a difference already there when it starts is the offline
+diagnosis's to find (``rtlift diagnose``), and the observer's bias state absorbs it meanwhile. Per sample the monitor takes the measured ΔCL z(k), the open-loop
+model's ΔCL_m(k) (``est.model_dcl``) and the observer's innovation ν(k), and accumulates, in
+blocks of ``block`` samples (1 s), the sums of
+
+    e = z − ΔCL_m,   e²,   ΔCL_m,   ΔCL_m²,   e·ΔCL_m,   ν,   ν²,   ν(k)·ν(k−1)
+
+(O(1) a sample, nothing allocated), and ν in a ring of the last ``window`` seconds. At the end of
+each block it evaluates, over the last ``window`` blocks (``trend_window`` for the trend):
+
+- ``bias``   |ē − ē₀| / σ_fp — the window's mean residual against the first window's ē₀ (a zero
+  drift, a fade at a steady level). Against the run's own start, not the fingerprint's mean: that
+  mean is each identification record's tare offset (on the independent plant −0.005 on its sine,
+  +0.009 on its static sweep, with σ_fp 0.008), and a loop tares itself;
+- ``gain``   |ĝ − ĝ₀|, ĝ = Σ(e−ē)(m−m̄) / Σ(m−m̄)² — the residual's slope against the model's lift
+  (a relative gain change of the actuation: a fade makes ĝ fall by 1 − f) against the first
+  excited window's ĝ₀ (the model's own gain misfit); evaluated only when the window's
+  std(ΔCL_m) ≥ ``gain_excitation`` σ_fp, else 0;
+- ``level``  std(e) / σ_fp — the residual's spread (added noise, an unmodelled mode);
+- ``whiteness`` ρ₁(ν), the innovations' lag-1 autocorrelation (an unmodelled slow or resonant
+  state colours them);
+- ``line``   the largest ratio (dB) of the innovations' Hann periodogram in one bin to the
+  median of the ±``line_half_width_hz`` around it, outside DC and the burst-rate harmonics
+  (a narrow pickup);
+- ``trend``  |slope of the block means of e| × the trend window / σ_fp — a slow drift.
+
+A departure is raised when a statistic stays above its threshold for ``persist`` consecutive
+evaluations; the same test is not raised again until it has been back under its threshold for
+a whole window. The thresholds (:data:`THRESHOLDS`) are set from clean runs only
+(``benchmarks/monitor_null.py --calibrate``: the largest value each statistic held for
+``persist`` consecutive evaluations over the calibration seeds' clean streams, times
+:data:`MARGIN`), and the false-departure rate is measured on other seeds.
+
+The suspect named with a departure is what the diagnosis would try first (the diagnosis that
+``--adapt`` runs decides): ``bias`` is an ``actuator_fade`` when the residual's block means follow
+the model's lift with a negative slope beside an offset and a trend in time, a ``zero_drift`` when
+the lift moved and they did not follow it, else "actuator_fade or zero_drift" (in a closed loop
+the two look alike at first: the controller raises Cμ as the lift falls); ``gain`` < 0 an ``actuator_fade``;
+``line`` a ``periodic_disturbance`` at the peak's frequency; ``level`` and ``whiteness`` an
+unmodelled ``resonance`` or noise; ``trend`` a ``zero_drift``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rtlift.core.rate import FS_HZ
+
+TESTS = ("bias", "gain", "level", "whiteness", "line", "trend")
+MARGIN = 1.25
+"""Thresholds are the clean runs' largest persistent value times this margin."""
+
+THRESHOLDS: Mapping[str, float] = {
+    "bias": 0.8719, "gain": 0.1571, "level": 2.6901, "whiteness": 0.7771, "line": 25.4728, "trend": 1.5606,
+}
+"""Set by ``python -m benchmarks.monitor_null --calibrate`` from clean streams (module docstring);
+the values and the runs they came from are in docs/INTERFACES.md ("Live departure monitor")."""
+
+N_SUMS = 9   # n, Σe, Σe², Σm, Σm², Σem, Σν, Σν², Σν(k)ν(k−1)
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    block_s: float = 1.0
+    window_s: float = 6.0
+    trend_window_s: float = 30.0
+    persist: int = 2
+    gain_excitation: float = 2.0
+    line_half_width_hz: float = 2.0
+    line_min_hz: float = 0.5
+    burst_hz: float = 8.0
+    burst_guard_hz: float = 0.4
+    thresholds: Mapping[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
+
+
+LOOP_LIKE = ("sine", "random")
+"""Identification records whose input is a loop's kind (8 Hz bursts, a moving envelope)."""
+
+
+def fingerprint_scale(fingerprint: Mapping[str, Any] | None) -> float:
+    """σ_fp: the residual RMSE on the fingerprint's loop-like records (sines, random: the median
+    if several), else the median over its dynamic records (not the static sweep); NaN without a
+    fingerprint."""
+    recs = (fingerprint or {}).get("records") or {}
+    ok = {name: float(r["rmse"]) for name, r in recs.items()
+          if isinstance(r, Mapping) and math.isfinite(float(r.get("rmse", math.nan)))}
+    loop = [v for name, v in ok.items() if name.startswith(LOOP_LIKE)]
+    vals = loop or [v for name, v in ok.items() if name != "static"]
+    return float(np.median(vals)) if vals else math.nan
+
+
+class DepartureMonitor:
+    """Sliding-window departure tests of a running observer's residual (module docstring).
+
+    :meth:`step` once per sample (the hot path: float arithmetic and array stores only);
+    ``departures`` collects ``{t_s, test, statistic, threshold, suspect}`` dicts, and
+    ``on_departure`` (if set) is called with each as it is raised.
+    """
+
+    def __init__(self, scale: float, fs_hz: float = FS_HZ, config: MonitorConfig | None = None) -> None:
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"monitor scale (the fingerprint's residual RMSE) must be positive, got {scale!r}")
+        self.scale = float(scale)
+        self.fs_hz = float(fs_hz)
+        self.config = cfg = config or MonitorConfig()
+        self.block = max(1, int(round(cfg.block_s * fs_hz)))
+        self.window_blocks = max(2, int(round(cfg.window_s / cfg.block_s)))
+        self.trend_blocks = max(self.window_blocks, int(round(cfg.trend_window_s / cfg.block_s)))
+        self.thresholds = {k: float(cfg.thresholds.get(k, math.inf)) for k in TESTS}
+        self._blocks = np.zeros((self.trend_blocks, N_SUMS))
+        self._ring = np.zeros(self.window_blocks * self.block)
+        n = self._ring.size
+        self._hann = np.hanning(n)
+        f = np.fft.rfftfreq(n, 1.0 / fs_hz)
+        self._freqs = f
+        harm = np.abs(f / cfg.burst_hz - np.round(f / cfg.burst_hz)) * cfg.burst_hz
+        self._line_ok = (f >= cfg.line_min_hz) & (harm > cfg.burst_guard_hz) & (f < fs_hz / 2 - cfg.line_half_width_hz)
+        self._line_half = max(2, int(round(cfg.line_half_width_hz * n / fs_hz)))
+        self.on_departure = None
+        self.departures: list[dict[str, Any]] = []
+        self.evaluations = 0
+        self.last: dict[str, float] = {}
+        self.history: list[dict[str, float]] | None = None
+        """Set to a list to keep every evaluation's statistics (calibration from clean runs)."""
+        self.reset()
+
+    @classmethod
+    def for_model(cls, model: Any, config: MonitorConfig | None = None) -> DepartureMonitor:
+        scale = fingerprint_scale(getattr(model, "fingerprint", None))
+        if not math.isfinite(scale):
+            raise ValueError("the model file has no residual fingerprint (identify it with rtlift identify)")
+        return cls(scale, model.fs_hz, config)
+
+    def reset(self) -> None:
+        """Windows, runs and the sample count cleared (a new run)."""
+        self._sample = 0
+        self.clear_windows()
+
+    def clear_windows(self) -> None:
+        """Forget the windows (the model was swapped: its residual starts afresh); the sample
+        count and the departures so far are kept."""
+        self._blocks[:] = 0.0
+        self._acc = [0.0] * N_SUMS
+        self._in_block = 0
+        self._nb = 0           # blocks completed
+        self._pos = 0          # next write position in the ring
+        self._since = 0        # samples since the windows were cleared
+        self._ring[:] = 0.0
+        self._prev_nu = math.nan
+        self._bias_ref: float | None = None
+        self._gain_ref: float | None = None
+        self._gain_sign = 0.0
+        self._run = dict.fromkeys(TESTS, 0)
+        self._quiet = dict.fromkeys(TESTS, self.window_blocks)
+        self._active = dict.fromkeys(TESTS, False)
+
+    # -- the hot path -------------------------------------------------------------------
+    def step(self, dcl: float | None, model_dcl: float, innovation: float) -> None:
+        """One sample: measured ΔCL (``None``/NaN: no measurement), the open-loop model's ΔCL,
+        the observer's innovation (NaN when there was no update)."""
+        a = self._acc
+        if dcl is not None and dcl == dcl and model_dcl == model_dcl:
+            e = dcl - model_dcl
+            a[0] += 1.0
+            a[1] += e
+            a[2] += e * e
+            a[3] += model_dcl
+            a[4] += model_dcl * model_dcl
+            a[5] += e * model_dcl
+        nu = innovation if innovation == innovation else 0.0
+        a[6] += nu
+        a[7] += nu * nu
+        p = self._prev_nu
+        if p == p:
+            a[8] += nu * p
+        self._prev_nu = nu
+        ring = self._ring
+        ring[self._pos] = nu
+        self._pos += 1
+        if self._pos == ring.size:
+            self._pos = 0
+        self._sample += 1
+        self._since += 1
+        self._in_block += 1
+        if self._in_block == self.block:
+            self._end_block()
+
+    # -- once a block -------------------------------------------------------------------
+    def _end_block(self) -> None:
+        row = self._blocks[self._nb % self.trend_blocks]
+        row[:] = self._acc
+        self._acc = [0.0] * N_SUMS
+        self._in_block = 0
+        self._nb += 1
+        if self._nb >= self.window_blocks:
+            self._evaluate()
+
+    def _window_sums(self, blocks: int) -> np.ndarray:
+        nb = min(self._nb, self.trend_blocks)
+        idx = [(self._nb - 1 - i) % self.trend_blocks for i in range(min(blocks, nb))]
+        return self._blocks[idx]
+
+    def statistics(self) -> dict[str, float]:
+        """The six statistics over the current windows (module docstring)."""
+        cfg, sc = self.config, self.scale
+        w = self._window_sums(self.window_blocks)
+        n, se, se2, sm, sm2, sem, sn, sn2, snn = w.sum(axis=0)
+        out = dict.fromkeys(TESTS, 0.0)
+        self._fit = ("none", 0.0)
+        if n >= 0.5 * self.window_blocks * self.block:
+            em, mm = se / n, sm / n
+            var_e = max(se2 / n - em * em, 0.0)
+            var_m = max(sm2 / n - mm * mm, 0.0)
+            if self._bias_ref is None:
+                self._bias_ref = em
+            out["bias"] = abs(em - self._bias_ref) / sc
+            out["level"] = math.sqrt(var_e) / sc
+            if math.sqrt(var_m) >= cfg.gain_excitation * sc:
+                g = (sem / n - em * mm) / var_m
+                if self._gain_ref is None:
+                    self._gain_ref = g
+                out["gain"] = abs(g - self._gain_ref)
+                self._gain_sign = g - self._gain_ref
+            self._fit = self._block_slope(self._window_sums(self.trend_blocks))
+        m = self._ring.size
+        mean_nu = sn / m
+        var_nu = sn2 / m - mean_nu * mean_nu
+        if var_nu > 0:
+            out["whiteness"] = (snn / m - mean_nu * mean_nu) / var_nu
+            if self._since >= m:
+                out["line"] = self._line()
+        t = self._window_sums(self.trend_blocks)
+        if len(t) >= self.trend_blocks:
+            nn = t[:, 0]
+            ok = nn > 0
+            if ok.sum() >= 0.5 * len(t):
+                means = t[ok, 1] / nn[ok]
+                x = -np.arange(len(t), dtype=float)[ok] * self.config.block_s
+                xc = x - x.mean()
+                slope = float(xc @ (means - means.mean()) / (xc @ xc))
+                out["trend"] = abs(slope) * self.config.trend_window_s / sc
+        return out
+
+    def _block_slope(self, w: np.ndarray) -> tuple[str, float]:
+        """Regression of the block means of e on those of ΔCL_m over the trend window (up to 30
+        blocks), beside an offset and a trend in time (e_i = a + c t_i + b m_i: a drift is the
+        offset and trend, a gain change the part that follows the model's lift — in a loop the
+        residual of a fade jumps with each step of the lift, a drift's does not): ("proportional",
+        t_b) when |t_b| ≥ 3 (beyond Student's 97.5 % point for ≥ 5 degrees of freedom),
+        ("offset", t_b) when the model's lift moved enough for b to be seen (its block means' std
+        ≥ σ_fp) and it was not, ("unknown", t_b) otherwise. ``w`` holds the blocks newest first."""
+        ok = w[:, 0] > 0
+        if ok.sum() < 8:
+            return ("unknown", 0.0)
+        e = w[ok, 1] / w[ok, 0]
+        m = w[ok, 3] / w[ok, 0]
+        t = -np.arange(len(w), dtype=float)[ok]
+        X = np.column_stack([np.ones_like(t), t, m])
+        coef, _, rank, _ = np.linalg.lstsq(X, e, rcond=None)
+        dof = e.size - 3
+        if rank < 3 or dof < 1:
+            return ("unknown", 0.0)
+        res = e - X @ coef
+        s2 = float(res @ res) / dof
+        cov = s2 * np.linalg.pinv(X.T @ X)
+        se = math.sqrt(max(cov[2, 2], 0.0))
+        tb = float(coef[2]) / se if se > 0 else math.copysign(math.inf, float(coef[2]))
+        if abs(tb) >= 3.0:
+            return ("proportional", tb)
+        return ("offset", tb) if float(np.std(m)) >= self.scale else ("unknown", tb)
+
+    def _line(self) -> float:
+        x = np.roll(self._ring, -self._pos)
+        x = (x - x.mean()) * self._hann
+        p = np.abs(np.fft.rfft(x)) ** 2
+        h = self._line_half
+        cand = np.flatnonzero(self._line_ok)
+        if cand.size == 0:
+            return 0.0
+        k = int(cand[np.argmax(p[cand])])
+        lo, hi = max(0, k - h), min(p.size, k + h + 1)
+        med = float(np.median(p[lo:hi]))
+        self._line_hz = float(self._freqs[k])
+        return 10.0 * math.log10(p[k] / med) if med > 0 else 0.0
+
+    def _evaluate(self) -> None:
+        stats = self.statistics()
+        self.last = stats
+        self.evaluations += 1
+        if self.history is not None:
+            self.history.append(stats)
+        t_s = self._sample / self.fs_hz
+        for test in TESTS:
+            v, thr = stats[test], self.thresholds[test]
+            if v > thr:
+                self._run[test] += 1
+                self._quiet[test] = 0
+                if self._run[test] >= self.config.persist and not self._active[test]:
+                    self._active[test] = True
+                    self._raise(t_s, test, v, thr)
+            else:
+                self._run[test] = 0
+                self._quiet[test] += 1
+                if self._quiet[test] >= self.window_blocks:
+                    self._active[test] = False
+
+    def suspect(self, test: str) -> str:
+        if test == "bias":
+            kind, t = self._fit
+            if kind == "proportional" and t < 0:
+                return "actuator_fade"
+            return "zero_drift" if kind == "offset" else "actuator_fade or zero_drift"
+        if test == "gain":
+            return "actuator_fade" if self._gain_sign < 0 else "gain_increase"
+        if test == "line":
+            return f"periodic_disturbance at {getattr(self, '_line_hz', math.nan):.2f} Hz"
+        if test == "trend":
+            return "zero_drift"
+        return "resonance or added noise"
+
+    def _raise(self, t_s: float, test: str, value: float, threshold: float) -> None:
+        d = {"t_s": round(t_s, 6), "test": test, "statistic": float(value), "threshold": threshold,
+             "suspect": self.suspect(test), "sample": self._sample}
+        self.departures.append(d)
+        if self.on_departure is not None:
+            self.on_departure(d)
+
+    def summary(self) -> dict[str, Any]:
+        return {"scale": self.scale, "evaluations": self.evaluations, "thresholds": dict(self.thresholds),
+                "last": {k: float(v) for k, v in self.last.items()}}
+
+
+def monitor_arrays(monitor: DepartureMonitor, dcl: np.ndarray, model_dcl: np.ndarray,
+                   innovation: np.ndarray) -> DepartureMonitor:
+    """Feed whole arrays (an estimate file, a replay) sample by sample through ``monitor``."""
+    step = monitor.step
+    for z, m, v in zip(dcl.tolist(), model_dcl.tolist(), innovation.tolist()):
+        step(z, m, v)
+    return monitor
