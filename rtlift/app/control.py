@@ -128,6 +128,15 @@ class LiftController:
         self._ref_n = 0
         self._n = 0
 
+    def carry_from(self, other: LiftController) -> None:
+        """Take over ``other``'s integrator, last decision and place in the period (a model swap
+        while the loop runs: the new static map serves the next decision)."""
+        for name in ("feedforward", "integral", "envelope", "saturated", "updated", "_count", "_err_sum",
+                     "_ref_sum", "_ref_n", "_n"):
+            setattr(self, name, getattr(other, name))
+        span = self.dcl_max - self.dcl_min
+        self.integral = min(max(self.integral, -span), span)
+
     def sync(self, samples_to_decision: int) -> None:
         """Make the next decision fall ``samples_to_decision`` samples from now (align the
         updates ahead of the device's burst onsets)."""

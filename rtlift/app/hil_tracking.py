@@ -88,7 +88,7 @@ class BenchTracking:
 
     def __init__(self, model: str, reference: str, feedback: bool, seconds: float, out_json: str, *,
                  seed: int = 11, effects: tuple[str, ...] = (FADE,), can: bool = False,
-                 experiment: str = "random") -> None:
+                 experiment: str = "random", extra: tuple[str, ...] = ()) -> None:
         from hil_sim.devices import SerialDaq, SlcanAdapter
         from hil_sim.hil import HilStream
 
@@ -102,7 +102,9 @@ class BenchTracking:
         link = ["--can", f"slcan:{self.device.path}"] if can else ["--serial", self.device.path]
         self.cmd = [sys.executable, "-m", "rtlift", "control", *link, "--model", model, "--reference",
                     reference, "--seconds", str(seconds), "--feedback", "on" if feedback else "off",
-                    "--json", out_json]
+                    "--json", out_json, *extra]
+        self.summary: dict[str, Any] = {}
+        self.stderr = ""
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> BenchTracking:
@@ -124,10 +126,11 @@ class BenchTracking:
             _, err = self.proc.communicate(timeout=self.seconds + 60)
         finally:
             self.device.stop()
+        self.stderr = err
         if self.proc.returncode != 0:
             raise RuntimeError(f"rtlift control exited {self.proc.returncode}: {err.strip()[-500:]}")
         with open(self.out_json, encoding="utf-8") as f:
-            s = json.load(f)
+            s = self.summary = json.load(f)
         idx, truth = self.stream.truth_array()
         n = int(round(self.seconds * FS_HZ))
         y = truth[(idx >= TRACKING_STARTS) & (idx < TRACKING_STARTS + n)]

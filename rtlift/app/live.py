@@ -80,6 +80,8 @@ class LoopStats:
     end: str = "running"
     latencies: LatencyRecorder = field(default_factory=LatencyRecorder)
     step_times: array = field(default_factory=lambda: array("d"))
+    steps: LatencyRecorder = field(default_factory=LatencyRecorder)
+    """Step durations in fixed memory (``step_stats``), for a run of any length."""
 
     def latency_ms(self) -> tuple[float | None, float | None]:
         return self.latencies.percentile_ms(50), self.latencies.percentile_ms(99)
@@ -91,14 +93,18 @@ class ObserverLoop:
 
     def __init__(self, observer: Observer, converter: Any, seq_modulus: int, *,
                  writer: EstimateWriter | None = None, fs_hz: float = FS_HZ,
-                 max_samples: int | None = None, time_steps: bool = False, tap: deque | None = None) -> None:
+                 max_samples: int | None = None, time_steps: bool = False, tap: deque | None = None,
+                 monitor: Any = None, step_stats: bool = False) -> None:
         self.observer = observer
+        self.monitor = monitor  # rtlift.observer.monitor.DepartureMonitor, stepped after the observer
+        self.adapter: Any = None  # rtlift.app.adapt.Adapter (--adapt): may swap ``observer`` at a burst onset
         self.converter = converter
         self.seq_modulus = seq_modulus
         self.writer = writer
         self.fs_hz = fs_hz
         self.max_samples = max_samples
-        self.time_steps = time_steps
+        self.time_steps = time_steps or step_stats
+        self._raw_steps = time_steps
         self.tap = tap      # rtlift.app.view.LiveView.tap: (index, dcl | None, dcl_hat, model_dcl, ν, NIS) rows
         self.stats = LoopStats()
         self._last_seq: int | None = None
@@ -121,6 +127,10 @@ class ObserverLoop:
                 self._index += 1
                 est = obs.step(self._last_cmu, self._last_env, None)
                 stats.filled += 1
+                if self.monitor is not None:
+                    self.monitor.step(None, est.model_dcl, est.innovation)
+                if self.adapter is not None:
+                    self.adapter.after_step(self._index, self._last_cmu, self._last_env, None)
                 if tap is not None:
                     tap.append((self._index, None, est.dcl, est.model_dcl, est.innovation, est.nis))
                 if writer is not None:
@@ -131,16 +141,25 @@ class ObserverLoop:
         self._last_seq = sample.seq
         self._index += 1
         cmu, env, dcl = self.converter(sample)
+        if self.adapter is not None:
+            self.adapter.before_step(self._index, cmu)
+            obs = self.observer
         if self.time_steps:
             t0 = time.perf_counter()
             est = obs.step(cmu, env, dcl)
             t1 = time.perf_counter()
-            stats.step_times.append(t1 - t0)
+            stats.steps.append(t1 - t0)
+            if self._raw_steps:
+                stats.step_times.append(t1 - t0)
         else:
             est = obs.step(cmu, env, dcl)
             t1 = time.perf_counter()
         stats.latencies.append(t1 - sample.host_time)
         stats.samples += 1
+        if self.monitor is not None:
+            self.monitor.step(dcl, est.model_dcl, est.innovation)
+        if self.adapter is not None:
+            self.adapter.after_step(self._index, cmu, env, dcl)
         self._last_cmu, self._last_env = cmu, env
         if tap is not None:
             tap.append((self._index, dcl, est.dcl, est.model_dcl, est.innovation, est.nis))
@@ -160,6 +179,8 @@ class ObserverLoop:
             est = obs.step(self._last_cmu, self._last_env, None)
             est.flags |= FLAG_LINK_GAP
             stats.bridged += 1
+            if self.monitor is not None:
+                self.monitor.step(None, est.model_dcl, est.innovation)
             if self.tap is not None:
                 self.tap.append((self._index + i, None, est.dcl, est.model_dcl, est.innovation, est.nis))
             if writer is not None:
@@ -209,12 +230,20 @@ def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,
         "samples_bridged": stats.bridged,
         "latency_p50_ms": p50,
         "latency_p99_ms": p99,
+        **_step_percentiles(stats),
         "end": stats.end,
     }
     mon = observer.monitors()
     out["observer"] = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in mon.items()}
     out.update(extra)
     return out
+
+
+def _step_percentiles(stats: LoopStats) -> dict[str, float]:
+    """Observer step duration p50/p99 (µs) when the loop timed its steps."""
+    if not len(stats.steps):
+        return {}
+    return {"step_p50_us": stats.steps.percentile(50) * 1e6, "step_p99_us": stats.steps.percentile(99) * 1e6}
 
 
 def write_summary(path: str | os.PathLike, data: dict[str, Any]) -> None:

@@ -25,6 +25,7 @@ from rtlift.core.errors import UserError
 def register(subparsers: argparse._SubParsersAction) -> None:
     from firmware_io.links import add_link_arguments, add_reconnect_argument
     from rtlift.app.view.arguments import add_view_argument
+    from rtlift.app.watch import add_arguments as add_watch_arguments
 
     p = subparsers.add_parser("control", help="track a lift reference live over protocol version 2",
                               description=__doc__.splitlines()[0])
@@ -39,6 +40,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters, command latency, tracking RMSE")
     add_reconnect_argument(p)
+    add_watch_arguments(p)
     add_view_argument(p)
     p.set_defaults(func=run)
 
@@ -53,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from rtlift.app.live import ObserverLoop, summary, write_summary
     from rtlift.app.reference import parse_reference
     from rtlift.app.view.arguments import start_view
+    from rtlift.app.watch import attach
     from rtlift.model.domain import watch_domain
     from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
@@ -72,11 +75,12 @@ def run(args: argparse.Namespace) -> int:
     where = args.serial or args.can
     print(f"rtlift control: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
     fs = model.fs_hz
-    loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs)
+    loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs, step_stats=True)
     link.on_gap = loop.bridge
     watch_domain(loop, model, "rtlift control")
     tracking = None if args.seconds is None else int(round(args.seconds * fs))
     closed = ControlLoop(link, loop, controller, reference, calibration, fs, tracking)
+    watch = attach(loop, args, model, "rtlift control", closed=closed)
     code = 0
     message = None
     view = None
@@ -84,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         view = start_view(args, f"rtlift control {where}", fs,
-                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates})
+                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates,
+                                   **(watch.counts() if watch else {})})
         loop.tap = None if view is None else view.tap
         with graceful_exit():
             try:
@@ -115,11 +120,13 @@ def run(args: argparse.Namespace) -> int:
         try:
             closed.switch_off()
             link.close()
-            data = summary(link.counters.as_dict(), loop.stats, observer, model=str(args.model),
+            watch.close()
+            data = summary(link.counters.as_dict(), loop.stats, loop.observer, model=str(args.model),
                            link=link.kind, host_seconds=time.perf_counter() - t0,
                            device_seconds=(loop.stats.samples + loop.stats.filled + loop.stats.bridged) / fs,
                            tare_cl=loop.converter.tare_cl, reference=args.reference)
             data.update(closed.results())
+            data.update(watch.summary())
             if args.json:
                 write_summary(args.json, data)
             _print(data)
@@ -140,6 +147,7 @@ def _warm_up(observer, controller) -> None:
         controller.step(est, 0.01)
     observer.reset()
     controller.reset()
+
 
 
 def _run(closed, link, host_timeout_s: float | None) -> str:

@@ -21,6 +21,7 @@ from rtlift.core.errors import UserError
 def register(subparsers: argparse._SubParsersAction) -> None:
     from firmware_io.links import add_link_arguments, add_reconnect_argument
     from rtlift.app.view.arguments import add_view_argument
+    from rtlift.app.watch import add_arguments as add_watch_arguments
 
     p = subparsers.add_parser("observe", help="run the Kalman observer live on a serial or CAN link",
                               description=__doc__.splitlines()[0])
@@ -31,6 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
     p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of device time")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters and latency percentiles")
+    add_watch_arguments(p)
     p.add_argument("--spin", nargs="?", const=True, default=False, type=_spin_window, metavar="WINDOW_MS",
                    help="serial link: busy-poll the port between samples instead of sleeping, keeping the "
                         "observer's working set cached (lower step time and latency; costs that core); with "
@@ -53,6 +55,7 @@ def _spin_window(text: str) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
+    from rtlift.app.watch import attach
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
     from firmware_io.links import link_config_from_args, open_link
@@ -80,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"rtlift observe: {link.kind} link open on {where} ({compiled}); Ctrl-C stops", file=sys.stderr, flush=True)
     writer = None
     loop = None
+    watch = None
     view = None
     code = 0
     message = None
@@ -87,12 +91,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         writer = EstimateWriter(args.out, {"model": args.model, "fs_hz": "400"}) if args.out else None
         loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), link.seq_modulus, writer=writer,
-                            fs_hz=model.fs_hz,
+                            fs_hz=model.fs_hz, step_stats=True,
                             max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))
         link.on_gap = loop.bridge
         watch_domain(loop, model, "rtlift observe")
+        watch = attach(loop, args, model, "rtlift observe")
         view = start_view(args, f"rtlift observe {where}", model.fs_hz,
-                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates})
+                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates,
+                                   **(watch.counts() if watch else {})})
         loop.tap = None if view is None else view.tap
         with graceful_exit():
             try:
@@ -127,11 +133,14 @@ def run(args: argparse.Namespace) -> int:
         data = None
         try:
             if loop is not None:
-                data = summary(link.counters.as_dict(), loop.stats, observer, model=str(args.model),
+                data = summary(link.counters.as_dict(), loop.stats, loop.observer, model=str(args.model),
                                link=link.kind, host_seconds=time.perf_counter() - t0,
                                device_seconds=(loop.stats.samples + loop.stats.filled + loop.stats.bridged)
                                / model.fs_hz,
                                tare_cl=loop.converter.tare_cl)
+                if watch is not None:
+                    watch.close()
+                    data.update(watch.summary())
                 if args.json:
                     write_summary(args.json, data)
                 _print(data)
@@ -141,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
     if message:
         print(message, file=sys.stderr)
     return code
+
 
 
 def _print(d: dict) -> None:

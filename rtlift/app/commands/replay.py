@@ -39,6 +39,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters and observer monitors")
+    from rtlift.app.watch import add_arguments as add_watch_arguments
+
+    add_watch_arguments(p, adapt=False)
     p.add_argument("--no-control", action="store_true",
                    help="do not rerun the controller of a log written by rtlift control")
     p.add_argument("--record", metavar="F.csv",
@@ -145,6 +148,8 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibr
     recorder = _CommandRecorder(SERIAL_CMD_SEQ_MODULUS if kind == "serial" else CAN_CMD_SEQ_MODULUS)
     closed = ControlLoop(recorder, loop, controller, reference, calibration, model.fs_hz,
                          None if seconds is None else int(round(seconds * model.fs_hz)))
+    if loop.adapter is not None:     # the live loop's swaps change the controller too
+        loop.adapter.closed = closed
     recorder.position = lambda: closed.received
     switched_off = bool(logged) and not logged[-1].enable
     stop = logged[-1].after_samples if switched_off else None
@@ -193,6 +198,45 @@ def _write_record(args, converter, source, fs_hz: float, data: dict, commands) -
           f"{rec.meta['filled']} filled in {rec.meta['gaps']} gap(s)")
 
 
+def _watch(args, loop, model):
+    """The monitor (``--monitor``), and the live loop's adaptations from ``LOG.events.jsonl``
+    repeated at the same samples."""
+    import json
+    import os
+
+    from rtlift.app.watch import attach, events_path
+
+    path = events_path(args.log, None)
+    logged = None
+    if os.path.isfile(path):
+        try:
+            with open(path, encoding="utf-8") as f:
+                logged = [json.loads(line) for line in f if line.strip()]
+        except (OSError, ValueError) as exc:
+            raise UserError(f"{path}: cannot read the loop's events ({exc})") from None
+    adaptations = [e for e in logged or [] if e.get("event") == "adaptation"]
+    return attach(loop, args, model, "rtlift replay", replay=adaptations if adaptations else None), logged
+
+
+def _compare_events(logged: list | None, data: dict) -> dict:
+    """The replay's departures and swaps against those the live loop logged."""
+    deps = [(d["sample"], d["test"]) for d in data.get("departures", [])]
+    swaps = [(a["index"], a["model_file"]) for a in data.get("adaptations", []) if a.get("swapped")]
+    out = {"logged": None if logged is None else len(logged), "departures": len(deps), "adaptations": len(swaps),
+           "identical": True, "first_difference": None}
+    if logged is None:
+        return out
+    live_deps = [(e["sample"], e["test"]) for e in logged if e.get("event") == "departure"]
+    live_swaps = [(e["index"], e["model_file"]) for e in logged if e.get("event") == "adaptation"]
+    for what, a, b in (("departures", live_deps, deps), ("adaptations", live_swaps, swaps)):
+        if a != b:
+            i = next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), min(len(a), len(b)))
+            out.update(identical=False, first_difference=f"{what} {i + 1}: logged "
+                       f"{a[i] if i < len(a) else 'nothing'}, replayed {b[i] if i < len(b) else 'nothing'}")
+            break
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
@@ -224,6 +268,7 @@ def run(args: argparse.Namespace) -> int:
         if args.record:
             converter = RecordingConverter(converter)
         loop = ObserverLoop(observer, converter, source.seq_modulus, writer=writer, fs_hz=model.fs_hz)
+        watch, logged_events = _watch(args, loop, model)
         if view is not None:
             view.counters = lambda: {**counters_of.counters.as_dict(), "estimates": loop.stats.estimates}
             loop.tap = view.tap
@@ -240,11 +285,13 @@ def run(args: argparse.Namespace) -> int:
             if writer is not None:
                 writer.close()
         seconds = time.perf_counter() - t0
-        data = summary(counters_of.counters.as_dict(), loop.stats, observer, model=str(args.model),
+        data = summary(counters_of.counters.as_dict(), loop.stats, loop.observer, model=str(args.model),
                        log=str(args.log), realtime=bool(args.realtime), host_seconds=seconds,
                        device_seconds=(loop.stats.samples + loop.stats.filled) / model.fs_hz)
         if control is not None:
             data["commands"] = control
+        data.update(watch.summary())
+        data["events"] = _compare_events(logged_events, data)
         if args.json:
             write_summary(args.json, data)
     finally:
@@ -259,8 +306,14 @@ def run(args: argparse.Namespace) -> int:
           f"time) in {seconds:.2f} s; received {data['received']} lost {data['lost']} crc_errors "
           f"{data['crc_errors']}; {data['estimates']} estimates"
           + (f"; NIS mean {o['nis_mean']:.3g}" if o["nis_mean"] is not None else ""))
+    ev = data["events"]
+    if ev["logged"] is not None:
+        print(f"rtlift replay: {ev['departures']} departure(s) and {ev['adaptations']} adaptation(s) "
+              f"{'as logged' if ev['identical'] else 'DIFFERENT from the log: ' + ev['first_difference']}")
     if loop.stats.end == "interrupted":
         return 130
+    if ev["logged"] is not None and not ev["identical"]:
+        return 1
     if control is not None:
         if not control["identical"]:
             print(f"rtlift replay: the controller's commands differ from the log at {control['first_difference']}",
