@@ -54,6 +54,16 @@ def bench_stream(name: str, seed: int, seconds: float) -> Record:
     return run.to_record(f"{name}_s{seed}")
 
 
+def new_monitor(model, thresholds: dict | None = None, history: bool = False) -> DepartureMonitor:
+    """The model's monitor, with thresholds overridden and every evaluation kept if asked."""
+    mon = DepartureMonitor.for_model(model)
+    if thresholds:
+        mon.thresholds.update(thresholds)
+    if history:
+        mon.history = []
+    return mon
+
+
 REFERENCE = "steps:0.06@0,0.12@12,0.08@24,0.14@36,0.06@48,0.12@60,0.09@72,0.13@84,0.07@96,0.11@108"
 
 
@@ -75,11 +85,7 @@ def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (),
     stream.control = ctl_dev
     cal = stream.calibration
     obs = Observer.from_model(model)
-    mon = DepartureMonitor.for_model(model)
-    if thresholds:
-        mon.thresholds.update(thresholds)
-    if history:
-        mon.history = []
+    mon = new_monitor(model, thresholds, history)
     ctl = LiftController(model, ControlConfig(feedback=True, fs_hz=model.fs_hz))
     ref = parse_reference(reference)
     fs = model.fs_hz
@@ -115,11 +121,7 @@ def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (),
 def monitor_record(model, rec: Record, thresholds: dict | None = None, history: bool = False) -> DepartureMonitor:
     """The observer and the monitor over one record, as the live loop steps them."""
     obs = Observer.from_model(model)
-    mon = DepartureMonitor.for_model(model)
-    if thresholds:
-        mon.thresholds.update(thresholds)
-    if history:
-        mon.history = []
+    mon = new_monitor(model, thresholds, history)
     step, mstep = obs.step, mon.step
     for c, v, z in zip(rec.cmu.tolist(), rec.cmu_envelope.tolist(), rec.dcl.tolist()):
         est = step(c, v, z)
