@@ -87,7 +87,7 @@ def test_replay_makes_the_same_swaps_and_sends_the_same_commands(runs, tmp_path)
     assert main(["replay", str(log), "--model", MODEL, "--json", str(out)]) == 0
     r = json.loads(out.read_text())
     assert r["commands"]["identical"] and r["commands"]["replayed"] == r["commands"]["logged"] > 100
-    assert r["events"]["identical"], r["events"]
+    assert r["loop_events"]["identical"], r["loop_events"]
     live = [(a["index"], a["model_file"]) for a in runs["fade"]["summary"]["adaptations"] if a.get("swapped")]
     assert [(a["index"], a["model_file"]) for a in r["adaptations"] if a.get("swapped")] == live
 

@@ -49,8 +49,9 @@ def events_path(log: str | None, adapt_dir: str | None) -> str | None:
 class Watch:
     """The monitor and adapter of one loop, and where their events go."""
 
-    def __init__(self, prog: str, events_file: str | None) -> None:
+    def __init__(self, prog: str, events_file: str | None, quiet: bool = False) -> None:
         self.prog = prog
+        self.quiet = quiet
         self.monitor = None
         self.adapter = None
         self.departures: list[dict[str, Any]] = []
@@ -69,6 +70,8 @@ class Watch:
                 self._f.flush()
 
     def say(self, line: str) -> None:
+        if self.quiet:
+            return
         print(f"{self.prog}: {line}", file=sys.stderr, flush=True)
 
     def on_departure(self, d: dict[str, Any]) -> None:
@@ -107,8 +110,9 @@ class Watch:
 
 
 def attach(loop: Any, args: argparse.Namespace, model: Any, prog: str, *, closed: Any = None,
-           replay: list[dict] | None = None) -> Watch:
-    """Monitor (and adapter) on ``loop`` as ``args.monitor`` / ``args.adapt`` say."""
+           replay: list[dict] | None = None, quiet: bool = False) -> Watch:
+    """Monitor (and adapter) on ``loop`` as ``args.monitor`` / ``args.adapt`` say (``quiet``: no
+    stderr lines — a replay sums them up in one)."""
     from rtlift.app.adapt import Adapter
     from rtlift.observer.monitor import DepartureMonitor
 
@@ -118,7 +122,8 @@ def attach(loop: Any, args: argparse.Namespace, model: Any, prog: str, *, closed
             os.makedirs(adapt_dir, exist_ok=True)
         except OSError as exc:
             raise UserError(f"{adapt_dir}: cannot create the adapt directory ({exc.strerror})") from None
-    watch = Watch(prog, events_path(getattr(args, "log", None), adapt_dir) if replay is None else None)
+    watch = Watch(prog, events_path(getattr(args, "log", None), adapt_dir) if replay is None and not quiet else None,
+                  quiet)
     if getattr(args, "monitor", "on") == "on":
         try:
             watch.monitor = DepartureMonitor.for_model(model)

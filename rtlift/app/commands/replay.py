@@ -215,7 +215,8 @@ def _watch(args, loop, model):
         except (OSError, ValueError) as exc:
             raise UserError(f"{path}: cannot read the loop's events ({exc})") from None
     adaptations = [e for e in logged or [] if e.get("event") == "adaptation"]
-    return attach(loop, args, model, "rtlift replay", replay=adaptations if adaptations else None), logged
+    return attach(loop, args, model, "rtlift replay", replay=adaptations if adaptations else None,
+                  quiet=True), logged
 
 
 def _compare_events(logged: list | None, data: dict) -> dict:
@@ -291,7 +292,7 @@ def run(args: argparse.Namespace) -> int:
         if control is not None:
             data["commands"] = control
         data.update(watch.summary())
-        data["events"] = _compare_events(logged_events, data)
+        data["loop_events"] = _compare_events(logged_events, data)
         if args.json:
             write_summary(args.json, data)
     finally:
@@ -306,7 +307,7 @@ def run(args: argparse.Namespace) -> int:
           f"time) in {seconds:.2f} s; received {data['received']} lost {data['lost']} crc_errors "
           f"{data['crc_errors']}; {data['estimates']} estimates"
           + (f"; NIS mean {o['nis_mean']:.3g}" if o["nis_mean"] is not None else ""))
-    ev = data["events"]
+    ev = data["loop_events"]
     if ev["logged"] is not None:
         print(f"rtlift replay: {ev['departures']} departure(s) and {ev['adaptations']} adaptation(s) "
               f"{'as logged' if ev['identical'] else 'DIFFERENT from the log: ' + ev['first_difference']}")
