@@ -17,10 +17,10 @@ from hil_sim.effects import EFFECTS, Effect
 from hil_sim.experiments import run_experiment
 from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import OutputHysteresis
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.diagnose import diagnose
 from rtlift.diagnose.catalog import augment, predict
 
-FS = 400.0
 EXPERIMENT = "sine_k0125"
 
 

@@ -13,6 +13,7 @@ import pytest
 from scipy import signal
 
 from rtlift.blocks.stages import resonance_ba
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.core.records import Record
 from rtlift.diagnose.catalog import Context, _spectral_mode
 from rtlift.diagnose.fingerprint import (
@@ -25,7 +26,6 @@ from rtlift.diagnose.fingerprint import (
 )
 from rtlift.diagnose.residual import run_all
 
-FS = 400.0
 N = 16000                                           # 40 s
 T = np.arange(N) / FS
 

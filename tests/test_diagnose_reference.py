@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.core.records import Record
 from rtlift.diagnose.fingerprint import Z_DEPART, change_misfit, fingerprint, reference
 from rtlift.diagnose.inputs import descriptor_distance, input_descriptor
@@ -21,8 +22,6 @@ from rtlift.diagnose.residual import TestResult
 from rtlift.diagnose.selection import Trial, slow_trend_line
 from rtlift.model.validation import predict_record
 from testkit.synthetic import make_model
-
-FS = 400.0
 
 
 def bursts(envelope: np.ndarray, period: int = 51, on: int = 4) -> np.ndarray:

@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     message = None
     t0 = time.perf_counter()
     try:
-        writer = EstimateWriter(args.out, {"model": args.model, "fs_hz": "400"}) if args.out else None
+        writer = EstimateWriter(args.out, {"model": args.model, "fs_hz": f"{model.fs_hz:g}"}) if args.out else None
         loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), link.seq_modulus, writer=writer,
                             fs_hz=model.fs_hz,
                             max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))

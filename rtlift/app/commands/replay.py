@@ -219,7 +219,8 @@ def run(args: argparse.Namespace) -> int:
     view = start_view(args, f"rtlift replay {args.log}", model.fs_hz)
     data = None
     try:
-        writer = EstimateWriter(args.out, {"model": args.model, "log": args.log, "fs_hz": "400"}) if args.out else None
+        meta = {"model": args.model, "log": args.log, "fs_hz": f"{model.fs_hz:g}"}
+        writer = EstimateWriter(args.out, meta) if args.out else None
         converter = Converter(calibration, model.fs_hz)
         if args.record:
             converter = RecordingConverter(converter)
