@@ -16,9 +16,11 @@ DEFAULT_LIFT_STRUCTURE = "paper"
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "identify", help="identify the hybrid model from recorded experiments",
-        description="Static map -> N(Cmu); single-burst kernel and phi; high-pass filter and "
-                    "Wiener LTI (output-error PEM) chosen by held-out error on the training "
-                    "record. Writes a model file.")
+        description="Identify a model from recorded experiments and write it as a model file: the paper's "
+                    "hybrid lift model from the lift campaign (--static, --single-burst, --train; the static "
+                    "map, the single-burst kernel, the high-pass filter and the Wiener LTI), or a "
+                    "single-input model of a generic t,u,y record (--record). What is not given is chosen "
+                    "by the held-out error on the training record.")
     p.add_argument("--static", metavar="F", help="slow static sweep record")
     p.add_argument("--single-burst", metavar="F", help="isolated single bursts record")
     p.add_argument("--train", metavar="F", help="training record (the paper: sine_k0125)")
@@ -28,27 +30,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="burst-train records (train_T1p75, train_T3p5, train_T7): the interaction "
                         "structure learns burst-burst interaction from them")
     p.add_argument("--structure", choices=(*LIFT_STRUCTURES, *GENERIC_STRUCTURES),
-                   help="lift campaign: paper (the paper's hybrid, default) or interaction (issue 18: "
-                        "slow part driven by the delivered momentum, per-burst gain of each burst's "
-                        "slow response; needs --trains to learn the interaction). With --record: the "
-                        "W block in textbook form (LTI then static map, default), Wiener-Hammerstein (a "
-                        "second LTI after the map) or nonlinear feedback (the output fed back through a "
-                        "cubic map into the LTI's input)")
+                   help="lift campaign: paper (the paper's hybrid, default) or interaction (the slow "
+                        "part driven by the delivered momentum, a gain per burst; needs --trains). "
+                        "With --record: wiener (an LTI then a static map, default), wiener_hammerstein "
+                        "(a second LTI after the map), nonlinear_feedback (the output fed back through "
+                        "a cubic map into the LTI's input) or store_chain (two stores in cascade, each "
+                        "draining through a power-law outflow, like two tanks)")
     p.add_argument("--order", type=int, metavar="N",
                    help="Wiener LTI order (default: chosen from 1..4 by held-out error)")
     p.add_argument("--form", choices=("auto", "input_gain", "output_map"), default="auto",
-                   help="Wiener nonlinearity: N(Cmu)*y as in the paper, f(y) with f the static map "
-                        "(textbook Wiener), or whichever has the lower held-out error (default)")
+                   help="Wiener nonlinearity: input_gain, N(Cmu)*y as in the paper; output_map, f(y) with f "
+                        "the static map (textbook Wiener); auto, whichever has the lower held-out error "
+                        "(default)")
     p.add_argument("--dead-time", type=int, metavar="SAMPLES",
                    help="samples the measured lift lags the actuation record (default: chosen from "
                         "0..8 by held-out error)")
     p.add_argument("--phi", choices=("auto", "single_burst", "train"), default="auto",
-                   help="phi from the single burst (paper), re-estimated on the training "
-                        "record, or whichever has the lower held-out error (default)")
+                   help="phi: single_burst, from the single bursts (paper); train, re-estimated on the "
+                        "training record; auto, whichever has the lower held-out error (default)")
     p.add_argument("--kernel", choices=("auto", "single_burst"), default="auto",
-                   help="the convolution kernel as averaged from the single bursts (paper), or its "
-                        "first burst period re-estimated on the training record where that lowers "
-                        "the held-out error (default)")
+                   help="the convolution kernel: single_burst, as averaged from the single bursts (paper); "
+                        "auto, its first burst period re-estimated on the training record where that "
+                        "lowers the held-out error (default)")
     p.add_argument("-o", "--out", required=True, metavar="MODEL.json", help="model file to write")
     p.set_defaults(func=run)
 

@@ -23,7 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from rtlift.app.view.arguments import add_view_argument
 
     p = subparsers.add_parser("observe", help="run the Kalman observer live on a serial or CAN link",
-                              description=__doc__.splitlines()[0])
+                              description="Run the Kalman observer live at the model's rate (400 Hz) on "
+                                          "a serial or CAN link: each sample's lift estimate, optionally "
+                                          "written to a file, logged raw for a later replay, and shown "
+                                          "on a live plot. Ctrl-C stops.")
     add_link_arguments(p)
     p.add_argument("--model", required=True, metavar="MODEL.json", help="model file with observer settings")
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
