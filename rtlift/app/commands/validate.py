@@ -29,7 +29,13 @@ def run(args: argparse.Namespace) -> int:
     from rtlift.core.records import read_record, read_siso_record, record_kind
     from rtlift.model.modelfile import load_any_model
     from rtlift.model.siso import SISO_MODELS
-    from rtlift.model.validation import RecordValidation, plot_validation, validate_record, validation_json
+    from rtlift.model.validation import (
+        RecordValidation,
+        plot_generic_validation,
+        plot_validation,
+        validate_record,
+        validation_json,
+    )
 
     model = load_any_model(args.model)
     generic = isinstance(model, SISO_MODELS)
@@ -54,16 +60,17 @@ def run(args: argparse.Namespace) -> int:
         results = [RecordValidation(r.name, record_scores(model, r, args.skip), predict(model, r)) for r in records]
     else:
         results = [validate_record(model, r, args.skip) for r in records]
-    if args.figures and generic:
-        raise UserError("--figures draws lift records (measured against the hybrid's parts); "
-                        "not a generic model's")
     if args.figures:
         try:
             os.makedirs(args.figures, exist_ok=True)
         except OSError as exc:
             raise UserError(f"{args.figures}: cannot create figure directory ({exc.strerror})") from None
         for rec, res in zip(records, results, strict=True):
-            plot_validation(rec, res, os.path.join(args.figures, f"{rec.name}.png"))
+            figure = os.path.join(args.figures, f"{rec.name}.png")
+            if generic:
+                plot_generic_validation(rec, res, figure, args.skip)
+            else:
+                plot_validation(rec, res, figure)
     doc = validation_json(args.model, results)
     if args.json:
         try:
