@@ -488,7 +488,8 @@ def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials:
     """One plain line per feature of the final training residual that still departs from the
     fingerprint, per candidate whose evidence departs but whose fit the validation records
     did not support, and for a slow trend the record is too short to separate
-    (:func:`slow_trend_line`)."""
+    (:func:`slow_trend_line`). A residual line inside the band of an accepted resonance or
+    pickup (:func:`explained_bands`) is that entry's leftover, not listed."""
     if fp is None:
         return [f"{k}: {tests[k].detail}" for k in ("slow_trend", "gain_trend", "direction", "level")
                 if tests[k].significant]
@@ -503,13 +504,34 @@ def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials:
     f = np.asarray(spec["f"])
     df = float(f[1])
     excess = np.log(np.maximum(spec["psd"], 1e-300)) - np.interp(f, fp["psd"]["f_hz"], fp["psd"]["log10"]) * np.log(10)
+    bands = explained_bands(trials, df)
     for k in np.argsort(excess)[::-1][:3]:
+        if any(lo <= f[k] <= hi for lo, hi in bands):
+            continue
         dep = psd_departure(tests["spectrum"], fp, [(f[k] - 0.5 * df, f[k] + 0.5 * df)], f"{f[k]:.1f} Hz")
         if dep.departs:
             lines.append(f"residual power at {dep.text}: stands above the model's own residual")
     lines += [f"{t.name} is pointed at by the evidence but not accepted: {t.evidence}"
               for t in trials if not t.accepted and t.params and t.kind == "effect"]
     return lines
+
+
+def explained_bands(trials: list[Trial], df: float) -> list[tuple[float, float]]:
+    """Frequency bands (Hz) an accepted entry accounts for: a ``sensor_resonance``'s half-power
+    band f(1 ± ζ), a ``periodic_disturbance``'s lines (the fundamental and its harmonics as
+    sampled) ± 1.5 bins (the window its fit searches); each widened by half a spectrum bin
+    ``df``, the width of the bin a line is reported at."""
+    bands = []
+    for t in trials:
+        if not t.accepted:
+            continue
+        if t.name == "sensor_resonance":
+            f0, zeta = float(t.params["frequency_hz"]), float(t.params["damping_ratio"])
+            bands.append((f0 * (1 - zeta) - 0.5 * df, f0 * (1 + zeta) + 0.5 * df))
+        elif t.name == "periodic_disturbance":
+            lines = [t.params["frequency_hz"], *(h["frequency_hz"] for h in t.params.get("harmonics", ()))]
+            bands += [(float(x) - 2.0 * df, float(x) + 2.0 * df) for x in lines]
+    return bands
 
 
 Z_NOTE = 2.0
