@@ -16,7 +16,8 @@ import traceback
 
 from rtlift.core.errors import NumericalError, UserError
 
-COMMANDS = ("demo", "bench", "record", "identify", "validate", "diagnose", "observe", "control", "replay")
+COMMANDS = ("demo", "bench", "record", "identify", "validate", "diagnose", "observe", "control", "replay",
+            "data")
 
 DESCRIPTION = ("Real-time lift estimation for a stalled wing with burst actuation: record experiments, "
                "identify a model, validate and diagnose it, and run the 400 Hz Kalman observer or the "
