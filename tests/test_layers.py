@@ -169,7 +169,7 @@ def test_importing_firmware_io_loads_neither_scipy_nor_the_model():
 
 
 LAYERS = (("rtlift.core",), ("rtlift.blocks",), ("rtlift.model",),
-          ("rtlift.identify", "rtlift.diagnose", "rtlift.observer", "rtlift.sysid"), ("rtlift.app",))
+          ("rtlift.identify", "rtlift.diagnose", "rtlift.observer", "rtlift.sysid"), ("rtlift.app", "rtlift.api"))
 """rtlift's folders bottom up, the data flow: the core; the model's blocks; the model (hybrid,
 file, domain, prediction, the single-input models); what estimates and corrects it
 (identification, diagnosis, observer); the applications. ``rtlift`` itself and ``rtlift.data``

@@ -38,6 +38,8 @@ RMSE, Diebold–Mariano t ≥ 3 over blocks, no record worse by more than 1 %).
 
 from __future__ import annotations
 
+import json
+import os
 from typing import Any
 
 import numpy as np
@@ -197,3 +199,24 @@ def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[in
         if best is None or err < best[0]:
             best = (err, m)
     return best[1]
+
+
+def write_report(report: dict[str, Any], augmented: SisoModel, out: str | os.PathLike) -> None:
+    """``report.json``, ``report.md`` and ``model_augmented.json`` of a generic diagnosis in ``out``."""
+    from rtlift.model.siso import save_siso_model
+
+    with open(os.path.join(out, "report.json"), "w", encoding="utf-8") as f:
+        json.dump(report, f, indent=1)
+        f.write("\n")
+    lines = ["# Diagnosis report", "", f"Scores: {report['scoring']}.", "",
+             "| record | ρ before | ρ after | RMSE before | RMSE after |", "|---|---|---|---|---|"]
+    for name, b in report["baseline"]["records"].items():
+        a = report["augmented"]["records"][name]
+        lines.append(f"| {name} | {b['corr']:.4f} | {a['corr']:.4f} | {b['rmse']:.5g} | {a['rmse']:.5g} |")
+    lines += ["", "## Tried", ""] + [
+        f"- **{e['name']}** ({e['kind']}, {'accepted' if e['accepted'] else 'not accepted'}): {e['evidence']}"
+        for e in report["effects"]]
+    lines += ["", "## Unexplained", ""] + ([f"- {u}" for u in report["unexplained"]] or ["- nothing"])
+    with open(os.path.join(out, "report.md"), "w", encoding="utf-8") as f:
+        f.write("\n".join(lines) + "\n")
+    save_siso_model(augmented, os.path.join(out, "model_augmented.json"))
