@@ -24,7 +24,8 @@ def test_the_documented_example_runs_and_matches_the_commands(tmp_path, monkeypa
     assert "accepted: ['periodic_disturbance']" in out
     assert (work / "figures" / "random.png").stat().st_size > 10_000
     report = json.loads((work / "diagnosis" / "report.json").read_text())
-    assert report["augmented"]["records"]["random_pickup"]["rmse"] < report["baseline"]["records"]["random_pickup"]["rmse"]
+    after, before = (report[k]["records"]["random_pickup"]["rmse"] for k in ("augmented", "baseline"))
+    assert after < before
     # the command writes the very same model file (byte for byte) and the same scores
     assert main(["identify", "--static", str(work / "static.csv"), "--single-burst", str(work / "single_burst.csv"),
                  "--train", str(work / "sine_k0125.csv"), "-o", str(tmp_path / "cli_model.json")]) == 0

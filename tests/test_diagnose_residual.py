@@ -7,7 +7,7 @@ from scipy import signal
 
 from hil_sim.sensors import SensorParams, buffet_filter
 from rtlift.core.rate import FS_HZ as FS
-from rtlift.diagnose.residual import higher_order, input_crosscorr, lag_search, slow_trend, spectrum, whiteness
+from rtlift.residual.stats import higher_order, input_crosscorr, lag_search, slow_trend, spectrum, whiteness
 
 N = 16000
 

@@ -3,7 +3,7 @@
 0. **Reference.** The training record is compared with the fingerprint entry its *input*
    points at (:func:`.fingerprint.reference`): an identification run it repeats bit for bit, else
    one whose input descriptor it matches, else the print predicted for its input (the model's own
-   misfit carried over from the campaign, :mod:`.misfit`). Its name plays no part.
+   misfit carried over from the campaign, :mod:`rtlift.residual.misfit`). Its name plays no part.
 1. **Candidates.** Every effect of the catalog is fitted alone on the training record, to its
    residual — except an effect that replaces the model's static map (hysteresis, an output
    nonlinearity: ``Effect.fits_change``) where the model's own misfit on the record's input is
@@ -36,7 +36,7 @@
    :meth:`_Judge.encompassing`), then the one ranked first by step 5, then the one with fewer
    parameters.
 5. **Effect or structure.** Each chosen member's evidence is recomputed on the residual of the
-   combination without it and compared with the fingerprint (:mod:`.fingerprint`). It is an
+   combination without it and compared with the fingerprint (:mod:`rtlift.residual.fingerprint`). It is an
    ``effect`` (something changed since identification) when its own evidence departs, or when
    the model's error level on the training record departs from the one it had on that record
    type at identification and this member lowers it by as much again (a z of the excess that
@@ -66,7 +66,8 @@ import numpy as np
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
 from rtlift.diagnose.catalog import CATALOG, EFFECT_NAMES, EFFECTS, Context, Fitted, predict, reestimate
-from rtlift.diagnose.fingerprint import (
+from rtlift.model.hybrid import HybridModel
+from rtlift.residual.fingerprint import (
     FINGERPRINT_START_S,
     Z_DEPART,
     Departure,
@@ -79,8 +80,7 @@ from rtlift.diagnose.fingerprint import (
     record_tests,
     reference,
 )
-from rtlift.diagnose.residual import TestResult, cluster_ols
-from rtlift.model.hybrid import HybridModel
+from rtlift.residual.stats import TestResult, cluster_ols
 
 REPORT_VERSION = 1
 

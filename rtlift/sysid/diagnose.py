@@ -1,7 +1,7 @@
 """What a single-input Wiener model lacks, from its residual; added with joint re-estimation.
 
 Residual ε = y − ŷ (free run from rest, the first ``skip`` samples unscored) on the training
-record, tested as in :mod:`rtlift.diagnose.residual`: whiteness, correlation with past input
+record, tested as in :mod:`rtlift.residual.stats`: whiteness, correlation with past input
 (missed linear dynamics) and the Billings–Voon higher-order correlations with u² and ŷ² (a
 missed nonlinear structure: the linear tests barely react while these do).
 
@@ -46,9 +46,9 @@ import numpy as np
 
 from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
-from rtlift.diagnose.residual import higher_order, input_crosscorr, whiteness
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
+from rtlift.residual.stats import higher_order, input_crosscorr, whiteness
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
 
 HOW = {"output_dynamics": "Wiener-Hammerstein re-identified jointly from the best linear approximation's "
