@@ -35,14 +35,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._common import emit, run_cli  # noqa: E402
+from benchmarks.soak import _observer_loop  # noqa: E402
 from firmware_io import open_link  # noqa: E402
-from firmware_io.serial_codec import encode_sample  # noqa: E402
+from firmware_io.serial_codec import (
+    SEQ_MODULUS,  # noqa: E402
+    encode_sample,  # noqa: E402
+)
 from hil_sim.devices import SerialDaq, SlcanAdapter, synthetic_stream  # noqa: E402
 from hil_sim.devices.source import serial_wire, wire_samples  # noqa: E402
 from hil_sim.experiments import daq_stream  # noqa: E402
 from rtlift.core.rate import FS_HZ, PERIOD_S  # noqa: E402
 from rtlift.model.modelfile import save_model  # noqa: E402
-from testkit.synthetic import make_model  # noqa: E402
 
 
 def _median(xs: list[float]) -> float:
@@ -123,7 +126,8 @@ def main() -> None:
         serial = [pty_read(SerialDaq, args.seconds) for _ in range(args.repeats)]
         slcan = [pty_read(SlcanAdapter, args.seconds) for _ in range(args.repeats)]
         model = tmp / "model.json"
-        save_model(make_model(np.random.default_rng(1)), model)
+        observer = _observer_loop(1, SEQ_MODULUS)[0]       # the soak's bench-sized model and observer settings
+        save_model(observer.model, model, observer=observer.model.observer_config)
         log = serial_log(tmp / "run.bin", args.seconds)
         replays = [realtime_replay(log, model) for _ in range(args.repeats)]
         timeouts = [recv_timeout() for _ in range(10 * args.repeats)]
