@@ -1,4 +1,4 @@
-"""The fault matrix for the README: runs the matrix rows (tests/test_faults_*.py, one test
+"""The fault matrix for docs/RESULTS.md: runs the matrix rows (tests/test_faults_*.py, one test
 per row) and prints a markdown table of each row's expected behaviour (the test's
 docstring), what it measured (``record_property("measured", ...)``) and its result.
 

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from hil_sim.experiments import EXPERIMENTS, run_experiment
+from rtlift.core.rate import FS_HZ
 from rtlift.core.records import read_record, write_record
 from rtlift.identify.campaign import identify_hybrid
 from rtlift.model.validation import validate_record
@@ -40,7 +41,7 @@ def main() -> int:
         scores = {r.name: validate_record(idf.model, r).scores["corr"] for r in others}
         t3 = time.perf_counter()
     result = {
-        "campaign_seconds_of_data": samples / 400.0,
+        "campaign_seconds_of_data": samples / FS_HZ,
         "campaign_samples": samples,
         "read_seconds": round(t1 - t0, 3),
         "identify_seconds": round(t2 - t0, 3),

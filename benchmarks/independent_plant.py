@@ -39,6 +39,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._common import run_cli  # noqa: E402
+from rtlift.core.rate import FS_HZ  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "independent_plant"
 CASES = ("clean", "delay", "resonance", "fade", "drift", "mains", "hysteresis", "delay_mains")
@@ -48,7 +49,7 @@ MIXES = (("drift", "mains"), ("fade", "mains"), ("resonance", "drift"), ("fade",
          ("delay", "fade"), ("fade", "hysteresis"), ("hysteresis", "drift"), ("delay", "hysteresis"),
          ("resonance", "hysteresis"))
 SCORED = ("sine_k025", "random")
-FS = 400.0
+FS = FS_HZ
 FIELD_NAMES = {"random": "run_a", "sine_k0125": "run_b", "sine_k025": "run_c"}
 """The second form: what each record is called in the user's folder (module docstring)."""
 FIELD_TRAIN = "random"

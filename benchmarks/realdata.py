@@ -22,30 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rtlift.core.records import SisoRecord, write_siso_record
+from rtlift.core.records import write_siso_record
+from rtlift.sysid.benchmarks import STATE_INIT_SAMPLES, as_record, splits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._common import run_cli  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[1] / "data"
-SKIP = 50
-
-
-def splits(name: str) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, str]:
-    """(fs, u_est, y_est, u_test, y_test, unit scale, unit) by the benchmark's official rules."""
-    if name == "wh2009":
-        d = np.load(DATA / "wh2009.npz")
-        a, b = (int(v) for v in d["official_slice"])
-        u, y, n = d["u"][a:b], d["y"][a:b], int(d["n_train"])
-        return float(d["fs"]), u[:n], y[:n], u[n:], y[n:], 1e3, "mV"
-    if name == "silverbox":
-        d = np.load(DATA / "silverbox_SNLS80mV.npz")
-        u, y = d["V1"], d["V2"]
-        ms_u, ms_y = u[40650:127400], y[40650:127400]
-        n = int(round(0.75 * ms_u.size))
-        return float(d["fs"]), ms_u[:n], ms_y[:n], u[100:40575], y[100:40575], 1e3, "mV"
-    d = np.load(DATA / "cascaded_tanks.npz")
-    return 1.0 / float(d["Ts"]), d["u_est"], d["y_est"], d["u_test"], d["y_test"], 1.0, "V"
+SKIP = STATE_INIT_SAMPLES
 
 
 PUBLISHED = {"wh2009": "0.241 (SUBNET) – 0.45 (dynoNet) mV; linear ≈ 43–57 mV",
@@ -54,7 +37,7 @@ PUBLISHED = {"wh2009": "0.241 (SUBNET) – 0.45 (dynoNet) mV; linear ≈ 43–57
 
 
 def record(path: Path, fs: float, u: np.ndarray, y: np.ndarray, name: str) -> Path:
-    write_siso_record(path, SisoRecord(np.arange(u.size) / fs, u, y, {"fs_hz": repr(fs)}, name))
+    write_siso_record(path, as_record(fs, u, y, name))
     return path
 
 

@@ -50,11 +50,12 @@ from hil_sim.devices.serial_daq import cobs_data_positions, invalid_chunks  # no
 from hil_sim.devices.source import can_wire, serial_wire, wire_samples  # noqa: E402
 from hil_sim.experiments import daq_stream  # noqa: E402
 from rtlift.app.live import ObserverLoop  # noqa: E402
+from rtlift.core.rate import FS_HZ, PERIOD_S  # noqa: E402
 from rtlift.observer import Observer, ObserverConfig  # noqa: E402
 from testkit.synthetic import make_model  # noqa: E402
 
-FS = 400
-PERIOD_US = 2500
+FS = int(FS_HZ)
+PERIOD_US = int(round(PERIOD_S * 1e6))
 I32 = (-(2**31), 2**31 - 1)
 RATES = {
     "corrupt": 1e-3,      # one COBS data byte changed (the CRC catches it): 1 invalid packet, 1 lost

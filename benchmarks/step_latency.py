@@ -21,6 +21,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit, percentiles_us  # noqa: E402
+from rtlift.core.rate import FS_HZ  # noqa: E402
 from testkit.synthetic import burst_input, make_model  # noqa: E402
 
 
@@ -51,7 +52,7 @@ def main() -> None:
 
     rng = np.random.default_rng(0)
     model = make_model(rng, kernel_len=300, order=2, hp_order=2)
-    n = int(args.minutes * 60 * 400)
+    n = int(args.minutes * 60 * FS_HZ)
     cmu, env = burst_input(rng, n)
     if not model.compiled:
         raise SystemExit("step_latency: the benchmark model does not take the compiled step")

@@ -54,7 +54,7 @@ from firmware_io.samples import Counters, Sample
 from firmware_io.serial_codec import SEQ_MODULUS as SERIAL_SEQ_MODULUS
 from firmware_io.serial_codec import SerialDecoder, encode_command
 from firmware_io.slcan import ChunkedSlcanBus
-from rtlift.core.rate import FS_HZ
+from rtlift.core.rate import FS_HZ, PERIOD_S
 
 SERIAL_BAUD = 921_600
 CAN_BITRATE = 500_000
@@ -500,13 +500,13 @@ class SerialLink(Link):
                     return None
                 if not waiting and self.spin:
                     if self.spin_window_s is not None and self._last is not None and self._fd is not None:
-                        rest = self._last.host_time + 1.0 / FS_HZ - self.spin_window_s - time.perf_counter()
+                        rest = self._last.host_time + PERIOD_S - self.spin_window_s - time.perf_counter()
                         if deadline is not None:
                             rest = min(rest, deadline - time.perf_counter())
                         if rest > 0.0:              # not due yet: wait in the kernel for data or the window
                             select.select([self._fd], [], [], rest)
                             continue
-                        if rest < -1.0 / FS_HZ:     # overdue by a period: the device is late, stop spinning
+                        if rest < -PERIOD_S:     # overdue by a period: the device is late, stop spinning
                             select.select([self._fd], [], [], POLL_S)
                             continue
                     if self.on_idle is not None:

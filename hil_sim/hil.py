@@ -41,7 +41,7 @@ from hil_sim.actuation import BURST_SAMPLES, OPTIMAL_PERIOD_SAMPLES, burst_gate
 from hil_sim.effects import Effect
 from hil_sim.experiments import _setup
 
-CHUNK_SAMPLES = 400
+CHUNK_SAMPLES = int(FS_HZ)
 """The experiment's precomputed chunk (one second), a multiple of the burst period."""
 FIELDS = ("t", "volts", "envelope_volts", "cmu", "cmu_envelope", "dcl_true", "counts", "status")
 

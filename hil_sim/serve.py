@@ -26,6 +26,7 @@ import threading
 from hil_sim import FS_HZ
 from hil_sim.devices import SerialDaq, SlcanAdapter, parse_faults
 from rtlift.core.errors import UserError
+from rtlift.core.rate import PERIOD_S
 
 DEFAULT_EXPERIMENT = "random"
 
@@ -54,7 +55,7 @@ def serve_main(args: argparse.Namespace) -> int:
         device = SlcanAdapter(chunks, faults=faults, seed=seed, fs_hz=pace, clock_hz=FS_HZ)
         how = "slcan"
     elif getattr(args, "serial", False):
-        device = SerialDaq(chunks, faults=faults, seed=seed, fs_hz=pace, period_us=int(round(1e6 / FS_HZ)))
+        device = SerialDaq(chunks, faults=faults, seed=seed, fs_hz=pace, period_us=int(round(1e6 * PERIOD_S)))
         how = "serial"
     else:
         raise UserError("bench serve: give --serial or --slcan")

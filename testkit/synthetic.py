@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from rtlift.blocks import HighPassFilter, InputGain, OutputNonlinearity, RingConvolution, WienerBlock
+from rtlift.core.rate import FS_HZ
 from rtlift.model.hybrid import HybridModel
 
 
@@ -27,7 +28,7 @@ def random_stable_A(rng: np.random.Generator, n: int, radius: float = 0.995) -> 
 
 
 def make_model(rng: np.random.Generator, *, kernel_len: int = 30, order: int = 2, hp_order: int = 2,
-               output_form: bool = False, fs_hz: float = 400.0) -> HybridModel:
+               output_form: bool = False, fs_hz: float = FS_HZ) -> HybridModel:
     kernel = rng.normal(size=kernel_len) * np.exp(-np.arange(kernel_len) / 10.0)
     A = random_stable_A(rng, order)
     B = np.zeros(order)

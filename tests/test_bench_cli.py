@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import resource
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -14,19 +12,12 @@ from rtlift.app.cli import build_parser, main
 from rtlift.core.records import read_record
 
 
-def test_record_sine_k0125_writes_a_valid_record_in_under_5_seconds(tmp_path):
+def test_record_sine_k0125_writes_a_valid_record(tmp_path):
+    """(Its time is measured by ``benchmarks/pacing.py``, ``bench_record_*``.)"""
     out = tmp_path / "x.csv"
-    cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "rtlift", "bench", "record", "sine_k0125",
                            "--out", str(out)], capture_output=True, text=True)
-    elapsed = time.perf_counter() - start
-    cpu_after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert done.returncode == 0, done.stderr
-    # CPU time is what the command costs (≈ 2 s); wall time on the shared 2-core CI also waits
-    cpu = (cpu_after.ru_utime - cpu_before.ru_utime) + (cpu_after.ru_stime - cpu_before.ru_stime)
-    assert cpu < 5.0
-    assert elapsed < 15.0
     rec = read_record(out)
     assert rec.meta["experiment"] == "sine_k0125" and rec.fs_hz == 400.0
     assert rec.meta["seed"] == "0" and rec.meta["effects"] == "none"

@@ -11,8 +11,8 @@ from scipy import signal
 from hil_sim.effects import EFFECTS, Effect, parse_effect
 from hil_sim.experiments import TARE_SAMPLES, run_experiment
 from rtlift.core.errors import UserError
+from rtlift.core.rate import FS_HZ as FS
 
-FS = 400.0
 SEED = 5
 
 

@@ -13,8 +13,8 @@ from hil_sim.actuation import period_samples
 from hil_sim.experiments import EXPERIMENTS, TARE_SAMPLES, daq_stream, run_experiment
 from hil_sim.sensors import STATUS_ACTUATOR_ENABLED, STATUS_ADC_SATURATED, STATUS_BURST_ON
 from rtlift.core.errors import UserError
+from rtlift.core.rate import FS_HZ as FS
 
-FS = 400.0
 NAMES = ("static", "single_burst", "train_T1p75", "train_T3p5", "train_T7",
          "sine_k0125", "sine_k025", "random")
 

@@ -18,8 +18,9 @@ from firmware_io.samples import STATUS_WATCHDOG
 from hil_sim.devices import SerialDaq
 from hil_sim.experiments import daq_stream
 from hil_sim.hil import HilStream
+from rtlift.core.rate import FS_HZ
 
-FS = 400
+FS = int(FS_HZ)
 
 
 def _control(**kw):

@@ -20,8 +20,7 @@ from hil_sim.experiments import (
     run_experiment,
 )
 from hil_sim.plant import PlantParams, TruthPlant
-
-FS = 400.0
+from rtlift.core.rate import FS_HZ as FS
 
 
 @pytest.fixture(scope="module")

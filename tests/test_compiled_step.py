@@ -14,11 +14,11 @@ from hypothesis import strategies as st
 
 from rtlift.blocks.stages import ActuatorFade, Delay, PeriodicDisturbance, SensorResonance, ZeroDrift
 from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import load_model
 from testkit.synthetic import burst_input, make_model
 
 TOL = 1e-12
-FS = 400.0
 
 
 def _run(step, cmu, env):

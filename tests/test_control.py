@@ -20,11 +20,12 @@ from scipy import signal
 from rtlift.app.control import ControlConfig, LiftController, static_map
 from rtlift.app.reference import parse_reference
 from rtlift.core.errors import UserError
+from rtlift.core.rate import FS_HZ
 from rtlift.model.modelfile import load_model
 from rtlift.observer import Observer
 
 MODEL = Path(__file__).parent / "data" / "bench_model.json"
-FS = 400
+FS = int(FS_HZ)
 PERIOD = 50
 BURST = 4
 TOL_SETTLE = 0.01

@@ -16,6 +16,7 @@ import pytest
 from hil_sim.devices import SerialDaq, SlcanAdapter
 from hil_sim.hil import HilStream
 from rtlift.app.cli import main
+from rtlift.core.rate import FS_HZ
 
 pytestmark = pytest.mark.pty
 
@@ -24,7 +25,7 @@ FADE = "actuator_fade:final_fraction=0.75,time_constant_s=0.4"
 REFERENCE = "steps:0.08@0,0.14@5"
 SECONDS = 11
 TARGET = 0.14
-FS = 400
+FS = int(FS_HZ)
 TRACKING_STARTS = 3 * FS
 """Settle (1 s) and tare (2 s) before tracking starts (rtlift.app.closed_loop)."""
 KEYS = ("received", "lost", "crc_errors", "commands_sent", "commands_applied", "command_latency_p50_ms",
@@ -75,7 +76,7 @@ def test_no_sample_is_lost_and_every_command_is_applied(runs, name):
     assert s["commands_applied"] == st.commands_applied == s["commands_sent"] - st.commands_superseded
     # the host saw no trip; the device may trip once after the host has left (its watchdog at work)
     assert s["watchdog_trips"] == 0 and st.watchdog_trips <= 1 and st.cmd_errors == 0
-    assert s["command_latency_p50_ms"] <= s["command_latency_p99_ms"] < 1000.0  # generous: a shared machine
+    assert 0 < s["command_latency_p50_ms"] <= s["command_latency_p99_ms"]  # its size: benchmarks/command_latency.py
     assert not dev.control.enabled and dev.control.envelope_cv == 0  # switched off on the way out
 
 

@@ -22,6 +22,7 @@ from hil_sim.devices import SerialDaq
 from hil_sim.hil import HilStream
 from rtlift.app.cli import main
 from rtlift.app.hil_tracking import FADE
+from rtlift.core.rate import FS_HZ
 from rtlift.core.records import read_record
 
 pytestmark = [pytest.mark.pty, pytest.mark.slow]
@@ -29,7 +30,7 @@ pytestmark = [pytest.mark.pty, pytest.mark.slow]
 MODEL = Path(__file__).parent / "data" / "bench_model.json"
 REFERENCE = "sine:mean=0.1,amp=0.05,hz=0.2"
 SECONDS = 40
-FS = 400
+FS = int(FS_HZ)
 
 
 def _start(tmp: Path, name: str, effects: list[str]):

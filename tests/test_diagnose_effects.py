@@ -17,10 +17,10 @@ from hil_sim.effects import EFFECTS, Effect
 from hil_sim.experiments import run_experiment
 from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import OutputHysteresis
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.diagnose import diagnose
 from rtlift.diagnose.catalog import augment, predict
 
-FS = 400.0
 EXPERIMENT = "sine_k0125"
 
 
@@ -221,6 +221,9 @@ def test_a_mode_on_a_burst_harmonic_is_fitted_with_its_damping(clean_model, clea
     assert p["frequency_hz"] == pytest.approx(24.0, rel=0.02)
     assert p["damping_ratio"] == pytest.approx(0.06, rel=0.2)
     assert_recovers(diag, val, clean_val_rmse)
+    lines = [float(u.split()[3]) for u in diag.report["unexplained"] if u.startswith("residual power at ")]
+    f0, zeta = p["frequency_hz"], p["damping_ratio"]
+    assert not [x for x in lines if abs(x - f0) <= zeta * f0]   # the mode's own band is the mode's
 
 
 def test_a_gain_that_follows_the_lift_not_the_command_is_fitted_so(clean_model, clean_val_rmse):

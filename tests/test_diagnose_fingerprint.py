@@ -13,9 +13,10 @@ import pytest
 from scipy import signal
 
 from rtlift.blocks.stages import resonance_ba
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.core.records import Record
 from rtlift.diagnose.catalog import Context, _spectral_mode
-from rtlift.diagnose.fingerprint import (
+from rtlift.residual.fingerprint import (
     Z_DEPART,
     coef_departure,
     error_departure,
@@ -23,9 +24,8 @@ from rtlift.diagnose.fingerprint import (
     psd_departure,
     summarize,
 )
-from rtlift.diagnose.residual import run_all
+from rtlift.residual.stats import run_all
 
-FS = 400.0
 N = 16000                                           # 40 s
 T = np.arange(N) / FS
 
@@ -129,8 +129,8 @@ def test_a_repeated_experiment_meets_the_models_own_misfit_on_it_and_another_doe
     file) gives back exactly that run's misfit, so ΔCL − m is the model's output plus what
     changed (and the two runs' noise); a run of another input repeats nothing."""
     from rtlift.core.records import read_record, write_record
-    from rtlift.diagnose.fingerprint import fingerprint, input_digest, repeat_misfit
     from rtlift.model.validation import predict_record
+    from rtlift.residual.fingerprint import fingerprint, input_digest, repeat_misfit
     from testkit.synthetic import burst_input, make_model
 
     rng = np.random.default_rng(5)

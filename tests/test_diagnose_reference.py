@@ -13,16 +13,15 @@ import math
 import numpy as np
 import pytest
 
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.core.records import Record
-from rtlift.diagnose.fingerprint import Z_DEPART, change_misfit, fingerprint, reference
-from rtlift.diagnose.inputs import descriptor_distance, input_descriptor
-from rtlift.diagnose.misfit import fit_misfit, predicted_misfit, regressors
-from rtlift.diagnose.residual import TestResult
 from rtlift.diagnose.selection import Trial, slow_trend_line
 from rtlift.model.validation import predict_record
+from rtlift.residual.fingerprint import Z_DEPART, change_misfit, fingerprint, reference
+from rtlift.residual.inputs import descriptor_distance, input_descriptor
+from rtlift.residual.misfit import fit_misfit, predicted_misfit, regressors
+from rtlift.residual.stats import TestResult
 from testkit.synthetic import make_model
-
-FS = 400.0
 
 
 def bursts(envelope: np.ndarray, period: int = 51, on: int = 4) -> np.ndarray:
@@ -230,7 +229,7 @@ def test_a_model_file_written_before_descriptors_loads_and_is_read_by_todays_rul
 def test_the_noise_of_an_unknown_input_comes_from_the_input_that_excites_the_model_alike():
     """A 1 Hz random envelope takes the noise of the 0.5 Hz sine, not of a 0.02 Hz sweep whose slow
     period is nearer by descriptor distance, nor of a record with another burst period."""
-    from rtlift.diagnose.inputs import nearest_dynamics
+    from rtlift.residual.inputs import nearest_dynamics
 
     sweep = input_descriptor(record(*sine_input(40000, 0.01)))
     sine = input_descriptor(record(*sine_input(8000, 0.5)))

@@ -6,9 +6,9 @@ import numpy as np
 from scipy import signal
 
 from hil_sim.sensors import SensorParams, buffet_filter
-from rtlift.diagnose.residual import higher_order, input_crosscorr, lag_search, slow_trend, spectrum, whiteness
+from rtlift.core.rate import FS_HZ as FS
+from rtlift.residual.stats import higher_order, input_crosscorr, lag_search, slow_trend, spectrum, whiteness
 
-FS = 400.0
 N = 16000
 
 

@@ -14,8 +14,9 @@ from firmware_io import open_link
 from hil_sim.devices import SerialDaq, SlcanAdapter
 from hil_sim.devices.faults import FaultPlan, FaultSpecError, parse_faults
 from hil_sim.experiments import daq_stream
+from rtlift.core.rate import FS_HZ
 
-FS = 400
+FS = int(FS_HZ)
 WATCHDOG_DIV10 = 200
 """2 s: no command fault here should trip the watchdog."""
 

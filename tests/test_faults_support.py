@@ -25,7 +25,6 @@ from rtlift.app.cli import main
 from rtlift.model.modelfile import save_model
 from testkit.synthetic import make_model
 
-FS = 400
 SENSOR_NOISE_N = 0.02
 """Force noise of ``synthetic_stream`` (N); R of the observer follows from it."""
 OBSERVER = {"R": (SENSOR_NOISE_N / Calibration().q_area) ** 2, "q_x": 1e-8, "q_bias": 1e-9,

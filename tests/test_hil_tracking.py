@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from rtlift.app.hil_tracking import settling_times
+from rtlift.core.rate import FS_HZ
 
-FS = 400
+FS = int(FS_HZ)
 
 
 def _first_order(reference: np.ndarray, tau_s: float) -> np.ndarray:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.identify.kernel import burst_onsets, fit_kernel
 
-FS = 400.0
 CMU_REF = 0.0022
 
 

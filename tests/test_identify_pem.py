@@ -8,6 +8,7 @@ from scipy import signal
 
 from rtlift.blocks.lti import LTIBlock
 from rtlift.blocks.wiener import InputGain, WienerBlock
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.identify.pem import (
     CanonicalLTI,
     canonical_from_statespace,
@@ -18,7 +19,6 @@ from rtlift.identify.pem import (
 )
 from rtlift.identify.static_map import fit_static_map
 
-FS = 400.0
 POLES = np.array([0.995, 0.97])                  # τ = 0.50 s and 0.082 s at 400 Hz
 
 

@@ -6,9 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.identify.static_map import fit_static_map, isotonic_increasing
 
-FS = 400.0
 CMU_MAX = 0.022
 
 

@@ -11,13 +11,13 @@ from hypothesis import strategies as st
 from rtlift.blocks import HighPassFilter, InputGain, WienerBlock
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
 from rtlift.blocks.stages import DeliveredMomentum
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.hybrid import HybridModel
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig
 from testkit.synthetic import burst_input, model_steps, random_stable_A, run_in_chunks
 
 TOL = 1e-12
-FS = 400.0
 
 
 def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int = 2) -> HybridModel:

@@ -323,7 +323,7 @@ def test_can_link_sends_the_cmd_frame_on_the_bus_and_times_the_echo():
         c = link.counters.as_dict()
         lat = link.counters.command_latency_ms()
         assert (c["commands_sent"], c["commands_applied"]) == (3, 1)
-        assert 0 < lat["command_latency_p50_ms"] == lat["command_latency_p99_ms"] < 1000
+        assert 0 < lat["command_latency_p50_ms"] == lat["command_latency_p99_ms"]
 
 
 def test_as_dict_stays_exact_integers_and_latency_is_apart():

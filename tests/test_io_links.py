@@ -74,7 +74,7 @@ def test_serial_link_decodes_what_it_reads_and_times_out_on_silence():
         assert (s.seq, s.volt_cv, s.envelope_cv, s.ft[0]) == (41, 100, 200, 2.0)
         t0 = time.perf_counter()
         assert link.recv(0.1) is None
-        assert 0.09 <= time.perf_counter() - t0 < 0.5
+        assert time.perf_counter() - t0 >= 0.09   # waited for the timeout (how long after: benchmarks/pacing.py)
         assert not link.disconnected
 
 

@@ -17,10 +17,11 @@ from firmware_io import open_link
 from firmware_io.slcan import ChunkedSlcanBus
 from hil_sim.devices import FaultPlan, SerialDaq, SlcanAdapter
 from hil_sim.experiments import daq_stream
+from rtlift.core.rate import FS_HZ
 
 pytestmark = pytest.mark.pty
 
-FS = 400
+FS = int(FS_HZ)
 REPO = Path(__file__).resolve().parents[1]
 
 NO_GAPS = {k: 0 for k in ("reconnects", "gap_lost", "gaps_unknown", "gap_lost_estimated")}
@@ -91,7 +92,7 @@ def test_serial_ten_seconds_at_400_hz_arrive_complete_and_equal_to_what_was_sent
     assert dev.error is None
     assert [serial_fields(s) for s in got] == [serial_sent(e) for e in dev.sent]
     assert got[-1].seq == (65536 - 1500 + n - 1) % 65536  # crossed the u16 wrap
-    assert n / FS - 0.1 < elapsed < n / FS + 3.0  # paced at 400 Hz, not as fast as possible
+    assert elapsed > n / FS - 0.1  # paced at 400 Hz, not as fast as possible (how close: benchmarks/pacing.py)
 
 
 def test_slcan_ten_seconds_at_400_hz_arrive_complete_through_python_can_slcan():
@@ -111,7 +112,7 @@ def test_slcan_ten_seconds_at_400_hz_arrive_complete_through_python_can_slcan():
         assert dev.commands[:4] == ["C", "S6", "", "O"] and dev.commands[-1] == "C"  # the driver's open/close
     assert dev.error is None
     assert [can_fields(s) for s in got] == [can_sent(e) for e in dev.sent]
-    assert n / FS - 0.1 < elapsed < n / FS + 3.0
+    assert elapsed > n / FS - 0.1
 
 
 def test_serial_counters_equal_the_faults_injected():

@@ -17,10 +17,11 @@ from firmware_io.samples import STATUS_HOST_CONTROL, STATUS_WATCHDOG
 from firmware_io.serial_codec import encode_command
 from hil_sim.devices import SerialDaq, SlcanAdapter
 from hil_sim.experiments import daq_stream
+from rtlift.core.rate import FS_HZ
 
 pytestmark = pytest.mark.pty
 
-FS = 400
+FS = int(FS_HZ)
 GENEROUS_S = 3.0
 """Longest wait for something the device does within a few samples."""
 
@@ -89,7 +90,7 @@ def test_commands_are_echoed_and_counted_exactly(make, config):
     assert st.cmd_errors == st.commands_ignored == st.commands_superseded == 0
     assert c["watchdog_trips"] == st.watchdog_trips == 0
     assert (c["lost"], c["crc_errors"], c["duplicates"]) == (0, 0, 0)
-    assert lat["command_latency_p50_ms"] <= lat["command_latency_p99_ms"] < 1000 * GENEROUS_S
+    assert 0 < lat["command_latency_p50_ms"] <= lat["command_latency_p99_ms"]  # size: benchmarks/command_latency.py
     assert dev.control.applied.cmd_seq == 40 and dev.control.envelope_cv == ENVELOPE_LIMIT_CV
     assert dev.error is None
 
@@ -188,7 +189,7 @@ def test_silence_trips_the_watchdog_and_the_next_command_takes_control_again(mak
         again = link.send_command(4000)
         back = read_until(link, lambda s: s.cmd_seq == again)[-1]
         c = link.counters.as_dict()
-    assert 0.09 < silence_s < 0.1 + GENEROUS_S
+    assert silence_s > 0.09          # the watchdog did not trip before its 100 ms
     assert [s.envelope_cv for s in ramp] == [8000 - 200 * j for j in range(41)]
     assert [(s.seq - wd.seq) % 256 for s in ramp] == list(range(41))
     assert all(s.status & STATUS_WATCHDOG and s.envelope_cv == 0 for s in ramp[-1:] + still)

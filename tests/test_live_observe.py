@@ -59,8 +59,7 @@ def test_sixty_seconds_live_at_400_hz_lose_no_sample(make, model_file, tmp_path)
     assert s["lost"] == 0 and s["crc_errors"] == 0 and s["duplicates"] == 0
     assert s["samples_stepped"] == 24_000 and s["estimates"] == 24_000 and s["end"] == "completed"
     assert len(estimate_rows(tmp_path / "estimates.csv")) == 24_000
-    assert s["latency_p50_ms"] < 2.5                 # well inside one 400 Hz period
-    assert s["latency_p99_ms"] < 25.0                # never ten periods behind
+    assert 0 < s["latency_p50_ms"] <= s["latency_p99_ms"]   # its size: benchmarks/observer_loop.py
     assert 0.85 <= s["observer"]["nis_band_fraction"] <= 0.99
     assert "completed" in out and "lost 0" in out
 

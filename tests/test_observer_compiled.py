@@ -11,11 +11,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rtlift.blocks.stages import Delay, PeriodicDisturbance
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer, ObserverConfig
 from testkit.synthetic import burst_input, make_model
 
 TOL = 1e-12
-FS = 400.0
 CONFIGS = {
     "plain": ObserverConfig(R=1.6e-5, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4, max_rejections=5),
     "all_states": ObserverConfig(R=8e-6, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4, noise_ar=(1.82, -0.85),

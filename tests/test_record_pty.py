@@ -22,11 +22,12 @@ from hil_sim.devices import SerialDaq, SlcanAdapter
 from hil_sim.experiments import run_experiment
 from hil_sim.hil import HilStream
 from rtlift.core.programs import read_program
+from rtlift.core.rate import FS_HZ
 from rtlift.core.records import read_record
 
 pytestmark = pytest.mark.pty
 
-FS = 400
+FS = int(FS_HZ)
 TARE = 2 * FS
 PROGRAM = "# program: steps\nt,envelope_v,burst_period_ms\n0,60,125\n1.0,100,286\n2.0,0,286\n2.5,0,286\n"
 """60 V every 125 ms, then 100 V every 286 ms (from the onset at 1.0 s), off from 2.0 s, end 2.5 s."""

@@ -53,7 +53,7 @@ def test_a_realtime_can_replay_takes_device_time_and_gives_the_same_estimates(mo
     t0 = time.perf_counter()
     assert main(["replay", str(log), "--model", str(model_file), "--realtime", "--out", str(out)]) == 0
     elapsed = time.perf_counter() - t0
-    assert 2.7 <= elapsed <= 6.0
+    assert elapsed >= 2.7           # paced on the device clock (how close: benchmarks/pacing.py)
     assert estimate_rows(out)[:len(rows)] == rows
 
 

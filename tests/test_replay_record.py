@@ -16,6 +16,7 @@ import pytest
 from firmware_io.calibration import Calibration
 from firmware_io.samples import STATUS_ADC_SATURATED
 from rtlift.app.log_record import MAX_GAP_SAMPLES
+from rtlift.core.rate import FS_HZ
 from rtlift.core.records import read_record
 from tests.test_faults_support import (
     can_frames,
@@ -26,7 +27,7 @@ from tests.test_faults_support import (
     write_model,
 )
 
-FS = 400
+FS = int(FS_HZ)
 N = 2000
 LOST = (1000, 1001, 1002)
 FLAGGED = 1500
@@ -134,3 +135,20 @@ def test_a_log_that_ends_before_the_tare_is_one_line_and_exit_2(model, tmp_path,
     assert main(["replay", str(log), "--model", str(model), "--record", str(tmp_path / "r.csv")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "ends before the tare" in err
+
+
+def test_the_estimate_file_carries_the_model_rate_not_a_fixed_400(tmp_path):
+    from rtlift.app.cli import main
+    from rtlift.model.modelfile import save_model
+    from testkit.synthetic import make_model
+    from tests.test_faults_support import OBSERVER
+
+    model = tmp_path / "model_200hz.json"
+    save_model(make_model(np.random.default_rng(1), fs_hz=200.0), model, observer=dict(OBSERVER))
+    log = serial_log(tmp_path / "run.bin", n=1000, lost=(), flagged=None)
+    est = tmp_path / "est.csv"
+    assert main(["replay", str(log), "--model", str(model), "--out", str(est)]) == 0
+    meta = [line for line in est.read_text().splitlines() if line.startswith("#")]
+    assert "# fs_hz: 200" in meta
+    rows = read_estimates(est)
+    assert float(rows[-1]["t"]) - float(rows[0]["t"]) == pytest.approx((len(rows) - 1) / 200.0)

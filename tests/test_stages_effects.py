@@ -23,10 +23,9 @@ from rtlift.blocks.stages import (
     alias_hz,
 )
 from rtlift.blocks.wiener import NONLINEARITIES, HysteresisGain, OutputHysteresis
+from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from testkit.synthetic import burst_input, make_model
-
-FS = 400.0
 
 
 def make_stage(name: str, rng: np.random.Generator):

@@ -298,6 +298,18 @@ def test_a_model_refuses_records_of_the_other_kind_with_one_line(tmp_path, capsy
     assert err.count("\n") == 1 and "lift record" in err
 
 
+@pytest.mark.parametrize("command", ["observe", "control", "replay"])
+def test_a_live_command_given_a_generic_model_says_it_needs_a_lift_model(command, tmp_path, capsys):
+    m = random_model(np.random.default_rng(2), False)
+    (tmp_path / "m.json").write_text(json.dumps(m.to_dict()))
+    link = {"observe": ["--serial", "loop://"], "control": ["--serial", "loop://", "--reference", "steps:0.1@0"],
+            "replay": [str(tmp_path / "none.bin")]}[command]
+    assert main([command, *link, "--model", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not an rtlift model file" not in err
+    assert "generic t,u,y record" in err and "need a hybrid lift model" in err and "validate and diagnose" in err
+
+
 @pytest.fixture(scope="module")
 def wh2009():
     d = np.load(DATA / "wh2009.npz")
@@ -349,7 +361,9 @@ def test_the_command_line_identifies_diagnoses_and_validates_a_generic_record(tm
                  "--validate", str(tmp_path / "val.csv"), "--skip", "50", "--out", str(tmp_path / "d")]) == 0
     report = json.loads((tmp_path / "d" / "report.json").read_text())
     assert main(["validate", "--model", str(tmp_path / "d" / "model_augmented.json"), str(tmp_path / "val.csv"),
-                 "--skip", "50", "--json", str(tmp_path / "v.json")]) == 0
+                 "--skip", "50", "--json", str(tmp_path / "v.json"), "--figures", str(tmp_path / "figs")]) == 0
+    assert [p.name for p in (tmp_path / "figs").iterdir()] == ["val.png"]          # a figure per record
+    assert (tmp_path / "figs" / "val.png").stat().st_size > 10_000
     scored = json.loads((tmp_path / "v.json").read_text())["records"]["val"]
     assert scored["rmse"] == pytest.approx(report["augmented"]["records"]["val"]["rmse"], rel=1e-12)
     names = [e["name"] for e in report["effects"]]

@@ -15,8 +15,9 @@ from hil_sim.devices.faults import DeviceStats
 from hil_sim.devices.host_control import WATCHDOG_RAMP_MS, HostControl
 from hil_sim.devices.source import serial_wire, wire_samples
 from hil_sim.hil import HilStream
+from rtlift.core.rate import FS_HZ
 
-FS = 400
+FS = int(FS_HZ)
 HC, WD = STATUS_HOST_CONTROL, STATUS_WATCHDOG
 
 

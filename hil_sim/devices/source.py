@@ -12,6 +12,7 @@ import numpy as np
 
 from firmware_io.calibration import Calibration
 from firmware_io.can_codec import FT_FORCE_ID, FT_TORQUE_ID, load_dbc
+from rtlift.core.rate import FS_HZ
 
 I16 = (-32768, 32767)
 I32 = (-(2**31), 2**31 - 1)
@@ -59,7 +60,7 @@ def can_wire(chunk: object, calibration: Calibration | None = None) -> WireChunk
                      [tuple(row) for row in raw.tolist()])
 
 
-def synthetic_stream(seed: int = 0, fs_hz: float = 400.0, calibration: Calibration | None = None
+def synthetic_stream(seed: int = 0, fs_hz: float = FS_HZ, calibration: Calibration | None = None
                      ) -> Iterator[SimpleNamespace]:
     """A stand-in for ``daq_stream``: one-second chunks of bursts (4 samples every 50) whose
     amplitude follows a slow sine, forces with a burst-following lift and noise, forever."""

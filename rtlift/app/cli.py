@@ -1,9 +1,9 @@
-"""The ``rtlift`` command line: one module per subcommand under :mod:`rtlift.app.commands`.
+"""The ``rtlift`` command line: one module per subcommand under ``rtlift.app.commands``.
 
 Each command module exposes ``register(subparsers)``, which adds its parser and sets
 ``func`` to a callable ``func(args) -> int``. Exit status: 0 success, 2 bad input
 (:class:`~rtlift.core.errors.UserError`, printed as one line), 1 internal failure (one line;
-set ``RTLIFT_DEBUG=1`` for the traceback), 130 on Ctrl-C.
+set ``RTLIFT_DEBUG=1`` for the traceback; also a subcommand that fails to import), 130 on Ctrl-C.
 """
 
 from __future__ import annotations
@@ -16,7 +16,17 @@ import traceback
 
 from rtlift.core.errors import NumericalError, UserError
 
-COMMANDS = ("demo", "bench", "record", "identify", "validate", "diagnose", "observe", "control", "replay")
+COMMANDS = ("demo", "bench", "record", "identify", "validate", "diagnose", "observe", "control", "replay",
+            "data")
+
+DESCRIPTION = ("Real-time lift estimation for a stalled wing with burst actuation: record experiments, "
+               "identify a model, validate and diagnose it, and run the 400 Hz Kalman observer or the "
+               "lift controller live on a serial or CAN link (or on the simulated bench).")
+EPILOG = "Run 'rtlift COMMAND --help' for a command's options."
+
+
+class CommandLoadError(Exception):
+    """A subcommand's module failed to import: a broken install or a bug, never skipped silently."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -27,17 +37,16 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="rtlift", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="rtlift", description=DESCRIPTION, epilog=EPILOG)
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name in COMMANDS:
         try:
             module = importlib.import_module(f"rtlift.app.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"rtlift.app.commands.{name}":
-                continue  # not built yet in this checkout
-            raise
+        except Exception as exc:  # noqa: BLE001 - named in one line by main()
+            raise CommandLoadError(f"the '{name}' command failed to load ({type(exc).__name__}: {exc}); "
+                                   f"the installation is broken or incomplete") from exc
         module.register(sub)
     return parser
 
@@ -52,7 +61,13 @@ def _version() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except CommandLoadError as exc:
+        if os.environ.get("RTLIFT_DEBUG"):
+            traceback.print_exc()
+        print(f"rtlift: error: {exc}", file=sys.stderr)
+        return 1
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

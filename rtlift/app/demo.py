@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.core.rate import FS_HZ
+from rtlift.core.rate import FS_HZ, PERIOD_S
 from rtlift.core.records import Record, write_record
 
 CAMPAIGN = ("static", "single_burst", "train_T1p75", "train_T3p5", "train_T7", "sine_k0125", "sine_k025",
@@ -92,7 +92,7 @@ def record_through_link(names: tuple[str, ...], seed: int, effects: tuple[str, .
     cal = Calibration()
     stream = HilStream("random", seed=seed, effects=effects)
     records: dict[str, Record] = {}
-    with SerialDaq(stream, fs_hz=FS_HZ * speedup, period_us=int(round(1e6 / FS_HZ)), seed=seed) as device:
+    with SerialDaq(stream, fs_hz=FS_HZ * speedup, period_us=int(round(1e6 * PERIOD_S)), seed=seed) as device:
         stream.control = device.control
         with open_link({"kind": "serial", "port": device.path, "calibration": cal}) as link:
             device.start()

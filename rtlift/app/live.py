@@ -32,7 +32,7 @@ from firmware_io.samples import Sample
 from rtlift.core.rate import FS_HZ
 from rtlift.observer import Observer
 
-MAX_FILL = 400
+MAX_FILL = int(FS_HZ)
 """At most this many predict-only steps for one gap in ``seq`` (1 s); a longer gap is a
 device restart or an ambiguity of the wrapping counter, not something to extrapolate over."""
 MAX_BRIDGE_S = 60.0

@@ -54,7 +54,7 @@ OFF_PERIOD_MS = 50
 come every 20 samples, so the first burst follows the command that turns it on within 20."""
 ECHO_TIMEOUT_S = 0.5
 """Host seconds to wait for a command's echo before the next one may go out anyway."""
-PROTOCOL_CHECK_SAMPLES = 400
+PROTOCOL_CHECK_SAMPLES = int(FS_HZ)
 """Samples to wait for the echo of the first command before calling the device version 1."""
 SILENCE_S = 2.0
 """Host seconds without a valid sample before the device counts as gone."""

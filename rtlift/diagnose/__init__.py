@@ -1,9 +1,8 @@
 """Residual analysis and augmentation: find what the model misses, add it, report before/after.
 
-- :mod:`.residual` — residual tests (whiteness, input and higher-order correlations, spectrum
-  peaks, level/direction dependence, slow trend, lag search);
-- :mod:`.fingerprint` — the model's own residual at identification, and how far a new
-  record's residual departs from it (an effect) or not (structure);
+(The residual tests and the model's own residual at identification, its fingerprint, live in
+:mod:`rtlift.residual`, below identification, which stores the fingerprint in the model file.)
+
 - :mod:`.catalog` — one :class:`~.catalog.Effect` record per INTERFACES.md effect;
 - :mod:`.selection` — combinations compared on held-out records, every member earning its place;
 - :mod:`.report` — report.json, report.md, figures and the augmented model file.

@@ -1,7 +1,7 @@
 """The effect catalog: one :class:`Effect` record per INTERFACES.md effect name.
 
 An effect's record holds its fit, the evidence that points at it (a statistic of the residual
-compared with the model's own residual at identification, :mod:`.fingerprint`), its number of
+compared with the model's own residual at identification, :mod:`rtlift.residual.fingerprint`), its number of
 parameters and the effects it excludes. Every ``fit_<effect>(base, train, ctx)`` takes the
 current model and the training record and returns a :class:`Fitted` (the augmented model, its
 parameters, and whether a parameter ended on a bound of its range) or a string saying why
@@ -49,7 +49,10 @@ from rtlift.blocks.stages import (
 from rtlift.blocks.wiener import HysteresisGain, InputGain, OutputHysteresis, OutputNonlinearity
 from rtlift.core.effects import SCHEMAS, EffectSchema
 from rtlift.core.records import Record
-from rtlift.diagnose.fingerprint import (
+from rtlift.model.hybrid import HybridModel, HybridOutput
+from rtlift.model.modelfile import model_from_dict, model_to_dict
+from rtlift.model.validation import predict_record
+from rtlift.residual.fingerprint import (
     Z_DEPART,
     Departure,
     coef_departure,
@@ -57,10 +60,7 @@ from rtlift.diagnose.fingerprint import (
     level_departure,
     psd_departure,
 )
-from rtlift.diagnose.residual import Peak, TestResult, cluster_ols
-from rtlift.model.hybrid import HybridModel, HybridOutput
-from rtlift.model.modelfile import model_from_dict, model_to_dict
-from rtlift.model.validation import predict_record
+from rtlift.residual.stats import Peak, TestResult, cluster_ols
 
 MAX_LAG = 100                      # samples the delay search reaches (0.25 s at 400 Hz)
 HEAVY_DAMPING = 0.3                # a "resonance" damped more than this is a lag, not a mode

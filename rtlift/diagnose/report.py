@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 
 from rtlift.core.effects import SCHEMAS
-from rtlift.diagnose.residual import welch_psd
 from rtlift.diagnose.selection import Diagnosis
 from rtlift.model.modelfile import save_model
+from rtlift.residual.stats import welch_psd
 
 
 def _fig_paths(out: str) -> dict[str, str]:

@@ -3,7 +3,7 @@
 0. **Reference.** The training record is compared with the fingerprint entry its *input*
    points at (:func:`.fingerprint.reference`): an identification run it repeats bit for bit, else
    one whose input descriptor it matches, else the print predicted for its input (the model's own
-   misfit carried over from the campaign, :mod:`.misfit`). Its name plays no part.
+   misfit carried over from the campaign, :mod:`rtlift.residual.misfit`). Its name plays no part.
 1. **Candidates.** Every effect of the catalog is fitted alone on the training record, to its
    residual — except an effect that replaces the model's static map (hysteresis, an output
    nonlinearity: ``Effect.fits_change``) where the model's own misfit on the record's input is
@@ -36,7 +36,7 @@
    :meth:`_Judge.encompassing`), then the one ranked first by step 5, then the one with fewer
    parameters.
 5. **Effect or structure.** Each chosen member's evidence is recomputed on the residual of the
-   combination without it and compared with the fingerprint (:mod:`.fingerprint`). It is an
+   combination without it and compared with the fingerprint (:mod:`rtlift.residual.fingerprint`). It is an
    ``effect`` (something changed since identification) when its own evidence departs, or when
    the model's error level on the training record departs from the one it had on that record
    type at identification and this member lowers it by as much again (a z of the excess that
@@ -66,7 +66,8 @@ import numpy as np
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
 from rtlift.diagnose.catalog import CATALOG, EFFECT_NAMES, EFFECTS, Context, Fitted, predict, reestimate
-from rtlift.diagnose.fingerprint import (
+from rtlift.model.hybrid import HybridModel
+from rtlift.residual.fingerprint import (
     FINGERPRINT_START_S,
     Z_DEPART,
     Departure,
@@ -79,8 +80,7 @@ from rtlift.diagnose.fingerprint import (
     record_tests,
     reference,
 )
-from rtlift.diagnose.residual import TestResult, cluster_ols
-from rtlift.model.hybrid import HybridModel
+from rtlift.residual.stats import TestResult, cluster_ols
 
 REPORT_VERSION = 1
 
@@ -488,7 +488,8 @@ def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials:
     """One plain line per feature of the final training residual that still departs from the
     fingerprint, per candidate whose evidence departs but whose fit the validation records
     did not support, and for a slow trend the record is too short to separate
-    (:func:`slow_trend_line`)."""
+    (:func:`slow_trend_line`). A residual line inside the band of an accepted resonance or
+    pickup (:func:`explained_bands`) is that entry's leftover, not listed."""
     if fp is None:
         return [f"{k}: {tests[k].detail}" for k in ("slow_trend", "gain_trend", "direction", "level")
                 if tests[k].significant]
@@ -503,13 +504,34 @@ def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials:
     f = np.asarray(spec["f"])
     df = float(f[1])
     excess = np.log(np.maximum(spec["psd"], 1e-300)) - np.interp(f, fp["psd"]["f_hz"], fp["psd"]["log10"]) * np.log(10)
+    bands = explained_bands(trials, df)
     for k in np.argsort(excess)[::-1][:3]:
+        if any(lo <= f[k] <= hi for lo, hi in bands):
+            continue
         dep = psd_departure(tests["spectrum"], fp, [(f[k] - 0.5 * df, f[k] + 0.5 * df)], f"{f[k]:.1f} Hz")
         if dep.departs:
             lines.append(f"residual power at {dep.text}: stands above the model's own residual")
     lines += [f"{t.name} is pointed at by the evidence but not accepted: {t.evidence}"
               for t in trials if not t.accepted and t.params and t.kind == "effect"]
     return lines
+
+
+def explained_bands(trials: list[Trial], df: float) -> list[tuple[float, float]]:
+    """Frequency bands (Hz) an accepted entry accounts for: a ``sensor_resonance``'s half-power
+    band f(1 ± ζ), a ``periodic_disturbance``'s lines (the fundamental and its harmonics as
+    sampled) ± 1.5 bins (the window its fit searches); each widened by half a spectrum bin
+    ``df``, the width of the bin a line is reported at."""
+    bands = []
+    for t in trials:
+        if not t.accepted:
+            continue
+        if t.name == "sensor_resonance":
+            f0, zeta = float(t.params["frequency_hz"]), float(t.params["damping_ratio"])
+            bands.append((f0 * (1 - zeta) - 0.5 * df, f0 * (1 + zeta) + 0.5 * df))
+        elif t.name == "periodic_disturbance":
+            lines = [t.params["frequency_hz"], *(h["frequency_hz"] for h in t.params.get("harmonics", ()))]
+            bands += [(float(x) - 2.0 * df, float(x) + 2.0 * df) for x in lines]
+    return bands
 
 
 Z_NOTE = 2.0

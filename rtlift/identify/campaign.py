@@ -48,13 +48,13 @@ from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
 from rtlift.core.errors import require_finite
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
-from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
 from rtlift.identify.highpass import HighPassChoice, choose_highpass, wiener_fit_for_highpass
 from rtlift.identify.kernel import KernelRefinement, SingleBurstKernel, burst_onsets, fit_kernel, refine_kernel
 from rtlift.identify.pem import OrderChoice, PEMResult, choose_order, fit_wiener
 from rtlift.identify.static_map import StaticMap, fit_static_map
 from rtlift.model.domain import domain_of
 from rtlift.model.hybrid import HybridModel
+from rtlift.residual.fingerprint import FINGERPRINT_START_S, fingerprint
 
 WIENER_FORMS = ("input_gain", "output_map")
 

@@ -62,13 +62,13 @@ from rtlift.blocks.stages import Delay, DeliveredMomentum
 from rtlift.blocks.wiener import InputGain, WienerBlock
 from rtlift.core.metrics import rmse, scores
 from rtlift.core.records import Record
-from rtlift.diagnose.fingerprint import FINGERPRINT_START_S, fingerprint
 from rtlift.identify.campaign import fit_metrics, quiet_noise_std
 from rtlift.identify.kernel import SingleBurstKernel, fit_kernel
 from rtlift.identify.pem import PEMResult, fit_wiener
 from rtlift.identify.static_map import StaticMap, fit_static_map
 from rtlift.model.domain import domain_of
 from rtlift.model.hybrid import HybridModel
+from rtlift.residual.fingerprint import FINGERPRINT_START_S, fingerprint
 
 
 @dataclass(frozen=True)

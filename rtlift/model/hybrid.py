@@ -61,7 +61,7 @@ class HybridModel(BlockChain):
     metrics: dict[str, Any] = field(default_factory=dict)
     observer_config: dict[str, Any] = field(default_factory=dict)
     fingerprint: dict[str, Any] = field(default_factory=dict)
-    """The residual on the identification campaign (:mod:`rtlift.diagnose.fingerprint`)."""
+    """The residual on the identification campaign (:mod:`rtlift.residual.fingerprint`)."""
     stable: bool = True
 
     def __setattr__(self, name: str, value: Any) -> None:

@@ -80,6 +80,10 @@ def model_from_dict(d: dict[str, Any], allow_unstable: bool = False, source: str
     """Build and validate a model from its dict form (see :func:`load_model`)."""
     if not isinstance(d, dict):
         raise ModelFileError(f"{source}: not a JSON object")
+    if d.get("kind") == "siso":
+        raise ModelFileError(f"{source}: a model of a generic t,u,y record ({d.get('structure')}), not a lift "
+                             "model; observe, control and replay need a hybrid lift model (rtlift identify "
+                             "--static/--single-burst/--train); a t,u,y model is for rtlift validate and diagnose")
     if d.get("format") != FORMAT:
         raise ModelFileError(f"{source}: not an rtlift model file (format {d.get('format')!r})")
     if d.get("version") != VERSION:

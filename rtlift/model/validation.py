@@ -19,7 +19,7 @@ import numpy as np
 
 from rtlift.blocks.stages import PeriodicDisturbance
 from rtlift.core.metrics import scores
-from rtlift.core.records import Record
+from rtlift.core.records import Record, SisoRecord
 from rtlift.model.hybrid import HybridModel, HybridOutput
 
 VALIDATE_VERSION = 1
@@ -31,7 +31,7 @@ class RecordValidation:
 
     name: str
     scores: dict[str, float]
-    output: HybridOutput
+    output: HybridOutput | np.ndarray          # a generic model's output: one array
 
 
 def simulate_record(model: HybridModel, record: Record) -> HybridOutput:
@@ -130,6 +130,40 @@ def plot_validation(record: Record, result: RecordValidation, path: str | os.Pat
     ax[2].set_xlabel("t (s)")
     for a in ax:
         a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_generic_validation(record: SisoRecord, result: RecordValidation, path: str | os.PathLike,
+                            skip: int = 0) -> None:
+    """Figure for a generic ``t,u,y`` record (``result.output``: the model's free-run output):
+    measured vs model (top), the residual (middle) and the input u (bottom); the first ``skip``
+    samples, left out of the scores, shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = record.t - record.t[0]
+    predicted, s = np.asarray(result.output), result.scores
+    fig, ax = plt.subplots(3, 1, figsize=(10, 7), sharex=True, gridspec_kw={"height_ratios": [3, 2, 1]})
+    ax[0].plot(t, record.y, color="tab:blue", lw=0.6, label="measured y")
+    ax[0].plot(t, predicted, color="tab:red", lw=0.9, label="model (free run from rest)")
+    ax[0].set_ylabel("y")
+    ax[0].legend(loc="upper right", fontsize=8)
+    ax[0].set_title(f"{record.name}: ρ = {s['corr']:.4f}, NRMSE = {s['nrmse']:.3f}, RMSE = {s['rmse']:.4g}",
+                    fontsize=10)
+    ax[1].plot(t, record.y - predicted, color="tab:gray", lw=0.6)
+    ax[1].axhline(0.0, color="0.6", lw=0.5)
+    ax[1].set_ylabel("residual")
+    ax[2].plot(t, record.u, color="0.3", lw=0.8)
+    ax[2].set_ylabel("u")
+    ax[2].set_xlabel("t (s)")
+    for a in ax:
+        a.grid(alpha=0.3)
+        if skip > 0:
+            a.axvspan(t[0], t[min(skip, len(t) - 1)], color="0.9", zorder=0)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

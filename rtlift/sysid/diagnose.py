@@ -1,7 +1,7 @@
 """What a single-input Wiener model lacks, from its residual; added with joint re-estimation.
 
 Residual ε = y − ŷ (free run from rest, the first ``skip`` samples unscored) on the training
-record, tested as in :mod:`rtlift.diagnose.residual`: whiteness, correlation with past input
+record, tested as in :mod:`rtlift.residual.stats`: whiteness, correlation with past input
 (missed linear dynamics) and the Billings–Voon higher-order correlations with u² and ŷ² (a
 missed nonlinear structure: the linear tests barely react while these do).
 
@@ -38,15 +38,17 @@ RMSE, Diebold–Mariano t ≥ 3 over blocks, no record worse by more than 1 %).
 
 from __future__ import annotations
 
+import json
+import os
 from typing import Any
 
 import numpy as np
 
 from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
-from rtlift.diagnose.residual import higher_order, input_crosscorr, whiteness
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
+from rtlift.residual.stats import higher_order, input_crosscorr, whiteness
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
 
 HOW = {"output_dynamics": "Wiener-Hammerstein re-identified jointly from the best linear approximation's "
@@ -197,3 +199,24 @@ def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[in
         if best is None or err < best[0]:
             best = (err, m)
     return best[1]
+
+
+def write_report(report: dict[str, Any], augmented: SisoModel, out: str | os.PathLike) -> None:
+    """``report.json``, ``report.md`` and ``model_augmented.json`` of a generic diagnosis in ``out``."""
+    from rtlift.model.siso import save_siso_model
+
+    with open(os.path.join(out, "report.json"), "w", encoding="utf-8") as f:
+        json.dump(report, f, indent=1)
+        f.write("\n")
+    lines = ["# Diagnosis report", "", f"Scores: {report['scoring']}.", "",
+             "| record | ρ before | ρ after | RMSE before | RMSE after |", "|---|---|---|---|---|"]
+    for name, b in report["baseline"]["records"].items():
+        a = report["augmented"]["records"][name]
+        lines.append(f"| {name} | {b['corr']:.4f} | {a['corr']:.4f} | {b['rmse']:.5g} | {a['rmse']:.5g} |")
+    lines += ["", "## Tried", ""] + [
+        f"- **{e['name']}** ({e['kind']}, {'accepted' if e['accepted'] else 'not accepted'}): {e['evidence']}"
+        for e in report["effects"]]
+    lines += ["", "## Unexplained", ""] + ([f"- {u}" for u in report["unexplained"]] or ["- nothing"])
+    with open(os.path.join(out, "report.md"), "w", encoding="utf-8") as f:
+        f.write("\n".join(lines) + "\n")
+    save_siso_model(augmented, os.path.join(out, "model_augmented.json"))

@@ -8,11 +8,18 @@ from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    bench = subparsers.add_parser("bench", help="the simulated wind-tunnel bench (hil_sim)")
+    bench = subparsers.add_parser(
+        "bench", help="the simulated wind-tunnel bench (hil_sim)",
+        description="The simulated wind-tunnel bench: write one experiment as a record file (record), or run "
+                    "the simulated DAQ on a pseudo-terminal for rtlift record, observe or control (serve).")
     sub = bench.add_subparsers(dest="bench_command", metavar="ACTION")
     sub.required = True
 
-    rec = sub.add_parser("record", help="write one experiment of the standard campaign as a record CSV")
+    rec = sub.add_parser(
+        "record", help="write one experiment of the standard campaign as a record CSV",
+        description="Run one experiment of the standard campaign on the simulated bench, offline and faster "
+                    "than real time, and write it as a record file (t, cmu, cmu_envelope, dcl, with the "
+                    "bench's true lift as dcl_true), ready for rtlift identify, validate or diagnose.")
     rec.add_argument("experiment", metavar="EXPERIMENT",
                      help="static, single_burst, train_T1p75, train_T3p5, train_T7, "
                           "sine_k0125, sine_k025 or random")
@@ -20,7 +27,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _common(rec)
     rec.set_defaults(func=_record)
 
-    serve = sub.add_parser("serve", help="run the simulated DAQ device on a new pseudo-terminal")
+    serve = sub.add_parser(
+        "serve", help="run the simulated DAQ device on a new pseudo-terminal",
+        description="Run the simulated DAQ (a serial device, or an SLCAN CAN adapter) on a new "
+                    "pseudo-terminal and stream the bench at 400 Hz until Ctrl-C; the port is printed, "
+                    "to be given to rtlift record, observe or control as --serial PORT or "
+                    "--can slcan:PORT.")
     link = serve.add_mutually_exclusive_group(required=True)
     link.add_argument("--serial", action="store_true", help="serial DAQ (COBS packets)")
     link.add_argument("--slcan", action="store_true", help="SLCAN CAN adapter")

@@ -78,11 +78,9 @@ def run(args: argparse.Namespace) -> int:
     if isinstance(model, SISO_MODELS):
         return run_generic(args, model)
 
+    from rtlift.api import diagnose
     from rtlift.core.records import read_record, record_kind
-    from rtlift.diagnose import DiagnoseOptions, diagnose
-    from rtlift.diagnose.report import write
 
-    opt = DiagnoseOptions()
     need = int(MIN_TRAIN_S * model.fs_hz)
     split = None
     if args.run is not None:
@@ -116,13 +114,7 @@ def run(args: argparse.Namespace) -> int:
             _same_rate(r, model)
         sources = {"model": str(args.model), "train": str(args.train),
                    "validate": [str(p) for p in args.validate]}
-    _make_out(args.out)
-    diag = diagnose(model, train, validate, opt, score_from)
-    if split is not None:
-        diag.report["split"] = split
-        diag.report["scoring"] += f"; one run split at sample {split['train_samples'][1]}: {split['how']}"
-    write(diag, args.out, sources)
-    rep = diag.report
+    rep, _ = diagnose(model, train, validate, out=args.out, score_from=score_from, sources=sources, split=split)
     acc = [e for e in rep["effects"] if e["accepted"]]
     effects = [e["name"] for e in acc if e["kind"] == "effect"]
     structure = [e["name"] for e in acc if e["kind"] == "structure"]
@@ -145,23 +137,12 @@ def _same_rate(rec, model) -> None:
         raise UserError(f"{rec.name}: sampled at {rec.fs_hz:g} Hz, the model at {model.fs_hz:g} Hz")
 
 
-def _make_out(out: str) -> None:
-    import os
-
-    try:
-        os.makedirs(out, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"{out}: cannot create output directory ({exc.strerror})") from None
-
-
 def run_generic(args: argparse.Namespace, model) -> int:
     """``rtlift diagnose`` of a generic single-input model (:mod:`rtlift.sysid.diagnose`)."""
-    import json
     import os
 
+    from rtlift.api import diagnose
     from rtlift.core.records import SisoRecord, read_siso_record, record_kind
-    from rtlift.model.siso import save_siso_model
-    from rtlift.sysid.diagnose import diagnose_siso
 
     paths = [args.run] if args.run is not None else [args.train, *args.validate]
     for path in paths:
@@ -188,26 +169,8 @@ def run_generic(args: argparse.Namespace, model) -> int:
         names = [r.name for r in (train, *validate)]
         if len(set(names)) != len(names):
             raise UserError("two records share a stem; the report is keyed by stem")
-    _make_out(args.out)
-    report, augmented = diagnose_siso(model, train, validate, args.skip, validate_skip=validate_skip)
-    if split is not None:
-        report["split"] = split
-        report["scoring"] += f"; one run split at sample {split['train_samples'][1]}: {split['how']}"
-    with open(os.path.join(args.out, "report.json"), "w", encoding="utf-8") as f:
-        json.dump(report, f, indent=1)
-        f.write("\n")
-    lines = ["# Diagnosis report", "", f"Scores: {report['scoring']}.", "",
-             "| record | ρ before | ρ after | RMSE before | RMSE after |", "|---|---|---|---|---|"]
-    for name, b in report["baseline"]["records"].items():
-        a = report["augmented"]["records"][name]
-        lines.append(f"| {name} | {b['corr']:.4f} | {a['corr']:.4f} | {b['rmse']:.5g} | {a['rmse']:.5g} |")
-    lines += ["", "## Tried", ""] + [
-        f"- **{e['name']}** ({e['kind']}, {'accepted' if e['accepted'] else 'not accepted'}): {e['evidence']}"
-        for e in report["effects"]]
-    lines += ["", "## Unexplained", ""] + ([f"- {u}" for u in report["unexplained"]] or ["- nothing"])
-    with open(os.path.join(args.out, "report.md"), "w", encoding="utf-8") as f:
-        f.write("\n".join(lines) + "\n")
-    save_siso_model(augmented, os.path.join(args.out, "model_augmented.json"))
+    report, _ = diagnose(model, train, validate, out=args.out, skip=args.skip, score_from=validate_skip,
+                         split=split)
     acc = [e["name"] for e in report["effects"] if e["accepted"]]
     print(f"diagnose {args.model}: structure added: {', '.join(acc) if acc else 'nothing'}")
     for name, b in report["baseline"]["records"].items():

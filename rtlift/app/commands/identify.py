@@ -6,19 +6,20 @@ import argparse
 import sys
 import time
 
-from rtlift.core.errors import UserError, require_finite
+from rtlift.api import GENERIC_STRUCTURES, LIFT_STRUCTURES
+from rtlift.core.errors import UserError
 
-LIFT_STRUCTURES = ("paper", "interaction")
-GENERIC_STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback", "store_chain")
 DEFAULT_LIFT_STRUCTURE = "paper"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "identify", help="identify the hybrid model from recorded experiments",
-        description="Static map -> N(Cmu); single-burst kernel and phi; high-pass filter and "
-                    "Wiener LTI (output-error PEM) chosen by held-out error on the training "
-                    "record. Writes a model file.")
+        description="Identify a model from recorded experiments and write it as a model file: the paper's "
+                    "hybrid lift model from the lift campaign (--static, --single-burst, --train; the static "
+                    "map, the single-burst kernel, the high-pass filter and the Wiener LTI), or a "
+                    "single-input model of a generic t,u,y record (--record). What is not given is chosen "
+                    "by the held-out error on the training record.")
     p.add_argument("--static", metavar="F", help="slow static sweep record")
     p.add_argument("--single-burst", metavar="F", help="isolated single bursts record")
     p.add_argument("--train", metavar="F", help="training record (the paper: sine_k0125)")
@@ -28,27 +29,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="burst-train records (train_T1p75, train_T3p5, train_T7): the interaction "
                         "structure learns burst-burst interaction from them")
     p.add_argument("--structure", choices=(*LIFT_STRUCTURES, *GENERIC_STRUCTURES),
-                   help="lift campaign: paper (the paper's hybrid, default) or interaction (issue 18: "
-                        "slow part driven by the delivered momentum, per-burst gain of each burst's "
-                        "slow response; needs --trains to learn the interaction). With --record: the "
-                        "W block in textbook form (LTI then static map, default), Wiener-Hammerstein (a "
-                        "second LTI after the map) or nonlinear feedback (the output fed back through a "
-                        "cubic map into the LTI's input)")
+                   help="lift campaign: paper (the paper's hybrid, default) or interaction (the slow "
+                        "part driven by the delivered momentum, a gain per burst; needs --trains). "
+                        "With --record: wiener (an LTI then a static map, default), wiener_hammerstein "
+                        "(a second LTI after the map), nonlinear_feedback (the output fed back through "
+                        "a cubic map into the LTI's input) or store_chain (two stores in cascade, each "
+                        "draining through a power-law outflow, like two tanks)")
     p.add_argument("--order", type=int, metavar="N",
                    help="Wiener LTI order (default: chosen from 1..4 by held-out error)")
     p.add_argument("--form", choices=("auto", "input_gain", "output_map"), default="auto",
-                   help="Wiener nonlinearity: N(Cmu)*y as in the paper, f(y) with f the static map "
-                        "(textbook Wiener), or whichever has the lower held-out error (default)")
+                   help="Wiener nonlinearity: input_gain, N(Cmu)*y as in the paper; output_map, f(y) with f "
+                        "the static map (textbook Wiener); auto, whichever has the lower held-out error "
+                        "(default)")
     p.add_argument("--dead-time", type=int, metavar="SAMPLES",
                    help="samples the measured lift lags the actuation record (default: chosen from "
                         "0..8 by held-out error)")
     p.add_argument("--phi", choices=("auto", "single_burst", "train"), default="auto",
-                   help="phi from the single burst (paper), re-estimated on the training "
-                        "record, or whichever has the lower held-out error (default)")
+                   help="phi: single_burst, from the single bursts (paper); train, re-estimated on the "
+                        "training record; auto, whichever has the lower held-out error (default)")
     p.add_argument("--kernel", choices=("auto", "single_burst"), default="auto",
-                   help="the convolution kernel as averaged from the single bursts (paper), or its "
-                        "first burst period re-estimated on the training record where that lowers "
-                        "the held-out error (default)")
+                   help="the convolution kernel: single_burst, as averaged from the single bursts (paper); "
+                        "auto, its first burst period re-estimated on the training record where that "
+                        "lowers the held-out error (default)")
     p.add_argument("-o", "--out", required=True, metavar="MODEL.json", help="model file to write")
     p.set_defaults(func=run)
 
@@ -71,65 +73,28 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         raise UserError(f"{', '.join(missing)} missing: give --static, --single-burst and --train (a lift "
                         "campaign) or --record (a generic t,u,y record)")
-    from rtlift.core.records import read_record
-    from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
-    from rtlift.observer import tune_observer
+    from rtlift.api import identify
 
-    if args.order is not None and not 1 <= args.order <= 8:
-        raise UserError(f"--order {args.order}: must be between 1 and 8")
-    static = read_record(args.static, min_samples=50)
-    burst = read_record(args.single_burst, min_samples=50)
-    train = read_record(args.train, min_samples=200)
-    if args.dead_time is not None and not 0 <= args.dead_time <= 80:
-        raise UserError(f"--dead-time {args.dead_time}: must be between 0 and 80 samples")
-    trains = [read_record(f, min_samples=200) for f in args.trains or ()]
-    if structure == "interaction":
-        return run_interaction(args, static, burst, trains, train)
-    if trains:
+    if args.trains and structure != "interaction":
         print("rtlift identify: note: --trains are not fitted by --structure paper (the paper's hybrid); "
               "use --structure interaction to learn from them", file=sys.stderr)
-    options = IdentifyOptions(order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time,
-                              kernel=args.kernel)
     t0 = time.perf_counter()
-    try:
-        idf = identify_hybrid(static, burst, train, options)
-    except ValueError as exc:
-        raise UserError(f"cannot identify from {args.static}, {args.single_burst}, "
-                        f"{args.train}: {exc}") from None
+    idf = identify(args.static, args.single_burst, args.train,
+                   trains=args.trains or (), structure=structure,
+                   order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time, kernel=args.kernel,
+                   out=args.out)
     seconds = time.perf_counter() - t0
-    observer = {**idf.observer, **tune_observer(idf.model, [train])}   # Q, R from the data, for rtlift observe
-    require_finite("observer tuning", train.name, observer=observer)
-    idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
-                               "train": str(args.train)}
-    _save(idf, args.out, observer)     # no clock in the file: the same inputs give the same bytes
-    print(summary(idf, args.out, seconds))
+    if structure == "interaction":
+        print(interaction_summary(idf, args.out, seconds))
+    else:
+        print(summary(idf, args.out, seconds))
     return 0
 
 
-def run_interaction(args: argparse.Namespace, static, burst, trains, train) -> int:
-    """``rtlift identify --structure interaction``: the campaign with the trains (issue 18)."""
-    from rtlift.identify.interaction import InteractionOptions, identify_interaction
-    from rtlift.observer import tune_observer
-
-    fixed = [f"--{k.replace('_', '-')}" for k, default in (("form", "auto"), ("phi", "auto"), ("dead_time", None))
-             if getattr(args, k) != default]
-    if fixed:
-        raise UserError(f"{', '.join(fixed)}: not choices of --structure interaction (the paper's N(Cmu)*y form, "
-                        "single-burst phi, no dead time)")
-    t0 = time.perf_counter()
-    try:
-        idf = identify_interaction(static, burst, trains, train, InteractionOptions(order=args.order))
-    except ValueError as exc:
-        names = ", ".join(str(f) for f in (args.static, args.single_burst, *(args.trains or ()), args.train))
-        raise UserError(f"cannot identify from {names}: {exc}") from None
-    seconds = time.perf_counter() - t0
-    observer = {**idf.observer, **tune_observer(idf.model, [train])}
-    require_finite("observer tuning", train.name, observer=observer)
-    idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
-                               "trains": [str(f) for f in args.trains or ()], "train": str(args.train)}
-    _save(idf, args.out, observer)
+def interaction_summary(idf, out_path: str, seconds: float) -> str:
+    """Human summary of an interaction-structure identification (issue 18)."""
     st, w, dom = idf.provenance["structure"], idf.provenance["wiener"], idf.provenance["domain"]
-    lines = [f"identified interaction model in {seconds:.2f} s -> {args.out}",
+    lines = [f"identified interaction model in {seconds:.2f} s -> {out_path}",
              f"  high-pass of the burst part: Butterworth order {st['highpass']['order']}, cutoff "
              f"{st['highpass']['cutoff_hz']:g} Hz; delivered-momentum memory "
              f"tau {st['time_constant_s']:g} s at duty {st['duty']:.4g}",
@@ -140,17 +105,7 @@ def run_interaction(args: argparse.Namespace, static, burst, trains, train) -> i
              + (" and isolated bursts" if dom["isolated_bursts"] else "") + f", Cmu up to {dom['cmu_max']:.4g}"]
     lines += [f"  {name:14s} corr {v['corr']:.4f}  NRMSE {v['nrmse']:.4f}"
               for name, v in idf.metrics["records"].items()]
-    print("\n".join(lines))
-    return 0
-
-
-def _save(idf, out: str, observer: dict) -> None:
-    from rtlift.model.modelfile import save_model
-
-    try:
-        save_model(idf.model, out, provenance=idf.provenance, metrics=idf.metrics, observer=observer)
-    except OSError as exc:
-        raise UserError(f"{out}: cannot write model file ({exc.strerror})") from None
+    return "\n".join(lines)
 
 
 def _refinement_line(r: dict) -> str:
@@ -196,22 +151,10 @@ def summary(idf, out_path: str, seconds: float) -> str:
 
 def run_generic(args: argparse.Namespace) -> int:
     """``rtlift identify --record F --structure S``: a generic single-input record."""
-    from rtlift.core.records import read_siso_record
-    from rtlift.model.siso import save_siso_model
-    from rtlift.sysid.identify import identify_siso
+    from rtlift.api import identify_record
 
-    if args.order is not None and not 1 <= args.order <= 8:
-        raise UserError(f"--order {args.order}: must be between 1 and 8")
-    rec = read_siso_record(args.record, min_samples=500)
     t0 = time.perf_counter()
-    try:
-        model = identify_siso(rec, args.structure, args.order)
-    except ValueError as exc:
-        raise UserError(f"cannot identify from {args.record}: {exc}") from None
-    try:
-        save_siso_model(model, args.out)
-    except OSError as exc:
-        raise UserError(f"{args.out}: cannot write model file ({exc.strerror})") from None
+    model = identify_record(args.record, structure=args.structure, order=args.order, out=args.out)
     p = model.provenance
     lines = [f"identified {model.structure} model in {time.perf_counter() - t0:.1f} s -> {args.out}"]
     if "bla_order" in p:

@@ -24,7 +24,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from rtlift.app.watch import add_arguments as add_watch_arguments
 
     p = subparsers.add_parser("observe", help="run the Kalman observer live on a serial or CAN link",
-                              description=__doc__.splitlines()[0])
+                              description="Run the Kalman observer live at the model's rate (400 Hz) on "
+                                          "a serial or CAN link: each sample's lift estimate, optionally "
+                                          "written to a file, logged raw for a later replay, and shown "
+                                          "on a live plot. Ctrl-C stops.")
     add_link_arguments(p)
     p.add_argument("--model", required=True, metavar="MODEL.json", help="model file with observer settings")
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
@@ -89,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     message = None
     t0 = time.perf_counter()
     try:
-        writer = EstimateWriter(args.out, {"model": args.model, "fs_hz": "400"}) if args.out else None
+        writer = EstimateWriter(args.out, {"model": args.model, "fs_hz": f"{model.fs_hz:g}"}) if args.out else None
         loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), link.seq_modulus, writer=writer,
                             fs_hz=model.fs_hz, step_stats=True,
                             max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))

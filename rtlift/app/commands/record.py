@@ -25,7 +25,13 @@ from rtlift.core.errors import UserError
 def register(subparsers: argparse._SubParsersAction) -> None:
     from firmware_io.links import add_link_arguments
 
-    p = subparsers.add_parser("record", help="record experiments on a rig over protocol version 2")
+    p = subparsers.add_parser(
+        "record", help="record experiments on a rig over protocol version 2",
+        description="Record experiments on a rig whose DAQ speaks protocol version 2: the host commands the "
+                    "actuator through each program (after an actuator-off tare) and writes DIR/NAME.csv per "
+                    "experiment, ready for rtlift identify. Exit 0 when every record is complete, 1 when one "
+                    "is partial (interrupted, device gone, link too bad), 2 on bad input (including a device "
+                    "that does not echo commands).")
     add_link_arguments(p)
     p.add_argument("experiments", nargs="+", metavar="EXPERIMENT",
                    help="static, single_burst, train_T1p75, train_T3p5, train_T7, sine_k0125, sine_k025, "

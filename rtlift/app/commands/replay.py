@@ -32,7 +32,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from rtlift.app.view.arguments import add_view_argument
 
     p = subparsers.add_parser("replay", help="replay a recorded serial or CAN log through the observer",
-                              description=__doc__.splitlines()[0])
+                              description="Replay a recorded serial or CAN log through the same observer "
+                                          "loop as rtlift observe: the same frames give the same estimates, "
+                                          "bit for bit. As fast as possible, or paced in real time. A log "
+                                          "written by rtlift control is replayed with its controller, which "
+                                          "must send the same commands (exit 1 where they differ).")
     p.add_argument("log", metavar="LOG", help="raw serial capture (.bin/.raw) or CAN log (.asc/.blf/...)")
     p.add_argument("--model", required=True, metavar="MODEL.json", help="model file with observer settings")
     p.add_argument("--realtime", action="store_true", help="pace the replay in real time")
@@ -264,7 +268,8 @@ def run(args: argparse.Namespace) -> int:
     view = start_view(args, f"rtlift replay {args.log}", model.fs_hz)
     data = None
     try:
-        writer = EstimateWriter(args.out, {"model": args.model, "log": args.log, "fs_hz": "400"}) if args.out else None
+        meta = {"model": args.model, "log": args.log, "fs_hz": f"{model.fs_hz:g}"}
+        writer = EstimateWriter(args.out, meta) if args.out else None
         converter = Converter(calibration, model.fs_hz)
         if args.record:
             converter = RecordingConverter(converter)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 
 from rtlift.core.errors import UserError
@@ -26,44 +25,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rtlift.core.records import read_record, read_siso_record, record_kind
-    from rtlift.model.modelfile import load_any_model
-    from rtlift.model.siso import SISO_MODELS
-    from rtlift.model.validation import RecordValidation, plot_validation, validate_record, validation_json
+    from rtlift.api import is_generic, load, read_records
+    from rtlift.api import validate as validate_model
+    from rtlift.model.validation import validation_json
 
-    model = load_any_model(args.model)
-    generic = isinstance(model, SISO_MODELS)
+    model = load(args.model)
+    generic = is_generic(model)
     if args.skip < 0:
         raise UserError(f"--skip {args.skip}: must be 0 or more")
-    for path in args.records:
-        if (record_kind(path) == "siso") != generic:
-            raise UserError(f"{path}: a {'generic t,u,y' if record_kind(path) == 'siso' else 'lift'} record, "
-                            f"but {args.model} is a {'generic' if generic else 'lift'} model")
-    records = [(read_siso_record if generic else read_record)(path, min_samples=args.skip + 2)
-               for path in args.records]
-    stems = [r.name for r in records]
-    dup = {s for s in stems if stems.count(s) > 1}
-    if dup:
-        raise UserError(f"two records share the stem {sorted(dup)[0]!r}; the JSON is keyed by stem")
-    for r in records:
-        if abs(r.fs_hz - model.fs_hz) > 1e-6 * model.fs_hz:
-            raise UserError(f"{r.name}: sampled at {r.fs_hz:g} Hz, the model at {model.fs_hz:g} Hz")
-    if generic:
-        from rtlift.sysid.diagnose import predict, record_scores
-
-        results = [RecordValidation(r.name, record_scores(model, r, args.skip), predict(model, r)) for r in records]
-    else:
-        results = [validate_record(model, r, args.skip) for r in records]
-    if args.figures and generic:
-        raise UserError("--figures draws lift records (measured against the hybrid's parts); "
-                        "not a generic model's")
-    if args.figures:
-        try:
-            os.makedirs(args.figures, exist_ok=True)
-        except OSError as exc:
-            raise UserError(f"{args.figures}: cannot create figure directory ({exc.strerror})") from None
-        for rec, res in zip(records, results, strict=True):
-            plot_validation(rec, res, os.path.join(args.figures, f"{rec.name}.png"))
+    records = read_records(args.records, model, args.skip + 2)
+    results = validate_model(model, records, skip=args.skip, figures=args.figures)
+    stems = [r.name for r in results]
     doc = validation_json(args.model, results)
     if args.json:
         try:

@@ -49,11 +49,11 @@ from typing import Any
 import numpy as np
 
 from rtlift.core.records import Record
-from rtlift.diagnose.inputs import best_match, describe, input_descriptor, nearest_dynamics
-from rtlift.diagnose.misfit import fit_misfit, predicted_misfit, synthetic_residual
-from rtlift.diagnose.residual import TestResult, run_all
 from rtlift.model.hybrid import HybridModel
 from rtlift.model.validation import predict_record
+from rtlift.residual.inputs import best_match, describe, input_descriptor, nearest_dynamics
+from rtlift.residual.misfit import fit_misfit, predicted_misfit, synthetic_residual
+from rtlift.residual.stats import TestResult, run_all
 
 FINGERPRINT_VERSION = 2
 Z_DEPART = 4.0                 # |z| beyond which a statistic has left the fingerprint

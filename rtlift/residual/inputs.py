@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.core.rate import FS_HZ
 from rtlift.core.records import Record
 
 BANDWIDTH_POWER = 0.9          # share of the envelope's AC power below its bandwidth
@@ -74,7 +75,7 @@ def _rel(rel: float, floor: float = 0.0):
 
 TOLERANCES: dict[str, Any] = {
     "burst_period_s": _rel(0.03, 1e-9),
-    "on_time_s": lambda a, b: max(0.03 * max(a, b), 1.01 / 400.0),   # one sample at 400 Hz
+    "on_time_s": lambda a, b: max(0.03 * max(a, b), 1.01 / FS_HZ),   # one sample
     "envelope_hz": _rel(0.05, 1e-3),
     "bandwidth_hz": _rel(0.3, 0.02),
 }

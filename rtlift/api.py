@@ -1,0 +1,239 @@
+"""The Python API of ``rtlift identify``, ``validate`` and ``diagnose``: the functions those
+commands call, for scripts and notebooks (docs/API.md has a runnable example).
+
+Records and models may be given as paths or as loaded objects (:class:`~rtlift.core.records.Record`
+for lift records, :class:`~rtlift.core.records.SisoRecord` for generic ``t,u,y`` records; a
+:class:`~rtlift.model.hybrid.HybridModel` or a generic model from :func:`identify_record`). Bad
+input raises :class:`~rtlift.core.errors.UserError` with the one line the command prints.
+
+- :func:`identify` — the hybrid lift model from a campaign (static sweep, single bursts,
+  training record; ``structure="interaction"`` also the burst trains), observer settings tuned;
+- :func:`identify_record` — a single-input model of one generic ``t,u,y`` record;
+- :func:`validate` — ρ, NRMSE and RMSE of a model on records, free run from rest (figures optional);
+- :func:`diagnose` — what the model misses: the report and the augmented model (written to
+  ``out`` as ``report.json``, ``report.md`` and ``model_augmented.json`` when given).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from rtlift.core.errors import UserError, require_finite
+
+PathLike = str | os.PathLike
+LIFT_STRUCTURES = ("paper", "interaction")
+GENERIC_STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback", "store_chain")
+
+
+def _lift(record: Any, min_samples: int = 2):
+    from rtlift.core.records import read_record
+
+    return read_record(record, min_samples=min_samples) if isinstance(record, (str, os.PathLike)) else record
+
+
+def _generic(record: Any, min_samples: int = 2):
+    from rtlift.core.records import read_siso_record
+
+    return read_siso_record(record, min_samples=min_samples) if isinstance(record, (str, os.PathLike)) else record
+
+
+def load(model: Any):
+    """A model object from a path (lift or generic, by what the file holds) or as given."""
+    from rtlift.model.modelfile import load_any_model
+
+    return load_any_model(model) if isinstance(model, (str, os.PathLike)) else model
+
+
+def is_generic(model: Any) -> bool:
+    """Is ``model`` a single-input model of generic ``t,u,y`` records (not a lift model)?"""
+    from rtlift.model.siso import SISO_MODELS
+
+    return isinstance(model, SISO_MODELS)
+
+
+def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any] = (), structure: str = "paper",
+             order: int | None = None, form: str = "auto", phi: str = "auto", dead_time: int | None = None,
+             kernel: str = "auto", out: PathLike | None = None):
+    """The hybrid lift model of a campaign (``rtlift identify --static --single-burst --train``):
+    an identification result whose ``.model`` carries its observer settings (Q, R tuned on the
+    training record) and whose ``.provenance``/``.metrics`` are what the model file stores;
+    written to ``out`` when given. ``structure="interaction"`` learns burst-burst interaction
+    from ``trains`` (``form``, ``phi`` and ``dead_time`` are then fixed by the structure)."""
+    from rtlift.observer import tune_observer
+
+    if structure not in LIFT_STRUCTURES:
+        raise UserError(f"structure {structure!r}: a lift campaign takes {' or '.join(LIFT_STRUCTURES)}")
+    if order is not None and not 1 <= order <= 8:
+        raise UserError(f"--order {order}: must be between 1 and 8")
+    if dead_time is not None and not 0 <= dead_time <= 80:
+        raise UserError(f"--dead-time {dead_time}: must be between 0 and 80 samples")
+    files = {"static": static, "single_burst": single_burst, "trains": list(trains), "train": train}
+    static, single_burst = _lift(static, 50), _lift(single_burst, 50)
+    train = _lift(train, 200)
+    trains = [_lift(r, 200) for r in trains]
+    names = ", ".join(str(f) for f in (files["static"], files["single_burst"], *files["trains"], files["train"]))
+    try:
+        if structure == "interaction":
+            from rtlift.identify.interaction import InteractionOptions, identify_interaction
+
+            fixed = [f"--{k.replace('_', '-')}" for k, v, default in
+                     (("form", form, "auto"), ("phi", phi, "auto"), ("dead_time", dead_time, None)) if v != default]
+            if fixed:
+                raise UserError(f"{', '.join(fixed)}: not choices of --structure interaction (the paper's "
+                                "N(Cmu)*y form, single-burst phi, no dead time)")
+            idf = identify_interaction(static, single_burst, trains, train, InteractionOptions(order=order))
+        else:
+            from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
+
+            idf = identify_hybrid(static, single_burst, train, IdentifyOptions(
+                order=order, form=form, phi=phi, dead_time=dead_time, kernel=kernel))
+    except ValueError as exc:
+        raise UserError(f"cannot identify from {names}: {exc}") from None
+    observer = {**idf.observer, **tune_observer(idf.model, [train])}   # Q, R from the data, for rtlift observe
+    require_finite("observer tuning", train.name, observer=observer)
+    idf.model.observer_config = observer
+    if all(isinstance(f, (str, os.PathLike)) for f in (files["static"], files["single_burst"], files["train"])):
+        idf.provenance["files"] = {k: [str(f) for f in v] if k == "trains" else str(v) for k, v in files.items()
+                                   if k != "trains" or structure == "interaction"}
+    if out is not None:
+        from rtlift.model.modelfile import save_model
+
+        try:   # no clock in the file: the same inputs give the same bytes
+            save_model(idf.model, out, provenance=idf.provenance, metrics=idf.metrics, observer=observer)
+        except OSError as exc:
+            raise UserError(f"{out}: cannot write model file ({exc.strerror})") from None
+    return idf
+
+
+def identify_record(record: Any, *, structure: str = "wiener", order: int | None = None,
+                    out: PathLike | None = None):
+    """A single-input model of one generic ``t,u,y`` record (``rtlift identify --record``), its
+    ``.metrics`` holding the held-out and training RMSE; written to ``out`` when given."""
+    from rtlift.model.siso import save_siso_model
+    from rtlift.sysid.identify import identify_siso
+
+    if structure not in GENERIC_STRUCTURES:
+        raise UserError(f"structure {structure!r}: a generic record takes {', '.join(GENERIC_STRUCTURES)}")
+    if order is not None and not 1 <= order <= 8:
+        raise UserError(f"--order {order}: must be between 1 and 8")
+    rec = _generic(record, 500)
+    try:
+        model = identify_siso(rec, structure, order)
+    except ValueError as exc:
+        raise UserError(f"cannot identify from {record if isinstance(record, (str, os.PathLike)) else rec.name}: "
+                        f"{exc}") from None
+    if out is not None:
+        try:
+            save_siso_model(model, out)
+        except OSError as exc:
+            raise UserError(f"{out}: cannot write model file ({exc.strerror})") from None
+    return model
+
+
+def read_records(records: Sequence[Any], model: Any, min_samples: int = 2) -> list:
+    """The records (paths read, objects as given) of the kind ``model`` takes, at its rate, with
+    distinct names (one-line :class:`UserError` otherwise)."""
+    from rtlift.core.records import record_kind
+
+    generic = is_generic(model)
+    for r in records:
+        if isinstance(r, (str, os.PathLike)) and (record_kind(r) == "siso") != generic:
+            raise UserError(f"{r}: a {'generic t,u,y' if record_kind(r) == 'siso' else 'lift'} record, "
+                            f"but the model is a {'generic' if generic else 'lift'} model")
+    recs = [(_generic if generic else _lift)(r, min_samples) for r in records]
+    stems = [r.name for r in recs]
+    dup = {s for s in stems if stems.count(s) > 1}
+    if dup:
+        raise UserError(f"two records share the stem {sorted(dup)[0]!r}; the results are keyed by stem")
+    for r in recs:
+        if abs(r.fs_hz - model.fs_hz) > 1e-6 * model.fs_hz:
+            raise UserError(f"{r.name}: sampled at {r.fs_hz:g} Hz, the model at {model.fs_hz:g} Hz")
+    return recs
+
+
+def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: PathLike | None = None) -> list:
+    """ρ, NRMSE and RMSE of ``model`` on each record (``rtlift validate``): the model runs from
+    rest over the whole record, scored from sample ``skip``; one
+    :class:`~rtlift.model.validation.RecordValidation` per record (``.name``, ``.scores``,
+    ``.output``), and one figure per record into ``figures`` when given."""
+    from rtlift.model.validation import (
+        RecordValidation,
+        plot_generic_validation,
+        plot_validation,
+        validate_record,
+    )
+
+    model = load(model)
+    generic = is_generic(model)
+    if skip < 0:
+        raise UserError(f"--skip {skip}: must be 0 or more")
+    recs = read_records(records, model, skip + 2)
+    if generic:
+        from rtlift.sysid.diagnose import predict, record_scores
+
+        results = [RecordValidation(r.name, record_scores(model, r, skip), predict(model, r)) for r in recs]
+    else:
+        results = [validate_record(model, r, skip) for r in recs]
+    if figures is not None:
+        try:
+            os.makedirs(figures, exist_ok=True)
+        except OSError as exc:
+            raise UserError(f"{figures}: cannot create figure directory ({exc.strerror})") from None
+        for rec, res in zip(recs, results, strict=True):
+            path = Path(figures) / f"{rec.name}.png"
+            if generic:
+                plot_generic_validation(rec, res, path, skip)
+            else:
+                plot_validation(rec, res, path)
+    return results
+
+
+def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike | None = None, skip: int = 0,
+             score_from: Sequence[int] | None = None, sources: dict[str, Any] | None = None,
+             split: dict[str, Any] | None = None) -> tuple[dict[str, Any], Any]:
+    """What ``model`` misses (``rtlift diagnose --train --validate``): candidate effects (a lift
+    model) or structures (a generic model) fitted on ``train`` and judged on ``validate``.
+    Returns ``(report, augmented_model)``; the report has INTERFACES.md's keys (``baseline``,
+    ``augmented``, ``effects``, ``unexplained`` …). With ``out``: ``report.json``, ``report.md``
+    and ``model_augmented.json`` written there (a lift model's report also has figures and
+    ``residual_tests.json``). ``skip``: generic records' unscored first samples; ``score_from``:
+    per validation record, the first scored sample, and ``split`` how one long run was split in
+    two (``rtlift diagnose --run``; recorded in the report)."""
+    model = load(model)
+    generic = is_generic(model)
+    if out is not None:
+        try:
+            os.makedirs(out, exist_ok=True)
+        except OSError as exc:
+            raise UserError(f"{out}: cannot create output directory ({exc.strerror})") from None
+    if generic:
+        from rtlift.sysid.diagnose import diagnose_siso, write_report
+
+        train = _generic(train, skip + 50)
+        validate = [_generic(r, skip + 50) for r in validate]
+        report, augmented = diagnose_siso(model, train, validate, skip,
+                                          validate_skip=None if score_from is None else list(score_from))
+        _note_split(report, split)
+        if out is not None:
+            write_report(report, augmented, out)
+        return report, augmented
+    from rtlift.diagnose import DiagnoseOptions
+    from rtlift.diagnose import diagnose as diagnose_lift
+    from rtlift.diagnose.report import write
+
+    train = _lift(train)
+    validate = [_lift(r) for r in validate]
+    diag = diagnose_lift(model, train, validate, DiagnoseOptions(), None if score_from is None else list(score_from))
+    _note_split(diag.report, split)
+    if out is not None:
+        write(diag, str(out), sources)
+    return diag.report, diag.augmented
+
+
+def _note_split(report: dict[str, Any], split: dict[str, Any] | None) -> None:
+    if split is not None:
+        report["split"] = split
+        report["scoring"] += f"; one run split at sample {split['train_samples'][1]}: {split['how']}"
