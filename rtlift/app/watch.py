@@ -29,8 +29,8 @@ from rtlift.core.errors import UserError
 
 def add_arguments(p: argparse.ArgumentParser, adapt: bool = True) -> None:
     p.add_argument("--monitor", choices=("on", "off"), default="on",
-                   help="compare the loop's residual with the model's identification fingerprint in sliding "
-                        "windows and report departures (default on)")
+                   help="on: compare the loop's residual with the model's identification fingerprint in "
+                        "sliding windows and report departures (the default); off: no monitor")
     if not adapt:
         return
     p.add_argument("--adapt", metavar="DIR",
