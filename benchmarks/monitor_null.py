@@ -72,7 +72,8 @@ def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (),
     """A clean closed loop in this process: the bench as a HIL plant (:class:`hil_sim.hil.HilStream`
     under a host control that applies every decision at the next burst onset, as the firmware does),
     the observer, :class:`rtlift.app.control.LiftController` with feedback, and the monitor stepped
-    as the live loop steps it; the reference (repeated every 120 s) starts after a 2 s tare."""
+    as the live loop steps it, from the tare on (no measurement then); the reference (repeated
+    every 120 s) starts after the 2 s tare."""
     from types import SimpleNamespace
 
     from hil_sim.hil import HilStream
@@ -99,9 +100,10 @@ def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (),
         cmu = np.asarray(cal.cmu_from_volts(piece.volts), dtype=float).tolist()
         env = np.asarray(cal.cmu_from_volts(piece.envelope_volts), dtype=float).tolist()
         for j, c in enumerate(cl.tolist()):
-            if k < tare_n:
+            if k < tare_n:       # as the live loop: the observer and the monitor run through the tare
                 tare.append(c)
                 est = obs.step(cmu[j], env[j], None)
+                mon.step(None, est.model_dcl, est.innovation)
             else:
                 if tare_cl is None:
                     tare_cl = float(np.mean(tare))

@@ -108,7 +108,7 @@ def test_a_clean_closed_loop_raises_nothing(bench_model, seed):
 
 
 ONSET_S = 20.0
-TARE_S = 2.0        # the in-process loop's monitor starts after the tare: its t = device t − 2 s
+TARE_S = 2.0        # the in-process loop's tare: the monitor's clock starts with it, the effects' too
 
 
 @pytest.mark.parametrize("effect, suspect", [
@@ -117,16 +117,15 @@ TARE_S = 2.0        # the in-process loop's monitor starts after the tare: its t
 def test_a_fade_setting_in_is_raised_within_ten_seconds(bench_model, effect, suspect):
     mon = closed_loop(bench_model, 302, 80.0, (effect,))
     first = mon.departures[0]
-    assert ONSET_S - TARE_S < first["t_s"], mon.departures        # nothing before the onset
+    assert ONSET_S < first["t_s"], mon.departures        # nothing before the onset
     # measured: 15 s after the onset (the issue asks 10 s; thresholds that also hold on the independent
-    # plant's clean records cost the difference), named "actuator_fade or zero_drift"; the gain test
-    # names the fade alone later, and the diagnosis --adapt runs decides
-    assert first["t_s"] <= ONSET_S - TARE_S + 16.0, mon.departures
-    assert suspect in first["suspect"]
-    assert any(d["suspect"] == suspect for d in mon.departures if d["t_s"] <= ONSET_S - TARE_S + 40.0)
+    # plant's clean records cost the difference), named "actuator_fade or zero_drift": the diagnosis
+    # that --adapt runs decides between them
+    assert first["t_s"] <= ONSET_S + 16.0, mon.departures
+    assert suspect in first["suspect"], mon.departures
 
 
 def test_a_pickup_is_raised_at_once_and_named(bench_model):
     mon = closed_loop(bench_model, 303, 30.0, ("periodic_disturbance:frequency_hz=20,amplitude=0.006",))
     assert [d["suspect"] for d in mon.departures] == ["periodic_disturbance at 20.00 Hz"]
-    assert mon.departures[0]["t_s"] <= 6.0 + 2.0
+    assert mon.departures[0]["t_s"] <= TARE_S + 6.0 + 2.0     # the tare, a window, the persistence
