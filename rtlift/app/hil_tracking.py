@@ -84,19 +84,21 @@ def truth_rmse(truth: np.ndarray, reference: np.ndarray, fs_hz: float = FS_HZ) -
 
 
 class BenchTracking:
-    """One closed-loop run: the bench (in this process) and ``rtlift control`` (a subprocess)."""
+    """One closed-loop run: the bench (in this process) and ``rtlift control`` (a subprocess);
+    ``gust`` a lift disturbance on the bench's truth (``F:A,...``, :mod:`hil_sim.gust`)."""
 
     def __init__(self, model: str, reference: str, feedback: bool, seconds: float, out_json: str, *,
                  seed: int = 11, effects: tuple[str, ...] = (FADE,), can: bool = False,
-                 experiment: str = "random") -> None:
+                 experiment: str = "random", gust: str | None = None) -> None:
         from hil_sim.devices import SerialDaq, SlcanAdapter
+        from hil_sim.gust import parse_gust
         from hil_sim.hil import HilStream
 
         self.reference = reference
         self.feedback = feedback
         self.seconds = seconds
         self.out_json = out_json
-        self.stream = HilStream(experiment, seed=seed, effects=list(effects))
+        self.stream = HilStream(experiment, seed=seed, effects=list(effects), gust=parse_gust(gust))
         self.device = (SlcanAdapter if can else SerialDaq)(self.stream)
         self.stream.control = self.device.control
         link = ["--can", f"slcan:{self.device.path}"] if can else ["--serial", self.device.path]
