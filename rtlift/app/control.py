@@ -8,11 +8,15 @@ the burst ripple (the high-passed convolution) has no mean. Its static map is th
 
 concave and saturating. :class:`LiftController` implements
 
-    v = r + K_p ē + I,        u = S⁻¹(v) clamped to [0, Cμ_max]
+    v = r + K_p ē_f + I,        u = S⁻¹(v) clamped to [0, Cμ_max]
 
 with ``ē`` the tracking error ``r − ΔĈL`` averaged over one burst period (the ripple's
-period, so the average removes it), ``r`` the reference and ``I`` the integral of
-``(T / T_i) ē``. With the feedback off, ``u = S⁻¹(r)``: pure feedforward through the
+period, so the average removes it), ``ē_f`` it through the lead–lag ``g (Z − a)/(Z − b)``
+at the burst rate (none when a = b = 0), ``r`` the reference and ``I`` the integral of
+``(T / T_i) ē_f``. ``rtlift control`` takes (K_p, T_i, a, b) from the design made with
+python-control on the identified model (:mod:`rtlift.app.control_design`), scheduled over
+Cμ; the hand-set PI below (K_p 0.5, T_i 0.25 s, no lead) is what ``--kp``/``--ti`` replace.
+With the feedback off, ``u = S⁻¹(r)``: pure feedforward through the
 inverse of the identified static map and DC gain. Working in ΔCL units before the inverse
 makes the loop gain independent of the operating point (the map's slope varies about 5× over
 its range), so one pair (K_p, T_i) serves the whole range.
@@ -39,6 +43,7 @@ decides a new envelope every ``period`` samples (``updated`` is true then: send 
 
 from __future__ import annotations
 
+import json
 import math
 from bisect import bisect_right
 from dataclasses import dataclass
@@ -58,8 +63,11 @@ MAP_POINTS = 201
 
 @dataclass(frozen=True)
 class ControlConfig:
-    """Controller settings: ``kp`` (ΔCL per ΔCL), ``ti_s`` integral time (s), ``feedback``,
-    ``cmu_max`` actuator limit as Cμ, ``period`` samples between envelope updates."""
+    """Controller settings: ``kp`` (ΔCL per ΔCL), ``ti_s`` integral time (s), ``lead_zero`` a
+    and ``lead_pole`` b of the lead–lag g (Z − a)/(Z − b) on the averaged error (0, 0: none),
+    ``schedule`` rows ``(Cμ, kp, ti_s, a, b)`` in increasing Cμ that replace the four by their
+    interpolation at the feedforward's Cμ (:mod:`rtlift.app.control_design` designs them),
+    ``feedback``, ``cmu_max`` actuator limit as Cμ, ``period`` samples between envelope updates."""
 
     kp: float = 0.5
     ti_s: float = 0.25
@@ -67,6 +75,9 @@ class ControlConfig:
     cmu_max: float = DEFAULT_CMU_MAX
     period: int = BURST_PERIOD_SAMPLES
     fs_hz: float = FS_HZ
+    lead_zero: float = 0.0
+    lead_pole: float = 0.0
+    schedule: tuple[tuple[float, float, float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("kp", "ti_s", "cmu_max", "fs_hz"):
@@ -75,6 +86,32 @@ class ControlConfig:
                 raise ValueError(f"control {name} must be a positive number, got {v!r}")
         if not isinstance(self.period, int) or self.period < 1:
             raise ValueError(f"control period must be a positive integer, got {self.period!r}")
+        rows = [(0.0, self.kp, self.ti_s, self.lead_zero, self.lead_pole), *self.schedule]
+        for cmu, kp, ti, a, b in rows:
+            if not (kp >= 0 and ti > 0 and abs(a) < 1 and abs(b) < 1 and math.isfinite(kp + ti + cmu)):
+                raise ValueError(f"control gains must have kp >= 0, ti_s > 0, |a| < 1, |b| < 1; got "
+                                 f"{(kp, ti, a, b)!r}")
+        if any(r1[0] >= r2[0] for r1, r2 in zip(self.schedule, self.schedule[1:], strict=False)):
+            raise ValueError("control schedule: Cμ must increase from row to row")
+
+
+def gains_text(cfg: ControlConfig) -> str:
+    """The feedback gains of ``cfg`` as one line of JSON (a command log's ``gains`` metadata:
+    ``rtlift replay`` rebuilds the same controller from it, floats exact)."""
+    return json.dumps({"kp": cfg.kp, "ti_s": cfg.ti_s, "lead_zero": cfg.lead_zero, "lead_pole": cfg.lead_pole,
+                       "schedule": [list(row) for row in cfg.schedule]})
+
+
+def config_from_gains_text(text: str, feedback: bool, fs_hz: float) -> ControlConfig:
+    """The :class:`ControlConfig` :func:`gains_text` wrote (:class:`UserError` if garbled)."""
+    try:
+        d = json.loads(text)
+        return ControlConfig(kp=float(d["kp"]), ti_s=float(d["ti_s"]), lead_zero=float(d["lead_zero"]),
+                             lead_pole=float(d["lead_pole"]),
+                             schedule=tuple(tuple(float(v) for v in row) for row in d["schedule"]),
+                             feedback=feedback, fs_hz=fs_hz)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise UserError(f"control gains {text[:60]!r}: not valid ({exc})") from None
 
 
 def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> float:
@@ -110,8 +147,34 @@ class LiftController:
             raise UserError("model: its static map does not increase with Cμ; cannot invert it for control")
         self.dcl_min = self._map_dcl[0]
         self.dcl_max = self._map_dcl[-1]
-        self._gain_i = cfg.period / (cfg.fs_hz * cfg.ti_s)
+        self._rows = [tuple(float(v) for v in row) for row in cfg.schedule]
+        self._set_gains(cfg.kp, cfg.ti_s, cfg.lead_zero, cfg.lead_pole)
         self.reset()
+
+    def _set_gains(self, kp: float, ti_s: float, a: float, b: float) -> None:
+        cfg = self.config
+        self.kp = kp
+        self._gain_i = cfg.period / (cfg.fs_hz * ti_s)
+        self._a = a
+        self._b = b
+        self._g = (1.0 - b) / (1.0 - a)
+
+    def _schedule_at(self, cmu: float) -> None:
+        """Gains of the schedule at ``cmu`` (linear between rows, held beyond them)."""
+        rows = self._rows
+        if cmu <= rows[0][0]:
+            self._set_gains(rows[0][1], rows[0][2], rows[0][3], rows[0][4])
+            return
+        for j in range(1, len(rows)):
+            hi = rows[j]
+            if cmu < hi[0]:
+                lo = rows[j - 1]
+                w = (cmu - lo[0]) / (hi[0] - lo[0])
+                self._set_gains(lo[1] + w * (hi[1] - lo[1]), lo[2] + w * (hi[2] - lo[2]),
+                                lo[3] + w * (hi[3] - lo[3]), lo[4] + w * (hi[4] - lo[4]))
+                return
+        last = rows[-1]
+        self._set_gains(last[1], last[2], last[3], last[4])
 
     def reset(self) -> None:
         self.feedforward = 0.0
@@ -122,6 +185,9 @@ class LiftController:
         self.saturated = False
         """Whether the last decision sat at an actuator limit."""
         self.updated = False
+        self._filtered = 0.0
+        """The lead–lag's output (ΔCL), what the PI acts on."""
+        self._last_err = 0.0
         self._count = 0
         self._err_sum = 0.0
         self._ref_sum = 0.0
@@ -163,8 +229,13 @@ class LiftController:
         self.feedforward = self.inverse(ref)
         v = ref
         if cfg.feedback and self._n:
-            err = self._err_sum / self._n
-            v = ref + cfg.kp * err + self.integral
+            if self._rows:
+                self._schedule_at(self.feedforward)
+            e = self._err_sum / self._n
+            err = self._b * self._filtered + self._g * (e - self._a * self._last_err)
+            self._filtered = err
+            self._last_err = e
+            v = ref + self.kp * err + self.integral
             lo, hi = self.dcl_min, self.dcl_max
             pushing_high = v >= hi and err > 0.0
             pushing_low = v <= lo and err < 0.0
@@ -172,7 +243,7 @@ class LiftController:
                 self.integral += self._gain_i * err
                 span = hi - lo
                 self.integral = min(max(self.integral, -span), span)
-                v = ref + cfg.kp * err + self.integral
+                v = ref + self.kp * err + self.integral
         self.saturated = v >= self.dcl_max or v <= self.dcl_min
         self.envelope = self.inverse(v)
         self._count = 0
