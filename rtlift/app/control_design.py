@@ -117,7 +117,7 @@ class PointDesign:
     def sensitivity(self, f_hz: np.ndarray, dt: float) -> np.ndarray:
         """Predicted S(e^{jωT}) = 1/(1 + L) at the frequencies ``f_hz`` (complex)."""
         z = np.exp(2j * np.pi * np.asarray(f_hz, dtype=float) * dt)
-        return 1.0 / (1.0 + self.gains.response(z) * _plant_response(self.plant, z))
+        return 1.0 / (1.0 + self.gains.response(z) * plant_response(self.plant, z))
 
 
 @dataclass
@@ -160,7 +160,7 @@ def plant_tf(p: list[float] | np.ndarray, dt: float) -> Any:
     return ct.tf(p, np.r_[1.0, np.zeros(len(p) - 1)], dt)
 
 
-def _plant_response(p: list[float] | np.ndarray, z: np.ndarray) -> np.ndarray:
+def plant_response(p: list[float] | np.ndarray, z: np.ndarray) -> np.ndarray:
     return np.polyval(np.asarray(p, dtype=float)[::-1], 1.0 / z)
 
 
@@ -187,7 +187,7 @@ def lifted_plant(model: Any, controller: LiftController, dcl0: float, *, period:
 
 def _grid_metrics(g: Gains, p: np.ndarray, z: np.ndarray, f: np.ndarray) -> tuple[float, float, float, float]:
     """(GM dB, PM deg, peak |S| dB, f₆ Hz) on the grid (the search's fast estimate)."""
-    L = g.response(z) * _plant_response(p, z)
+    L = g.response(z) * plant_response(p, z)
     mag = np.abs(L)
     cross = np.flatnonzero(np.diff(np.sign(mag - 1.0)))
     pm = min((180.0 - abs(math.degrees(np.angle(L[k]))) for k in cross), default=180.0)
