@@ -84,7 +84,7 @@ def main() -> None:
     point = design.nearest(args.level)
     if args.hand:   # the prediction for the hand-set gains on the same lifted plant
         from rtlift.app.control_design import Gains, check_point
-        point = check_point(point.cmu, point.dcl, np.asarray(point.plant),
+        point = check_point(point.cmu, point.dcl, np.asarray(point.plant), np.asarray(point.plant_point),
                             Gains(0.5, design.dt / 0.25), design.dt)
     ref = f"steps:{args.level}@0"
 
