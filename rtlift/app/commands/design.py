@@ -81,10 +81,12 @@ def _markdown(design, doc: dict, model: str) -> str:
     t = design.targets
     lines = [f"# Lift-loop design for `{model}`", "",
              f"Burst-rate loop (T = {design.dt:g} s, decisions {design.margin} samples before each onset); "
-             f"targets: gain margin >= {t.gm_db:g} dB, phase margin >= {t.pm_deg:g} deg, |S| <= {t.peak_db:g} dB. "
+             f"targets: gain margin >= {t.gm_db:g} dB, phase margin >= {t.pm_deg:g} deg, "
+             f"|S| <= {t.peak_db:g} dB. "
              "v - r = C(Z) e_mean + Kx (e_last - e_mean), C(Z) = (Kp + Ki Z/(Z-1)) g (Z-a)/(Z-b), in ΔCL per ΔCL; margins and crossover from "
              "python-control (`stability_margins`).", "",
-             "| Cμ | ΔCL | Kp | Ti (s) | a | b | Kx | GM (dB) | PM (deg) | crossover (Hz) | max abs S (dB) | f6 (Hz) |",
+             "| Cμ | ΔCL | Kp | Ti (s) | a | b | Kx | GM (dB) | PM (deg) | crossover (Hz) | max abs S (dB) "
+             "| f6 (Hz) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in design.points:
         gm = "inf" if not math.isfinite(p.gm_db) else f"{p.gm_db:.1f}"
