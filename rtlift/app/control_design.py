@@ -8,13 +8,15 @@ controller's ΔCL-valued output ``v`` (before the inverse static map) to each of
 measurements, the plant is an exact discrete-time system at the burst period T (a lifted
 system):
 
-    P_A(Z) = Σ_j p_j Z⁻ʲ,   p_j = ∂ ⟨ΔCL⟩_window j / ∂ v_0;   P_X(Z) = Σ_j q_j Z⁻ʲ,  q_j = ∂ ΔCL(end of window j) / ∂ v_0
+    P_A(Z) = Σ_j p_j Z⁻ʲ,   p_j = ∂ ⟨ΔCL⟩_window j / ∂ v_0
+    P_X(Z) = Σ_j q_j Z⁻ʲ,   q_j = ∂ ΔCL(end of window j) / ∂ v_0
 
 linearised at the operating point ΔCL₀ = S(Cμ₀): the model's response (the Wiener LTI with the
 static map's local gain, the high-passed burst convolution with its ripple, the input stages)
 to a small one-period pulse of ``v`` through the controller's own inverse map, bursts on at
 every onset (central differences, ±2 %). The hold (one period from the onset), the margin
-and the window are all in it; ``p_0 = q_0 = 0`` (the window ends before the onset). In ΔCL units ``Σ p_j`` ≈ 1 at every operating point; what changes
+and the window are all in it; ``p_0 = q_0 = 0`` (the window ends before the onset). In ΔCL
+units ``Σ p_j`` ≈ 1 at every operating point; what changes
 with Cμ is the shape (the burst convolution is linear in Cμ while the map's slope falls 2–5×
 over its range), hence a gain schedule over Cμ.
 
@@ -295,7 +297,8 @@ def check_point(cmu: float, dcl: float, p: np.ndarray, q: np.ndarray, g: Gains, 
     f = np.geomspace(0.005, 0.5 / dt - 1e-3, 2000)
     z = np.exp(2j * np.pi * f * dt)
     _, _, peak, f6 = _grid_metrics(g, p, q, z, f)
-    return PointDesign(cmu, dcl, [float(v) for v in p], [float(v) for v in q], g, 20.0 * math.log10(gm) if np.isfinite(gm) else math.inf,
+    gm_db = 20.0 * math.log10(gm) if np.isfinite(gm) else math.inf
+    return PointDesign(cmu, dcl, [float(v) for v in p], [float(v) for v in q], g, gm_db,
                        float(pm), float(wgc) / (2.0 * math.pi), peak, f6, stable)
 
 

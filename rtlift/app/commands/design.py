@@ -83,15 +83,16 @@ def _markdown(design, doc: dict, model: str) -> str:
              f"Burst-rate loop (T = {design.dt:g} s, decisions {design.margin} samples before each onset); "
              f"targets: gain margin >= {t.gm_db:g} dB, phase margin >= {t.pm_deg:g} deg, "
              f"|S| <= {t.peak_db:g} dB. "
-             "v - r = C(Z) e_mean + Kx (e_last - e_mean), C(Z) = (Kp + Ki Z/(Z-1)) g (Z-a)/(Z-b), in ΔCL per ΔCL; margins and crossover from "
-             "python-control (`stability_margins`).", "",
+             "v - r = C(Z) e_mean + Kx (e_last - e_mean), C(Z) = (Kp + Ki Z/(Z-1)) g (Z-a)/(Z-b), "
+             "in ΔCL per ΔCL; margins and crossover from python-control (`stability_margins`).", "",
              "| Cμ | ΔCL | Kp | Ti (s) | a | b | Kx | GM (dB) | PM (deg) | crossover (Hz) | max abs S (dB) "
              "| f6 (Hz) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in design.points:
         gm = "inf" if not math.isfinite(p.gm_db) else f"{p.gm_db:.1f}"
         lines.append(f"| {p.cmu:.4f} | {p.dcl:.3f} | {p.gains.kp:.3f} | {design.dt / p.gains.ki:.3f} | "
-                     f"{p.gains.a:.3f} | {p.gains.b:.3f} | {p.gains.kx:.3f} | {gm} | {p.pm_deg:.1f} | {p.crossover_hz:.3f} | "
+                     f"{p.gains.a:.3f} | {p.gains.b:.3f} | {p.gains.kx:.3f} | {gm} | {p.pm_deg:.1f} | "
+                     f"{p.crossover_hz:.3f} | "
                      f"{p.peak_s_db:+.2f} | {p.f6_hz:.3f} |")
     ps = doc["predicted_s_db"]
     lines += ["", "Predicted |S| (dB) at the gust frequencies:", "",
