@@ -12,7 +12,11 @@ operating point (:mod:`rtlift.app.control_design`). ``f6_hz``: the frequency up 
 suppression is ≥ 6 dB (log-interpolated crossing). Then step tracking under a 70 % actuator
 fade (the steps of ``benchmarks/control_loop.py``), feedforward only vs feedback, RMSE on the
 truth low-passed at 1 Hz; and the envelope at the constant reference without a gust (no limit
-cycle at the burst-period update: its burst-to-burst change beside its spread). ``--hand``
+cycle at the burst-period update: its burst-to-burst change beside its spread). ``--pty F,F,...``
+repeats those frequencies through the real links as ``rtlift control`` runs (a subprocess on the
+serial pseudo-terminal of the bench, real time, feedforward and feedback side by side;
+:class:`~rtlift.app.hil_tracking.BenchTracking`). ``--peak-db`` sets the design's bound on
+|S|. ``--hand``
 measures the hand-set PI (K_p 0.5, T_i 0.25 s) instead of the design. ``--figure`` draws the
 Bode plot of the design with the measured points, and the envelope traces. Prints a table, then
 one JSON line.
@@ -62,7 +66,7 @@ def crossing_hz(freqs: list[float], db: list[float], level: float = -6.0) -> flo
 
 def main() -> None:
     from rtlift.app.control import ControlConfig, LiftController
-    from rtlift.app.control_design import design_loop
+    from rtlift.app.control_design import Targets, design_loop
     from rtlift.app.hil_tracking import InProcessTracking, reference_values, truth_rmse
     from rtlift.model.modelfile import load_model
 
@@ -73,10 +77,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--hand", action="store_true", help="the hand-set PI instead of the design")
     ap.add_argument("--figure", metavar="PNG", help="Bode plot with the measured points, envelope traces")
+    ap.add_argument("--peak-db", type=float, default=3.0, help="the design's |S| bound (dB, default 3)")
+    ap.add_argument("--pty", metavar="F,F,...", help="also measure these frequencies live over the serial pty")
     args = ap.parse_args()
     model = load_model(args.model)
     t0 = time.perf_counter()
-    design = design_loop(model)
+    design = design_loop(model, Targets(peak_db=args.peak_db))
     design_s = time.perf_counter() - t0
     fb_config = (ControlConfig(fs_hz=model.fs_hz) if args.hand
                  else ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule()))
@@ -135,16 +141,46 @@ def main() -> None:
           f"ratio {tracking['fb'] / tracking['ff']:.2f}")
     print(f"envelope at a constant reference: std {envelope['std_v']:.3f} V, burst-to-burst rms "
           f"{envelope['burst_to_burst_rms_v']:.3f} V, lag-1 correlation {envelope['lag1_correlation']:.2f}")
+    live = _live(args, point, design) if args.pty else []
+    for r in live:
+        print(f"live over the serial pty: {r['f_hz']:g} Hz measured {r['suppression_db']:+.2f} dB "
+              f"(predicted {r['predicted_s_db']:+.2f} dB; lost {r['lost']}, commands applied {r['applied']})")
     if args.figure:
         _figure(args.figure, design, point, rows, quiet, args)
     emit({"rows": rows, "gains": "hand" if args.hand else "design", "level": args.level,
-          "amplitude": args.amplitude, "loop": "in-process (InProcessTracking)",
+          "amplitude": args.amplitude, "peak_db_target": args.peak_db, "loop": "in-process (InProcessTracking)",
           "f6_hz_measured": crossing_hz(freqs, measured), "f6_hz_predicted": point.f6_hz,
           "max_amplification_db": max(measured), "max_abs_error_below_1hz_db": max(below_1),
           "design": {"gm_db": point.gm_db, "pm_deg": point.pm_deg, "crossover_hz": point.crossover_hz,
                      "peak_s_db": point.peak_s_db, "seconds": design_s},
           "tracking_rmse_ff": tracking["ff"], "tracking_rmse_fb": tracking["fb"],
-          "tracking_ratio": tracking["fb"] / tracking["ff"], "envelope": envelope})
+          "tracking_ratio": tracking["fb"] / tracking["ff"], "envelope": envelope, "live_rows": live})
+
+
+def _live(args, point, design) -> list[dict]:
+    """The ``--pty`` frequencies through ``rtlift control`` on the serial pty, real time."""
+    import tempfile
+
+    from rtlift.app.hil_tracking import BenchTracking
+
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for f in (float(x) for x in args.pty.split(",")):
+            seconds = SETTLE_S + max(12.0, 3.0 / f)
+            runs = {fb: BenchTracking(args.model, f"steps:{args.level}@0", fb, seconds,
+                                      os.path.join(tmp, f"{f}_{fb}.json"), seed=args.seed, effects=(),
+                                      gust=f"{f:g}:{args.amplitude:g}").start() for fb in (False, True)}
+            amp, counts = {}, {}
+            for fb, run in runs.items():
+                counts[fb] = run.finish()
+                t, y, _ = run.traces()
+                amp[fb] = sine_amplitude(t, y, f, SETTLE_S)
+            s_pred = abs(point.sensitivity(np.array([f]), design.dt)[0])
+            out.append({"f_hz": f, "amp_ff": amp[False], "amp_fb": amp[True],
+                        "suppression_db": 20 * math.log10(amp[True] / amp[False]),
+                        "predicted_s_db": 20 * math.log10(s_pred), "lost": counts[True]["lost"],
+                        "applied": f"{counts[True]['commands_applied']}/{counts[True]['commands_sent']}"})
+    return out
 
 
 def _figure(path: str, design, point, rows: list[dict], quiet, args) -> None:
