@@ -77,7 +77,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--hand", action="store_true", help="the hand-set PI instead of the design")
     ap.add_argument("--figure", metavar="PNG", help="Bode plot with the measured points, envelope traces")
-    ap.add_argument("--peak-db", type=float, default=3.0, help="the design's |S| bound (dB, default 3)")
+    ap.add_argument("--peak-db", type=float, default=4.0, help="the design's |S| bound (dB, default 4)")
     ap.add_argument("--pty", metavar="F,F,...", help="also measure these frequencies live over the serial pty")
     args = ap.parse_args()
     model = load_model(args.model)

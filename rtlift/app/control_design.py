@@ -79,11 +79,17 @@ the envelope's burst-to-burst chatter from the estimate's noise."""
 
 @dataclass(frozen=True)
 class Targets:
-    """Design targets: gain margin (dB), phase margin (deg), largest |S| anywhere (dB)."""
+    """Design targets: gain margin (dB), phase margin (deg), largest predicted |S| anywhere (dB).
+
+    ``peak_db`` 4: the goal is at most 3 dB of amplification of the *measured* lift, and the
+    bench-identified model over-predicts the bench's loop gain by about 1.5 dB at ΔCL 0.08
+    (measured suppression 1–2 dB weaker than predicted below 0.5 Hz, amplification 1–1.6 dB
+    smaller near 1 Hz; docs/results/control.md): a design to a predicted 4 dB measured +1.9 dB,
+    one to a predicted 3 dB measured +1.6 dB with a 6 dB band of 0.26 Hz instead of 0.35 Hz."""
 
     gm_db: float = 6.0
     pm_deg: float = 45.0
-    peak_db: float = 3.0
+    peak_db: float = 4.0
 
 
 @dataclass(frozen=True)

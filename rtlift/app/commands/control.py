@@ -14,7 +14,7 @@ first sample after it. ``--view`` serves the live page of ``rtlift observe``.
 
 The feedback gains are designed from the model with python-control before the link opens
 (:mod:`rtlift.app.control_design`: PI with a lead–lag at the burst rate, gain margin ≥ 6 dB,
-phase margin ≥ 45°, |S| ≤ 3 dB, scheduled over Cμ; a few seconds); ``--kp``/``--ti`` set a
+phase margin ≥ 45°, predicted |S| ≤ 4 dB, scheduled over Cμ; 10–20 s); ``--kp``/``--ti`` set a
 plain PI by hand instead.
 """
 
