@@ -56,7 +56,7 @@ def test_a_lead_lag_of_zero_and_no_fast_path_is_the_hand_set_pi(model):
     same = LiftController(model, ControlConfig(schedule=((0.001, 0.5, 0.25, 0.0, 0.0, 0.0),
                                                          (0.02, 0.5, 0.25, 0.0, 0.0, 0.0))))
     rng = np.random.default_rng(0)
-    for k in range(2000):
+    for _ in range(2000):
         est = 0.08 + 0.01 * rng.standard_normal()
         assert hand.step(est, 0.1) == same.step(est, 0.1)
 
