@@ -75,6 +75,8 @@ def settling_times(truth: np.ndarray, reference: np.ndarray, fs_hz: float = FS_H
     mean = (c[k + 1] - c[lo]) / (k + 1 - lo)
     edges = np.flatnonzero(np.abs(np.diff(reference)) > 1e-12) + 1
     out: list[float | None] = []
+    if edges.size == 0:  # a constant reference: no step to settle after
+        return out
     for a, b in zip(edges, [*edges[1:], truth.size], strict=True):
         bad = np.flatnonzero(np.abs(mean[a:b] - reference[a]) > tol)
         if bad.size == 0:
