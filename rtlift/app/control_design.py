@@ -32,7 +32,7 @@ offset cannot bias the mean):
     g = (1 − b)/(1 − a),   K_i = T / T_i,   loop gain  L = C P_A + K_x (P_X − P_A)
 
 The latest value is half a period fresher than the mean: with it the rejection bandwidth the
-model predicts at |S| ≤ 3 dB goes from ≈ 0.19 Hz (mean only) to ≈ 0.35 Hz.
+model predicts at |S| ≤ 3 dB goes from ≈ 0.19 Hz (mean only, one lead–lag) to ≈ 0.30 Hz.
 
 chosen by a seeded global search (``scipy.optimize.differential_evolution``, then Nelder–Mead
 from its best and from the neighbouring point's gains) for the widest
