@@ -104,3 +104,18 @@ def test_feedback_suppresses_a_gust_at_0_1_hz_by_at_least_6_db(model, design):
         amp[fb] = _amplitude(t, y, 0.1, 4.0)
     assert amp[False] == pytest.approx(0.01, rel=0.02)   # feedforward only: the gust as it came
     assert 20 * math.log10(amp[True] / amp[False]) <= -6.0
+
+
+def test_the_designed_loop_does_not_wind_up_at_an_unreachable_level(model, design):
+    """0.10, then 0.35 for 4 s (beyond the static map's 0.22: the actuator pinned), then 0.10:
+    the return settles (within 0.01 on the burst-period mean of the truth) in at most 1.5 s."""
+    from rtlift.app.hil_tracking import reference_values, settling_times
+
+    spec = "steps:0.10@0,0.35@4,0.10@8"
+    run = InProcessTracking(model, LiftController(model, ControlConfig(schedule=design.schedule())), spec, 12.0,
+                            effects=()).run()
+    _, y, env = run.traces()
+    settle = settling_times(y, reference_values(spec, len(y)))
+    assert settle[0] is None                       # 0.35 is beyond reach
+    assert env[int(7.5 * 400)] == pytest.approx(env.max())  # pinned at the limit there
+    assert settle[1] is not None and settle[1] <= 1.5
