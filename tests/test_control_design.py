@@ -119,3 +119,27 @@ def test_the_designed_loop_does_not_wind_up_at_an_unreachable_level(model, desig
     assert settle[0] is None                       # 0.35 is beyond reach
     assert env[int(7.5 * 400)] == pytest.approx(env.max())  # pinned at the limit there
     assert settle[1] is not None and settle[1] <= 1.5
+
+
+def test_a_saved_design_report_gives_rtlift_control_the_same_schedule(model, design, tmp_path):
+    from rtlift.app.commands.control import control_config
+    from rtlift.app.commands.design import write_report
+
+    out = tmp_path / "design"
+    write_report(design, str(out), str(MODEL))
+    assert (out / "report.md").exists() and (out / "bode.png").stat().st_size > 10_000
+    config, source = control_config(model, True, None, None, str(out / "report.json"))
+    assert config.schedule == design.schedule()
+    assert source["source"].startswith("design file")
+
+
+@pytest.mark.parametrize("text", ["{}", "not json", '{"points": [{"cmu": 0.01}]}'])
+def test_a_bad_design_file_is_one_line_and_exit_2(tmp_path, capsys, text):
+    from rtlift.app.cli import main
+
+    bad = tmp_path / "r.json"
+    bad.write_text(text)
+    code = main(["control", "--serial", "/dev/null", "--model", str(MODEL), "--reference", "steps:0.1@0",
+                 "--design", str(bad)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "--design" in err[0]

@@ -322,3 +322,25 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         g = design_point(p, q, dt, targets, start=points[-1].gains if points else None)
         points.append(check_point(ctl.inverse(dcl0), dcl0, p, q, g, dt))
     return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets)
+
+
+def schedule_from_report(path: str) -> tuple[tuple[float, float, float, float, float, float], ...]:
+    """The schedule rows ``(Cμ, K_p, T_i, a, b, K_x)`` of a saved design (``rtlift design``'s
+    report.json); :class:`~rtlift.core.errors.UserError` (one line) if it is not one."""
+    import json
+
+    from rtlift.core.errors import UserError
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+        rows = tuple((float(p["cmu"]), float(p["gains"]["kp"]), float(p["ti_s"]), float(p["gains"]["a"]),
+                      float(p["gains"]["b"]), float(p["gains"]["kx"])) for p in doc["points"])
+        ControlConfig(schedule=rows)
+    except OSError as exc:
+        raise UserError(f"--design {path}: cannot read it ({exc.strerror or exc})") from None
+    except (ValueError, KeyError, TypeError) as exc:
+        raise UserError(f"--design {path}: not a design report of rtlift design ({exc})") from None
+    if not rows:
+        raise UserError(f"--design {path}: the report has no operating points")
+    return rows

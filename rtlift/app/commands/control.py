@@ -44,6 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--kp", type=float, metavar="K",
                    help="hand-set PI: proportional gain (ΔCL per ΔCL; default: the model-based design)")
     p.add_argument("--ti", type=float, metavar="S", help="hand-set PI: integral time (s)")
+    p.add_argument("--design", metavar="REPORT.json",
+                   help="the gains of a saved design (rtlift design's report.json) instead of designing at start")
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
     p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters, command latency, tracking RMSE")
@@ -71,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     reference = parse_reference(args.reference)
     model = load_model(args.model)
     observer = Observer.from_model(model)
-    config, gains = control_config(model, args.feedback == "on", args.kp, args.ti)
+    config, gains = control_config(model, args.feedback == "on", args.kp, args.ti, args.design)
     controller = LiftController(model, config)
     calibration = Calibration.load(args.calibration)
     _warm_up(observer, controller)
@@ -142,11 +144,21 @@ def run(args: argparse.Namespace) -> int:
     return code
 
 
-def control_config(model, feedback: bool, kp: float | None, ti: float | None) -> tuple[object, dict]:
+def control_config(model, feedback: bool, kp: float | None, ti: float | None,
+                   design_file: str | None = None) -> tuple[object, dict]:
     """The controller's settings and a summary of where its gains came from: the design
-    (default) or ``--kp``/``--ti`` by hand (the other one at its default)."""
+    (default), a saved design (``--design``) or ``--kp``/``--ti`` by hand (the other one at its
+    default)."""
     from rtlift.app.control import ControlConfig
 
+    if design_file is not None and (kp is not None or ti is not None):
+        raise UserError("--design and --kp/--ti are alternatives: give one")
+    if design_file is not None:
+        from rtlift.app.control_design import schedule_from_report
+
+        schedule = schedule_from_report(design_file)
+        return (ControlConfig(feedback=feedback, fs_hz=model.fs_hz, schedule=schedule),
+                {"source": f"design file {design_file}", "schedule": [list(r) for r in schedule]})
     if kp is not None or ti is not None:
         base = ControlConfig()
         kp = base.kp if kp is None else kp

@@ -33,10 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from rtlift.app.control_design import Targets, design_loop
-    from rtlift.core.jsonfile import write_json_atomic
     from rtlift.model.modelfile import load_model
 
     for name, lo, hi in (("gm_db", 0.0, 40.0), ("pm_deg", 0.0, 89.0), ("peak_db", 0.5, 20.0)):
@@ -46,25 +43,34 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     targets = Targets(args.gm_db, args.pm_deg, args.peak_db)
     design = design_loop(model, targets)
-    try:
-        os.makedirs(args.out, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"--out {args.out}: cannot create the directory ({exc.strerror or exc})") from None
-    f = np.array(REPORT_FREQUENCIES)
-    doc = {"version": 1, "model": str(args.model), **design.to_dict(),
-           "predicted_s_db": {"f_hz": list(REPORT_FREQUENCIES),
-                              "points": [[20 * math.log10(abs(s)) for s in p.sensitivity(f, design.dt)]
-                                         for p in design.points]}}
-    doc = _finite(doc)
-    write_json_atomic(os.path.join(args.out, "report.json"), doc, stage="design")
-    _bode(design, os.path.join(args.out, "bode.png"))
-    with open(os.path.join(args.out, "report.md"), "w", encoding="utf-8") as fh:
-        fh.write(_markdown(design, doc, args.model))
+    write_report(design, args.out, str(args.model))
     s = design.summary()
     print(f"rtlift design: {len(design.points)} operating points; gain margin >= {s['gm_db_min']:.1f} dB, "
           f"phase margin >= {s['pm_deg_min']:.1f} deg, |S| <= {s['peak_s_db_max']:+.2f} dB, 6 dB of rejection "
           f"up to >= {s['f6_hz_min']:.3f} Hz -> {args.out}")
     return 0
+
+
+def write_report(design, out: str, model: str) -> None:
+    """``out/report.json``, ``out/report.md`` and ``out/bode.png`` of a design."""
+    import numpy as np
+
+    from rtlift.core.jsonfile import write_json_atomic
+
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from None
+    f = np.array(REPORT_FREQUENCIES)
+    doc = {"version": 1, "model": model, **design.to_dict(),
+           "predicted_s_db": {"f_hz": list(REPORT_FREQUENCIES),
+                              "points": [[20 * math.log10(abs(s)) for s in p.sensitivity(f, design.dt)]
+                                         for p in design.points]}}
+    doc = _finite(doc)
+    write_json_atomic(os.path.join(out, "report.json"), doc, stage="design")
+    _bode(design, os.path.join(out, "bode.png"))
+    with open(os.path.join(out, "report.md"), "w", encoding="utf-8") as fh:
+        fh.write(_markdown(design, doc, model))
 
 
 def _finite(x):
