@@ -45,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
     design = design_loop(model, targets)
     write_report(design, args.out, str(args.model))
     s = design.summary()
-    print(f"rtlift design: {len(design.points)} operating points; gain margin >= {s['gm_db_min']:.1f} dB, "
+    gm = "inf" if s["gm_db_min"] is None else f"{s['gm_db_min']:.1f}"
+    print(f"rtlift design: {len(design.points)} operating points; gain margin >= {gm} dB, "
           f"phase margin >= {s['pm_deg_min']:.1f} deg, |S| <= {s['peak_s_db_max']:+.2f} dB, 6 dB of rejection "
           f"up to >= {s['f6_hz_min']:.3f} Hz -> {args.out}")
     return 0
