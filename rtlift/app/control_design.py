@@ -179,7 +179,8 @@ class Design:
         """Worst case over the schedule: margins, peak |S|, f₆."""
         pts = self.points
         gm = min(p.gm_db for p in pts)
-        return {"gm_db_min": gm if math.isfinite(gm) else None,   # None: no phase crossover anywhere "pm_deg_min": min(p.pm_deg for p in pts),
+        return {"gm_db_min": gm if math.isfinite(gm) else None,  # None: no phase crossover anywhere
+                "pm_deg_min": min(p.pm_deg for p in pts),
                 "peak_s_db_max": max(p.peak_s_db for p in pts), "f6_hz_min": min(p.f6_hz for p in pts),
                 "stable": all(p.stable for p in pts)}
 
