@@ -31,6 +31,7 @@ from firmware_io.calibration import Calibration
 from hil_sim import FS_HZ, T_CONV_S
 from hil_sim.actuation import BURST_SAMPLES, actuate_volts
 from hil_sim.effects import Effect, as_effect, processor
+from hil_sim.gust import Gust
 from hil_sim.plant import PlantParams, TruthPlant
 from hil_sim.sensors import (
     STATUS_ACTUATOR_ENABLED,
@@ -99,8 +100,11 @@ class Bench:
     """Actuator chain → truth plant → sensor chain, streaming over chunks with its state."""
 
     def __init__(self, seed: int, effects: Sequence[Effect], calibration: Calibration,
-                 plant: PlantParams | None = None, sensor: SensorParams | None = None) -> None:
+                 plant: PlantParams | None = None, sensor: SensorParams | None = None,
+                 gust: Gust | None = None) -> None:
         self.calibration = calibration
+        self.gust = gust or Gust()
+        """Lift disturbance added to the plant's ΔCL (:mod:`hil_sim.gust`), part of the truth."""
         self.fs_hz = FS_HZ
         streams = np.random.SeedSequence(seed).spawn(2 + len(effects))
         self.sensor_rng = np.random.Generator(np.random.PCG64(streams[0]))
@@ -127,6 +131,8 @@ class Bench:
             delivered = stage.process(delivered)
         out = self.plant.process(delivered, act.cmu_envelope)
         dcl_true = out["dcl"]
+        if self.gust:
+            dcl_true = dcl_true + self.gust.at(t)
         coeffs = coefficients(dcl_true, self.aero_noise.process(out["attached"]), self.sensor)
         for stage in self.stages["force"]:
             coeffs = stage.process(coeffs)
@@ -147,8 +153,8 @@ def bench_program(program: Program) -> tuple[np.ndarray, np.ndarray]:
             np.concatenate([np.zeros(TARE_SAMPLES, dtype=bool), gate]))
 
 
-def _setup(name: str, seed: int, effects: Iterable[Effect | str],
-           calibration: Calibration | None) -> tuple[tuple[np.ndarray, np.ndarray], Bench, dict[str, str]]:
+def _setup(name: str, seed: int, effects: Iterable[Effect | str], calibration: Calibration | None,
+           gust: Gust | None = None) -> tuple[tuple[np.ndarray, np.ndarray], Bench, dict[str, str]]:
     if name not in EXPERIMENTS:
         raise UserError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -160,13 +166,16 @@ def _setup(name: str, seed: int, effects: Iterable[Effect | str],
             "effects": "; ".join(e.spec() for e in effs) or "none",
             "source": "hil_sim truth plant (docs/BENCH.md)",
             "t_conv_s": f"{T_CONV_S:.6f}", "burst_samples": str(BURST_SAMPLES)}
-    return bench_program(program), Bench(int(seed), effs, cal), meta
+    if gust:
+        meta["gust"] = gust.spec()
+    return bench_program(program), Bench(int(seed), effs, cal, gust=gust), meta
 
 
 def run_experiment(name: str, seed: int = 0, effects: Iterable[Effect | str] = (),
-                   calibration: Calibration | None = None) -> BenchRun:
-    """One experiment of the standard campaign on the simulated bench."""
-    (env, gate), bench, meta = _setup(name, seed, effects, calibration)
+                   calibration: Calibration | None = None, gust: Gust | None = None) -> BenchRun:
+    """One experiment of the standard campaign on the simulated bench (``gust``: a lift
+    disturbance added to the truth, :mod:`hil_sim.gust`)."""
+    (env, gate), bench, meta = _setup(name, seed, effects, calibration, gust)
     t = np.arange(len(env)) / FS_HZ
     return bench.process(t, env, gate, meta)
 

@@ -23,7 +23,8 @@ chunks; at the switch the bench's state is recomputed exactly up to the onset fr
 taken at the chunk's start, so the version-1 stream is unchanged sample for sample.
 
 ``truth`` keeps the plant's ΔCL of the last ``truth_seconds`` and ``envelope`` the envelope
-driving it (V) (bench truth for benchmarks and tests; the host never sees it).
+driving it (V) (bench truth for benchmarks and tests; the host never sees it). A ``gust``
+(:mod:`hil_sim.gust`) is added to the plant's ΔCL on the device clock and is part of ``truth``.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from hil_sim import FS_HZ
 from hil_sim.actuation import BURST_SAMPLES, OPTIMAL_PERIOD_SAMPLES, burst_gate
 from hil_sim.effects import Effect
 from hil_sim.experiments import _setup
+from hil_sim.gust import Gust
 
 CHUNK_SAMPLES = int(FS_HZ)
 """The experiment's precomputed chunk (one second), a multiple of the burst period."""
@@ -62,8 +64,9 @@ class HilStream:
     HostControl`, attached after the device is built: ``stream.control = device.control``)."""
 
     def __init__(self, experiment: str, seed: int = 0, effects: Iterable[Effect | str] = (),
-                 calibration: Calibration | None = None, truth_seconds: float = 600.0) -> None:
-        (self._env, self._gate), self.bench, self.meta = _setup(experiment, seed, effects, calibration)
+                 calibration: Calibration | None = None, truth_seconds: float = 600.0,
+                 gust: Gust | None = None) -> None:
+        (self._env, self._gate), self.bench, self.meta = _setup(experiment, seed, effects, calibration, gust)
         self.calibration = self.bench.calibration
         self.control = None
         self.host_since: int | None = None

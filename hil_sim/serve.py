@@ -1,6 +1,6 @@
 """``rtlift bench serve --serial | --slcan [--experiment NAME] [--effect SPEC]... [--fault SPEC]...
-[--seed N] [--protocol 1|2] [--speed X]``: run the simulated DAQ on a new pseudo-terminal, print its path (one line,
-flushed), stream at 400 Hz until SIGINT or SIGTERM.
+[--seed N] [--protocol 1|2] [--speed X] [--gust F:A,...]``: run the simulated DAQ on a new
+pseudo-terminal, print its path (one line, flushed), stream at 400 Hz until SIGINT or SIGTERM.
 
 ``--serial`` emulates the DAQ's serial link (open the path with ``--serial PATH``);
 ``--slcan`` emulates a USB–CAN adapter with the DAQ behind it (``--can slcan:PATH``).
@@ -14,6 +14,8 @@ streams the experiment as version 1 until the first command, then the simulated 
 the commanded envelope and burst period from the next burst onset. ``--protocol 1`` serves a
 version-1 device instead (it reads no commands). ``--speed X`` paces the samples X times
 faster than real time (the device's clock still counts 400 Hz; the watchdog keeps host time).
+``--gust F:A,...`` adds Σ A sin(2π F t) to the plant's true ΔCL (:mod:`hil_sim.gust`), t the
+device clock: a disturbance for ``rtlift control`` to reject.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ def serve_main(args: argparse.Namespace) -> int:
     """Run the emulator until SIGINT/SIGTERM; 0 on a clean stop, 1 if the device failed."""
     from hil_sim.effects import parse_effect
     from hil_sim.experiments import EXPERIMENTS
+    from hil_sim.gust import parse_gust
     from hil_sim.hil import HilStream
 
     experiment = getattr(args, "experiment", None) or DEFAULT_EXPERIMENT
@@ -49,7 +52,8 @@ def serve_main(args: argparse.Namespace) -> int:
     protocol = int(getattr(args, "protocol", None) or 2)
     if protocol not in (1, 2):
         raise UserError(f"bench serve: --protocol must be 1 or 2, got {protocol}")
-    chunks = HilStream(experiment, seed=seed, effects=effects)
+    gust = parse_gust(getattr(args, "gust", None))
+    chunks = HilStream(experiment, seed=seed, effects=effects, gust=gust)
     pace = FS_HZ * speed
     if getattr(args, "slcan", False):
         device = SlcanAdapter(chunks, faults=faults, seed=seed, fs_hz=pace, clock_hz=FS_HZ)
@@ -73,7 +77,8 @@ def serve_main(args: argparse.Namespace) -> int:
             device.start()
             print(device.path, flush=True)
             print(f"rtlift bench serve: {how} DAQ on {device.path}, protocol version {protocol}, "
-                  f"experiment {experiment}, {FS_HZ:g} Hz at {speed:g}x real time; Ctrl-C stops",
+                  f"experiment {experiment}, {FS_HZ:g} Hz at {speed:g}x real time"
+                  + (f", gust {gust.spec()}" if gust else "") + "; Ctrl-C stops",
                   file=sys.stderr, flush=True)
             while not stop.is_set() and not device.finished.is_set():
                 stop.wait(0.2)

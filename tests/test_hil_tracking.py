@@ -40,3 +40,8 @@ def test_burst_ripple_is_averaged_out_and_an_unreachable_level_never_settles():
     assert 0.2 * np.log(10) <= recover <= 0.2 * np.log(10) + 50 / FS
     unaveraged = settling_times(y, r, FS, tol=0.01, window=1)[1]   # the ripple (0.03) alone exceeds 0.01
     assert unaveraged is None or unaveraged > 2.5
+
+
+def test_a_constant_reference_has_no_step_to_settle_after():
+    r = np.full(4 * FS, 0.08)
+    assert settling_times(_first_order(r, 0.2), r, FS) == []

@@ -16,7 +16,7 @@ import traceback
 
 from rtlift.core.errors import NumericalError, UserError
 
-COMMANDS = ("demo", "bench", "record", "identify", "validate", "diagnose", "observe", "control", "replay",
+COMMANDS = ("demo", "bench", "record", "identify", "validate", "diagnose", "observe", "control", "design", "replay",
             "data")
 
 DESCRIPTION = ("Real-time lift estimation for a stalled wing with burst actuation: record experiments, "

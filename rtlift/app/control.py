@@ -8,11 +8,18 @@ the burst ripple (the high-passed convolution) has no mean. Its static map is th
 
 concave and saturating. :class:`LiftController` implements
 
-    v = r + K_p ē + I,        u = S⁻¹(v) clamped to [0, Cμ_max]
+    v = r + K_p ē_f + K_x (ΔĈL_mean − ΔĈL_last) + I,        u = S⁻¹(v) clamped to [0, Cμ_max]
 
 with ``ē`` the tracking error ``r − ΔĈL`` averaged over one burst period (the ripple's
-period, so the average removes it), ``r`` the reference and ``I`` the integral of
-``(T / T_i) ē``. With the feedback off, ``u = S⁻¹(r)``: pure feedforward through the
+period, so the average removes it), ``ē_f`` it through the lead–lag ``g (Z − a)/(Z − b)``
+at the burst rate (none when a = b = 0), ``r`` the reference and ``I`` the integral of
+``(T / T_i) ē_f``. The ``K_x`` term acts on the latest estimate's departure from the period's
+mean: half a period fresher than the mean, it buys phase; the burst ripple's part of it is a
+constant at the fixed burst phase of the decisions, which the integral (on the mean only)
+absorbs, so the mean still tracks ``r`` exactly. ``rtlift control`` takes (K_p, T_i, a, b) from the design made with
+python-control on the identified model (:mod:`rtlift.app.control_design`), scheduled over
+Cμ; the hand-set PI below (K_p 0.5, T_i 0.25 s, no lead) is what ``--kp``/``--ti`` replace.
+With the feedback off, ``u = S⁻¹(r)``: pure feedforward through the
 inverse of the identified static map and DC gain. Working in ΔCL units before the inverse
 makes the loop gain independent of the operating point (the map's slope varies about 5× over
 its range), so one pair (K_p, T_i) serves the whole range.
@@ -39,6 +46,7 @@ decides a new envelope every ``period`` samples (``updated`` is true then: send 
 
 from __future__ import annotations
 
+import json
 import math
 from bisect import bisect_right
 from dataclasses import dataclass
@@ -58,8 +66,12 @@ MAP_POINTS = 201
 
 @dataclass(frozen=True)
 class ControlConfig:
-    """Controller settings: ``kp`` (ΔCL per ΔCL), ``ti_s`` integral time (s), ``feedback``,
-    ``cmu_max`` actuator limit as Cμ, ``period`` samples between envelope updates."""
+    """Controller settings: ``kp`` (ΔCL per ΔCL), ``ti_s`` integral time (s), ``lead_zero`` a
+    and ``lead_pole`` b of the lead–lag g (Z − a)/(Z − b) on the averaged error (0, 0: none),
+    ``kx`` the gain on the latest estimate's departure from the period's mean (0: none),
+    ``schedule`` rows ``(Cμ, kp, ti_s, a, b, kx)`` in increasing Cμ that replace the five by
+    their interpolation at the feedforward's Cμ (:mod:`rtlift.app.control_design` designs them),
+    ``feedback``, ``cmu_max`` actuator limit as Cμ, ``period`` samples between envelope updates."""
 
     kp: float = 0.5
     ti_s: float = 0.25
@@ -67,6 +79,10 @@ class ControlConfig:
     cmu_max: float = DEFAULT_CMU_MAX
     period: int = BURST_PERIOD_SAMPLES
     fs_hz: float = FS_HZ
+    lead_zero: float = 0.0
+    lead_pole: float = 0.0
+    kx: float = 0.0
+    schedule: tuple[tuple[float, float, float, float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("kp", "ti_s", "cmu_max", "fs_hz"):
@@ -75,6 +91,35 @@ class ControlConfig:
                 raise ValueError(f"control {name} must be a positive number, got {v!r}")
         if not isinstance(self.period, int) or self.period < 1:
             raise ValueError(f"control period must be a positive integer, got {self.period!r}")
+        rows = [(0.0, self.kp, self.ti_s, self.lead_zero, self.lead_pole, self.kx), *self.schedule]
+        for row in rows:
+            if len(row) != 6:
+                raise ValueError(f"control schedule rows are (cmu, kp, ti_s, a, b, kx); got {row!r}")
+            cmu, kp, ti, a, b, kx = row
+            if not (kp >= 0 and ti > 0 and abs(a) < 1 and abs(b) < 1 and math.isfinite(kp + ti + cmu + kx)):
+                raise ValueError(f"control gains must have kp >= 0, ti_s > 0, |a| < 1, |b| < 1; got "
+                                 f"{(kp, ti, a, b, kx)!r}")
+        if any(r1[0] >= r2[0] for r1, r2 in zip(self.schedule, self.schedule[1:], strict=False)):
+            raise ValueError("control schedule: Cμ must increase from row to row")
+
+
+def gains_text(cfg: ControlConfig) -> str:
+    """The feedback gains of ``cfg`` as one line of JSON (a command log's ``gains`` metadata:
+    ``rtlift replay`` rebuilds the same controller from it, floats exact)."""
+    return json.dumps({"kp": cfg.kp, "ti_s": cfg.ti_s, "lead_zero": cfg.lead_zero, "lead_pole": cfg.lead_pole,
+                       "kx": cfg.kx, "schedule": [list(row) for row in cfg.schedule]})
+
+
+def config_from_gains_text(text: str, feedback: bool, fs_hz: float) -> ControlConfig:
+    """The :class:`ControlConfig` :func:`gains_text` wrote (:class:`UserError` if garbled)."""
+    try:
+        d = json.loads(text)
+        return ControlConfig(kp=float(d["kp"]), ti_s=float(d["ti_s"]), lead_zero=float(d["lead_zero"]),
+                             lead_pole=float(d["lead_pole"]), kx=float(d["kx"]),
+                             schedule=tuple(tuple(float(v) for v in row) for row in d["schedule"]),
+                             feedback=feedback, fs_hz=fs_hz)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise UserError(f"control gains {text[:60]!r}: not valid ({exc})") from None
 
 
 def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> float:
@@ -110,8 +155,37 @@ class LiftController:
             raise UserError("model: its static map does not increase with Cμ; cannot invert it for control")
         self.dcl_min = self._map_dcl[0]
         self.dcl_max = self._map_dcl[-1]
-        self._gain_i = cfg.period / (cfg.fs_hz * cfg.ti_s)
+        self._rows = [tuple(float(v) for v in row) for row in cfg.schedule]
+        self._set_gains(cfg.kp, cfg.ti_s, cfg.lead_zero, cfg.lead_pole, cfg.kx)
         self.reset()
+
+    def _set_gains(self, kp: float, ti_s: float, a: float, b: float, kx: float) -> None:
+        cfg = self.config
+        self.kp = kp
+        self.kx = kx
+        self._gain_i = cfg.period / (cfg.fs_hz * ti_s)
+        self._a = a
+        self._b = b
+        self._g = (1.0 - b) / (1.0 - a)
+
+    def _schedule_at(self, cmu: float) -> None:
+        """Gains of the schedule at ``cmu`` (linear between rows, held beyond them)."""
+        rows = self._rows
+        if cmu <= rows[0][0]:
+            r0 = rows[0]
+            self._set_gains(r0[1], r0[2], r0[3], r0[4], r0[5])
+            return
+        for j in range(1, len(rows)):
+            hi = rows[j]
+            if cmu < hi[0]:
+                lo = rows[j - 1]
+                w = (cmu - lo[0]) / (hi[0] - lo[0])
+                self._set_gains(lo[1] + w * (hi[1] - lo[1]), lo[2] + w * (hi[2] - lo[2]),
+                                lo[3] + w * (hi[3] - lo[3]), lo[4] + w * (hi[4] - lo[4]),
+                                lo[5] + w * (hi[5] - lo[5]))
+                return
+        last = rows[-1]
+        self._set_gains(last[1], last[2], last[3], last[4], last[5])
 
     def reset(self) -> None:
         self.feedforward = 0.0
@@ -122,8 +196,13 @@ class LiftController:
         self.saturated = False
         """Whether the last decision sat at an actuator limit."""
         self.updated = False
+        self._filtered = 0.0
+        """The lead–lag's output (ΔCL), what the PI acts on."""
+        self._last_err = 0.0
         self._count = 0
         self._err_sum = 0.0
+        self._est_sum = 0.0
+        self._point = 0.0
         self._ref_sum = 0.0
         self._ref_n = 0
         self._n = 0
@@ -160,6 +239,8 @@ class LiftController:
         dcl = estimate if isinstance(estimate, float) else estimate.dcl
         if dcl == dcl:  # a NaN estimate (no measurement yet) does not feed the average
             self._err_sum += reference - dcl
+            self._est_sum += dcl
+            self._point = dcl
             self._n += 1
         self._ref_sum += reference
         self._ref_n += 1
@@ -172,8 +253,14 @@ class LiftController:
         self.feedforward = self.inverse(ref)
         v = ref
         if cfg.feedback and self._n:
-            err = self._err_sum / self._n
-            v = ref + cfg.kp * err + self.integral
+            if self._rows:
+                self._schedule_at(self.feedforward)
+            e = self._err_sum / self._n
+            err = self._b * self._filtered + self._g * (e - self._a * self._last_err)
+            self._filtered = err
+            self._last_err = e
+            fast = self.kx * (self._est_sum / self._n - self._point)
+            v = ref + self.kp * err + fast + self.integral
             lo, hi = self.dcl_min, self.dcl_max
             pushing_high = v >= hi and err > 0.0
             pushing_low = v <= lo and err < 0.0
@@ -181,11 +268,12 @@ class LiftController:
                 self.integral += self._gain_i * err
                 span = hi - lo
                 self.integral = min(max(self.integral, -span), span)
-                v = ref + cfg.kp * err + self.integral
+                v = ref + self.kp * err + fast + self.integral
         self.saturated = v >= self.dcl_max or v <= self.dcl_min
         self.envelope = self.inverse(v)
         self._count = 0
         self._err_sum = 0.0
+        self._est_sum = 0.0
         self._ref_sum = 0.0
         self._ref_n = 0
         self._n = 0

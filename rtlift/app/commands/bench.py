@@ -54,20 +54,24 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--effect", action="append", default=[], metavar="NAME[:k=v,...]",
                         help="inject an effect the model is not told about (repeatable)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--gust", metavar="F:A[,F:A...]",
+                        help="lift disturbance Σ A sin(2π F t) added to the plant's true ΔCL (Hz:ΔCL)")
 
 
 def _record(args: argparse.Namespace) -> int:
     from hil_sim.effects import parse_effect
     from hil_sim.experiments import EXPERIMENTS, run_experiment, write_bench_record
+    from hil_sim.gust import parse_gust
 
     if args.experiment not in EXPERIMENTS:
         raise UserError(f"unknown experiment {args.experiment!r} (known: {', '.join(EXPERIMENTS)})")
     effects = [parse_effect(spec) for spec in args.effect]
-    run = run_experiment(args.experiment, seed=args.seed, effects=effects)
+    gust = parse_gust(args.gust)
+    run = run_experiment(args.experiment, seed=args.seed, effects=effects, gust=gust)
     write_bench_record(run, args.out)
     names = ", ".join(e.spec() for e in effects) or "none"
     print(f"{args.experiment}: {len(run)} samples ({len(run) / run.fs_hz:.1f} s at "
-          f"{run.fs_hz:g} Hz), seed {args.seed}, effects {names} -> {args.out}")
+          f"{run.fs_hz:g} Hz), seed {args.seed}, effects {names}, gust {gust.spec() or 'none'} -> {args.out}")
     return 0
 
 

@@ -11,11 +11,17 @@ with the actuator switched off and ``--json`` written on every exit path. With
 is sent and the device's watchdog takes its actuator to 0 (the safe state), the observer predicts
 through the gap (rows flagged 16) without stepping the controller, and tracking resumes on the
 first sample after it. ``--view`` serves the live page of ``rtlift observe``.
+
+The feedback gains are designed from the model with python-control before the link opens
+(:mod:`rtlift.app.control_design`: PI with a lead–lag at the burst rate, gain margin ≥ 6 dB,
+phase margin ≥ 45°, predicted |S| ≤ 4 dB, scheduled over Cμ; 10–20 s); ``--kp``/``--ti`` set a
+plain PI by hand instead.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -39,6 +45,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of tracking")
     p.add_argument("--feedback", choices=("on", "off"), default="on",
                    help="PI feedback on the observer's estimate (off: feedforward only)")
+    p.add_argument("--kp", type=float, metavar="K",
+                   help="hand-set PI: proportional gain (ΔCL per ΔCL; default: the model-based design)")
+    p.add_argument("--ti", type=float, metavar="S", help="hand-set PI: integral time (s)")
+    p.add_argument("--design", metavar="REPORT.json",
+                   help="the gains of a saved design (rtlift design's report.json) instead of designing at start")
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
     p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters, command latency, tracking RMSE")
@@ -54,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.links import link_config_from_args, open_link
     from firmware_io.logs import graceful_exit
     from rtlift.app.closed_loop import SETTLE_S, ControlLoop
-    from rtlift.app.control import ControlConfig, LiftController
+    from rtlift.app.control import LiftController, gains_text
     from rtlift.app.live import ObserverLoop, summary, write_summary
     from rtlift.app.reference import parse_reference
     from rtlift.app.view.arguments import start_view
@@ -68,12 +79,13 @@ def run(args: argparse.Namespace) -> int:
     reference = parse_reference(args.reference)
     model = load_model(args.model)
     observer = Observer.from_model(model)
-    controller = LiftController(model, ControlConfig(feedback=args.feedback == "on", fs_hz=model.fs_hz))
+    config, gains = control_config(model, args.feedback == "on", args.kp, args.ti, args.design)
+    controller = LiftController(model, config)
     calibration = Calibration.load(args.calibration)
     _warm_up(observer, controller)
     link = open_link(link_config_from_args(args, log=args.log, calibration=calibration))
     link.command_log_meta = {"tool": "rtlift control", "model": args.model, "reference": args.reference,
-                             "feedback": args.feedback,
+                             "feedback": args.feedback, "gains": gains_text(config),
                              "seconds": "" if args.seconds is None else repr(args.seconds)}
     where = args.serial or args.can
     print(f"rtlift control: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
@@ -130,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
                            tare_cl=loop.converter.tare_cl, reference=args.reference)
             data.update(closed.results())
             data.update(watch.summary())
+            data["gains"] = gains
             if args.json:
                 write_summary(args.json, data)
             _print(data)
@@ -139,6 +152,40 @@ def run(args: argparse.Namespace) -> int:
     if message:
         print(message, file=sys.stderr)
     return code
+
+
+def control_config(model, feedback: bool, kp: float | None, ti: float | None,
+                   design_file: str | None = None) -> tuple[object, dict]:
+    """The controller's settings and a summary of where its gains came from: the design
+    (default), a saved design (``--design``) or ``--kp``/``--ti`` by hand (the other one at its
+    default)."""
+    from rtlift.app.control import ControlConfig
+
+    if design_file is not None and (kp is not None or ti is not None):
+        raise UserError("--design and --kp/--ti are alternatives: give one")
+    if design_file is not None:
+        from rtlift.app.control_design import schedule_from_report
+
+        schedule = schedule_from_report(design_file)
+        return (ControlConfig(feedback=feedback, fs_hz=model.fs_hz, schedule=schedule),
+                {"source": f"design file {design_file}", "schedule": [list(r) for r in schedule]})
+    if kp is not None or ti is not None:
+        base = ControlConfig()
+        kp = base.kp if kp is None else kp
+        ti = base.ti_s if ti is None else ti
+        if not (math.isfinite(kp) and kp >= 0):
+            raise UserError(f"--kp must be a non-negative number, got {kp}")
+        if not (math.isfinite(ti) and ti > 0):
+            raise UserError(f"--ti must be a positive number of seconds, got {ti}")
+        return ControlConfig(kp=kp, ti_s=ti, feedback=feedback, fs_hz=model.fs_hz), {"source": "hand", "kp": kp,
+                                                                                      "ti_s": ti}
+    if not feedback:
+        return ControlConfig(feedback=False, fs_hz=model.fs_hz), {"source": "none (feedback off)"}
+    from rtlift.app.control_design import design_loop
+
+    design = design_loop(model)
+    return (ControlConfig(feedback=True, fs_hz=model.fs_hz, schedule=design.schedule()),
+            {"source": "design", **design.summary(), "schedule": [list(r) for r in design.schedule()]})
 
 
 def _warm_up(observer, controller) -> None:

@@ -139,7 +139,7 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibr
     """Feed the samples through a fresh controller as ``rtlift control`` did; compare its commands."""
     from firmware_io.commands import CAN_CMD_SEQ_MODULUS, SERIAL_CMD_SEQ_MODULUS
     from rtlift.app.closed_loop import ControlLoop
-    from rtlift.app.control import ControlConfig, LiftController
+    from rtlift.app.control import ControlConfig, LiftController, config_from_gains_text
     from rtlift.app.reference import parse_reference
 
     try:
@@ -148,7 +148,9 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibr
         seconds = float(meta["seconds"]) if meta.get("seconds") else None
     except (KeyError, ValueError) as exc:
         raise UserError(f"{args.log}.commands.csv: the command log's metadata lacks or garbles {exc}") from None
-    controller = LiftController(model, ControlConfig(feedback=feedback, fs_hz=model.fs_hz))
+    config = (config_from_gains_text(meta["gains"], feedback, model.fs_hz) if meta.get("gains")
+              else ControlConfig(feedback=feedback, fs_hz=model.fs_hz))  # logs from before the design: hand PI
+    controller = LiftController(model, config)
     recorder = _CommandRecorder(SERIAL_CMD_SEQ_MODULUS if kind == "serial" else CAN_CMD_SEQ_MODULUS)
     closed = ControlLoop(recorder, loop, controller, reference, calibration, model.fs_hz,
                          None if seconds is None else int(round(seconds * model.fs_hz)))

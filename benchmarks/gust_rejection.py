@@ -1,0 +1,214 @@
+"""Gust rejection: how much of a lift disturbance the feedback removes, measured on the bench
+truth beside the design's prediction.
+
+The closed loop is ``rtlift control``'s, in process (:class:`rtlift.app.hil_tracking.
+InProcessTracking`: the bench, the firmware's command side, the serial codec, the converter,
+the observer, the controller; no pty, not paced). At a constant reference ``--level`` the bench
+adds a gust ``A sin(2π f t)`` to its true ΔCL (``--gust``, :mod:`hil_sim.gust`), one frequency
+per run, f from 0.05 to 2 Hz. Per f, the true lift's amplitude at f (least-squares sine fit
+after ``SETTLE_S``, over whole periods) with feedback over the same with feedforward only is
+the suppression (dB, negative = suppressed), beside the design's predicted |S(f)| at the
+operating point (:mod:`rtlift.app.control_design`). ``f6_hz``: the frequency up to which the
+suppression is ≥ 6 dB (log-interpolated crossing). Then step tracking under a 70 % actuator
+fade (the steps of ``benchmarks/control_loop.py``), feedforward only vs feedback, RMSE on the
+truth low-passed at 1 Hz; and the envelope at the constant reference without a gust (no limit
+cycle at the burst-period update: its burst-to-burst change beside its spread). ``--pty F,F,...``
+repeats those frequencies through the real links as ``rtlift control`` runs (a subprocess on the
+serial pseudo-terminal of the bench, real time, feedforward and feedback side by side;
+:class:`~rtlift.app.hil_tracking.BenchTracking`). ``--peak-db`` sets the design's bound on
+|S|. ``--hand``
+measures the hand-set PI (K_p 0.5, T_i 0.25 s) instead of the design. ``--figure`` draws the
+Bode plot of the design with the measured points, and the envelope traces. Prints a table, then
+one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+from benchmarks._common import emit  # noqa: E402
+from benchmarks.control_loop import REFERENCES  # noqa: E402
+
+ROOT = os.path.join(os.path.dirname(__file__), "..")
+FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
+SETTLE_S = 6.0
+FADE_70 = "actuator_fade:final_fraction=0.7,time_constant_s=0.4"
+
+
+def sine_amplitude(t: np.ndarray, y: np.ndarray, f_hz: float, t0: float) -> float:
+    """Amplitude of the component of ``y`` at ``f_hz`` over the whole periods after ``t0``."""
+    periods = math.floor((t[-1] - t0) * f_hz)
+    sel = (t >= t0) & (t < t0 + periods / f_hz)
+    w = 2 * math.pi * f_hz * t[sel]
+    x = np.c_[np.sin(w), np.cos(w), np.ones(sel.sum())]
+    c = np.linalg.lstsq(x, y[sel], rcond=None)[0]
+    return float(math.hypot(c[0], c[1]))
+
+
+def crossing_hz(freqs: list[float], db: list[float], level: float = -6.0) -> float:
+    """Highest frequency up to which ``db`` stays ≤ ``level`` from the first (log-interpolated)."""
+    for i, v in enumerate(db):
+        if v > level:
+            if i == 0:
+                return 0.0
+            f0, f1, d0, d1 = freqs[i - 1], freqs[i], db[i - 1], v
+            return float(math.exp(math.log(f0) + (level - d0) / (d1 - d0) * (math.log(f1) - math.log(f0))))
+    return freqs[-1]
+
+
+def main() -> None:
+    from rtlift.app.control import ControlConfig, LiftController
+    from rtlift.app.control_design import Targets, design_loop
+    from rtlift.app.hil_tracking import InProcessTracking, reference_values, truth_rmse
+    from rtlift.model.modelfile import load_model
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default=os.path.join(ROOT, "tests", "data", "bench_model.json"))
+    ap.add_argument("--level", type=float, default=0.08, help="constant ΔCL reference (default 0.08)")
+    ap.add_argument("--amplitude", type=float, default=0.01, help="gust amplitude, ΔCL (default 0.01)")
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--hand", action="store_true", help="the hand-set PI instead of the design")
+    ap.add_argument("--figure", metavar="PNG", help="Bode plot with the measured points, envelope traces")
+    ap.add_argument("--peak-db", type=float, default=4.0, help="the design's |S| bound (dB, default 4)")
+    ap.add_argument("--pty", metavar="F,F,...", help="also measure these frequencies live over the serial pty")
+    args = ap.parse_args()
+    model = load_model(args.model)
+    t0 = time.perf_counter()
+    design = design_loop(model, Targets(peak_db=args.peak_db))
+    design_s = time.perf_counter() - t0
+    fb_config = (ControlConfig(fs_hz=model.fs_hz) if args.hand
+                 else ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule()))
+    ff_config = ControlConfig(feedback=False, fs_hz=model.fs_hz)
+    point = design.nearest(args.level)
+    if args.hand:   # the prediction for the hand-set gains on the same lifted plant
+        from rtlift.app.control_design import Gains, check_point
+        point = check_point(point.cmu, point.dcl, np.asarray(point.plant), np.asarray(point.plant_point),
+                            Gains(0.5, design.dt / 0.25), design.dt)
+    ref = f"steps:{args.level}@0"
+
+    def run(config, seconds, gust=None, effects=(), spec=ref):
+        return InProcessTracking(model, LiftController(model, config), spec, seconds, seed=args.seed,
+                                 effects=effects, gust=gust).run()
+
+    rows = []
+    for f in FREQUENCIES:
+        seconds = SETTLE_S + max(12.0, 4.0 / f)
+        gust = f"{f:g}:{args.amplitude:g}"
+        amp = {}
+        for name, cfg in (("ff", ff_config), ("fb", fb_config)):
+            t, y, _ = run(cfg, seconds, gust).traces()
+            amp[name] = sine_amplitude(t, y, f, SETTLE_S)
+        s_pred = abs(point.sensitivity(np.array([f]), design.dt)[0])
+        rows.append({"f_hz": f, "amp_ff": amp["ff"], "amp_fb": amp["fb"],
+                     "suppression_db": 20 * math.log10(amp["fb"] / amp["ff"]),
+                     "predicted_s_db": 20 * math.log10(s_pred)})
+    freqs = [r["f_hz"] for r in rows]
+    measured = [r["suppression_db"] for r in rows]
+    below_1 = [abs(r["suppression_db"] - r["predicted_s_db"]) for r in rows if r["f_hz"] < 1.0]
+
+    tracking = {}
+    spec = REFERENCES["steps"]
+    for name, cfg in (("ff", ff_config), ("fb", fb_config)):
+        t, y, _ = run(cfg, 20.0, effects=(FADE_70,), spec=spec).traces()
+        tracking[name] = truth_rmse(y, reference_values(spec, len(y)))
+
+    quiet = run(fb_config, 20.0)
+    tq, yq, envq = quiet.traces()
+    per_period = envq[(tq >= SETTLE_S)][::50]
+    steps = np.diff(per_period)
+    envelope = {"mean_v": float(per_period.mean()), "std_v": float(per_period.std()),
+                "burst_to_burst_rms_v": float(np.sqrt(np.mean(steps ** 2))),
+                "lag1_correlation": float(np.corrcoef(per_period[:-1], per_period[1:])[0, 1])}
+
+    print(f"gust {args.amplitude:g} ΔCL at reference {args.level:g}; "
+          f"{'hand-set PI' if args.hand else 'designed gains'}; in-process bench, seed {args.seed}")
+    print(f"{'f (Hz)':>7} {'A ff':>8} {'A fb':>8} {'measured dB':>12} {'predicted dB':>13}")
+    for r in rows:
+        print(f"{r['f_hz']:7.2f} {r['amp_ff']:8.5f} {r['amp_fb']:8.5f} {r['suppression_db']:12.2f} "
+              f"{r['predicted_s_db']:13.2f}")
+    print(f"suppression >= 6 dB up to {crossing_hz(freqs, measured):.3f} Hz (predicted "
+          f"{point.f6_hz:.3f} Hz); largest amplification {max(measured):+.2f} dB; |measured - predicted| "
+          f"below 1 Hz <= {max(below_1):.2f} dB")
+    print(f"step tracking under a 70 % fade: RMSE ff {tracking['ff']:.4f}, fb {tracking['fb']:.4f}, "
+          f"ratio {tracking['fb'] / tracking['ff']:.2f}")
+    print(f"envelope at a constant reference: std {envelope['std_v']:.3f} V, burst-to-burst rms "
+          f"{envelope['burst_to_burst_rms_v']:.3f} V, lag-1 correlation {envelope['lag1_correlation']:.2f}")
+    live = _live(args, point, design) if args.pty else []
+    for r in live:
+        print(f"live over the serial pty: {r['f_hz']:g} Hz measured {r['suppression_db']:+.2f} dB "
+              f"(predicted {r['predicted_s_db']:+.2f} dB; lost {r['lost']}, commands applied {r['applied']})")
+    if args.figure:
+        _figure(args.figure, design, point, rows, quiet, args)
+    emit({"rows": rows, "gains": "hand" if args.hand else "design", "level": args.level,
+          "amplitude": args.amplitude, "peak_db_target": args.peak_db, "loop": "in-process (InProcessTracking)",
+          "f6_hz_measured": crossing_hz(freqs, measured), "f6_hz_predicted": point.f6_hz,
+          "max_amplification_db": max(measured), "max_abs_error_below_1hz_db": max(below_1),
+          "design": {"gm_db": point.gm_db, "pm_deg": point.pm_deg, "crossover_hz": point.crossover_hz,
+                     "peak_s_db": point.peak_s_db, "seconds": design_s},
+          "tracking_rmse_ff": tracking["ff"], "tracking_rmse_fb": tracking["fb"],
+          "tracking_ratio": tracking["fb"] / tracking["ff"], "envelope": envelope, "live_rows": live})
+
+
+def _live(args, point, design) -> list[dict]:
+    """The ``--pty`` frequencies through ``rtlift control`` on the serial pty, real time."""
+    import tempfile
+
+    from rtlift.app.hil_tracking import BenchTracking
+
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for f in (float(x) for x in args.pty.split(",")):
+            seconds = SETTLE_S + max(12.0, 3.0 / f)
+            runs = {fb: BenchTracking(args.model, f"steps:{args.level}@0", fb, seconds,
+                                      os.path.join(tmp, f"{f}_{fb}.json"), seed=args.seed, effects=(),
+                                      gust=f"{f:g}:{args.amplitude:g}").start() for fb in (False, True)}
+            amp, counts = {}, {}
+            for fb, run in runs.items():
+                counts[fb] = run.finish()
+                t, y, _ = run.traces()
+                amp[fb] = sine_amplitude(t, y, f, SETTLE_S)
+            s_pred = abs(point.sensitivity(np.array([f]), design.dt)[0])
+            out.append({"f_hz": f, "amp_ff": amp[False], "amp_fb": amp[True],
+                        "suppression_db": 20 * math.log10(amp[True] / amp[False]),
+                        "predicted_s_db": 20 * math.log10(s_pred), "lost": counts[True]["lost"],
+                        "applied": f"{counts[True]['commands_applied']}/{counts[True]['commands_sent']}"})
+    return out
+
+
+def _figure(path: str, design, point, rows: list[dict], quiet, args) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f = np.geomspace(0.02, 3.9, 400)
+    s = 20 * np.log10(np.abs(point.sensitivity(f, design.dt)))
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 7))
+    a1.semilogx(f, s, label="predicted |S| (design, python-control)")
+    a1.semilogx([r["f_hz"] for r in rows], [r["suppression_db"] for r in rows], "o", label="measured on the bench")
+    a1.axhline(-6, ls=":", c="k")
+    a1.axhline(3, ls=":", c="r")
+    a1.set_xlabel("gust frequency (Hz)")
+    a1.set_ylabel("lift with feedback / feedforward only (dB)")
+    a1.legend()
+    a1.grid(True, which="both", alpha=0.3)
+    t, y, env = quiet.traces()
+    a2.plot(t, env, label="envelope (V)")
+    a2.set_xlabel("t (s) at a constant reference, no gust")
+    a2.set_ylabel("envelope (V)")
+    a2.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
