@@ -129,3 +129,17 @@ def test_a_pickup_is_raised_at_once_and_named(bench_model):
     mon = closed_loop(bench_model, 303, 30.0, ("periodic_disturbance:frequency_hz=20,amplitude=0.006",))
     assert [d["suspect"] for d in mon.departures] == ["periodic_disturbance at 20.00 Hz"]
     assert mon.departures[0]["t_s"] <= TARE_S + 6.0 + 2.0     # the tare, a window, the persistence
+
+
+def test_a_swapped_controller_takes_over_every_state_of_the_old_one(bench_model):
+    from rtlift.app.control import LiftController
+
+    old = LiftController(bench_model)
+    for k in range(175):            # three and a half decisions, mid-period
+        old.step(0.05 + 1e-4 * k, 0.08)
+    new = LiftController(bench_model.copy(), old.config)
+    new.carry_from(old)
+    probe = object.__new__(LiftController)
+    LiftController.reset(probe)
+    assert {n: getattr(new, n) for n in vars(probe)} == {n: getattr(old, n) for n in vars(probe)}
+    assert new.integral != 0.0 and new._count == old._count != 0

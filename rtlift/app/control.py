@@ -210,8 +210,9 @@ class LiftController:
     def carry_from(self, other: LiftController) -> None:
         """Take over ``other``'s integrator, last decision and place in the period (a model swap
         while the loop runs: the new static map serves the next decision)."""
-        for name in ("feedforward", "integral", "envelope", "saturated", "updated", "_count", "_err_sum",
-                     "_ref_sum", "_ref_n", "_n"):
+        probe = object.__new__(LiftController)
+        LiftController.reset(probe)            # the state is what reset() sets: one list of it
+        for name in vars(probe):
             setattr(self, name, getattr(other, name))
         span = self.dcl_max - self.dcl_min
         self.integral = min(max(self.integral, -span), span)

@@ -21,7 +21,11 @@ REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("design", help="design the lift loop's feedback from a model (python-control)",
-                              description=__doc__.splitlines()[0])
+                              description="Design the lift loop's feedback from the model with python-control: "
+                                          "per operating point of a Cμ schedule, a PI with lead-lag for the gain "
+                                          "and phase margins asked, the widest disturbance rejection the peak |S| "
+                                          "allows; writes report.json, report.md and a Bode figure (bode.png). "
+                                          "rtlift control uses the same design by default.")
     p.add_argument("--model", required=True, metavar="MODEL.json", help="model file")
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
     p.add_argument("--gm-db", type=float, default=6.0, help="gain margin at least (dB, default 6)")
