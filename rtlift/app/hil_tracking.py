@@ -16,6 +16,9 @@ the next step's settling time is the recovery time (windup shows there).
 Tracking starts after the host's settle and tare (``rtlift.app.closed_loop``): 3 s on the default
 calibration, counted in device samples (none lost, the host received from sample 0). Several
 runs can go side by side: :meth:`BenchTracking.start` them all, then :meth:`~BenchTracking.finish`.
+With ``log``, ``rtlift control`` also writes its log, and :meth:`~BenchTracking.record` turns it
+into a record file through ``rtlift replay LOG --record`` (issue 27's closed-loop record: the
+end-to-end test and ``benchmarks/null_rate.py``'s ``closed_loop`` training type).
 """
 
 from __future__ import annotations
@@ -88,7 +91,7 @@ class BenchTracking:
 
     def __init__(self, model: str, reference: str, feedback: bool, seconds: float, out_json: str, *,
                  seed: int = 11, effects: tuple[str, ...] = (FADE,), can: bool = False,
-                 experiment: str = "random") -> None:
+                 experiment: str = "random", log: str | None = None) -> None:
         from hil_sim.devices import SerialDaq, SlcanAdapter
         from hil_sim.hil import HilStream
 
@@ -96,13 +99,15 @@ class BenchTracking:
         self.feedback = feedback
         self.seconds = seconds
         self.out_json = out_json
+        self.model = model
+        self.log = log
         self.stream = HilStream(experiment, seed=seed, effects=list(effects))
         self.device = (SlcanAdapter if can else SerialDaq)(self.stream)
         self.stream.control = self.device.control
         link = ["--can", f"slcan:{self.device.path}"] if can else ["--serial", self.device.path]
         self.cmd = [sys.executable, "-m", "rtlift", "control", *link, "--model", model, "--reference",
                     reference, "--seconds", str(seconds), "--feedback", "on" if feedback else "off",
-                    "--json", out_json]
+                    "--json", out_json, *(["--log", log] if log else [])]
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> BenchTracking:
@@ -143,6 +148,16 @@ class BenchTracking:
                 "command_latency_p50_ms": s["command_latency_p50_ms"],
                 "command_latency_p99_ms": s["command_latency_p99_ms"],
                 "saturated_fraction": s["saturated_fraction"]}
+
+    def record(self, path: str) -> None:
+        """After :meth:`finish`: the run's ``log`` as a record file at ``path`` (``rtlift replay
+        LOG --model M --record path``, in this process; its one-line summary goes to stdout)."""
+        from rtlift.app.cli import main
+
+        if self.log is None:
+            raise RuntimeError("BenchTracking(log=...) is needed for a record")
+        if main(["replay", self.log, "--model", self.model, "--record", path]) != 0:
+            raise RuntimeError(f"rtlift replay {self.log} --record {path} failed (its error is on stderr)")
 
     def traces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t from the start of tracking in s, bench truth ΔCL, commanded envelope in V) over
