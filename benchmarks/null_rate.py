@@ -283,22 +283,27 @@ def plan(seeds: int, first: int, types: list[str], twins: int, independent: Path
     return jobs
 
 
-def summarize(runs: list[dict], planned: int, seconds: float) -> None:
-    """The totals, per-group counts and the last-line JSON."""
+def summarize(runs: list[dict], planned: int | None, seconds: float) -> None:
+    """The totals, per-group counts with each group's own upper bound, and the last-line JSON
+    (``planned`` None: runs pooled from several plans' files)."""
     n = len(runs)
     false = sum(len(r["effects"]) for r in runs)
     hit = sum(bool(r["effects"]) for r in runs)
     structure = sum(len(r["structure"]) for r in runs)
     lo, hi = clopper_pearson(hit, n) if n else (0.0, 1.0)
     twins = [r["twin"] for r in runs if r.get("twin")]
-    by: dict[str, dict[str, int]] = {}
+    by: dict[str, dict] = {}
     for r in runs:
         for key in (f"{r['plant']}:{r['train']}", f"{r['plant']}:{r['naming']}"):
-            b = by.setdefault(key, {"runs": 0, "false_effects": 0, "structure": 0})
+            b = by.setdefault(key, {"runs": 0, "false_effects": 0, "runs_with_false_effect": 0, "structure": 0})
             b["runs"] += 1
             b["false_effects"] += len(r["effects"])
+            b["runs_with_false_effect"] += bool(r["effects"])
             b["structure"] += len(r["structure"])
-    print(f"\n{n} clean diagnoses ({planned - n} planned runs not run): {hit} with an accepted effect "
+    for b in by.values():
+        b["upper_95"] = clopper_pearson(b["runs_with_false_effect"], b["runs"])[1]
+    how = "pooled from several files" if planned is None else f"{planned - n} planned runs not run"
+    print(f"\n{n} clean diagnoses ({how}): {hit} with an accepted effect "
           f"({false} false effects in all, {false / max(n, 1):.2%} per diagnosis; two-sided 95 % Clopper-Pearson "
           f"interval on the share of diagnoses with one: {lo:.2%} to {hi:.2%}); "
           f"{sum(bool(r['structure']) for r in runs)} with a structure entry ({structure} in all)")
@@ -306,7 +311,9 @@ def summarize(runs: list[dict], planned: int, seconds: float) -> None:
         print(f"renaming check: {sum(t['same'] for t in twins)} of {len(twins)} twin diagnoses on the same records "
               f"accept the same entries from the same references")
     for key, b in sorted(by.items()):
-        print(f"  {key:<28} {b['runs']:>4} runs  {b['false_effects']:>3} false effects  {b['structure']:>3} structure")
+        print(f"  {key:<28} {b['runs']:>4} runs  {b['false_effects']:>3} false effects "
+              f"({b['false_effects'] / b['runs']:.2%} per diagnosis, 95 % upper bound {b['upper_95']:.1%})  "
+              f"{b['structure']:>3} structure")
     print(json.dumps({"runs": runs, "clean_runs": n, "runs_with_false_effect": hit, "false_effects": false,
                       "structure_entries": structure, "runs_with_structure": sum(bool(r["structure"]) for r in runs),
                       "false_effect_rate": false / n if n else None, "upper_95": hi, "lower_95": lo,
@@ -331,8 +338,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jsonl", default=None, help="append each finished run to this file")
     ap.add_argument("--skip", type=int, default=0, help="start at the plan's run N (continue a budget-stopped run "
                     "with the same options and --jsonl)")
-    ap.add_argument("--summarize", default=None, help="only the totals of the runs saved in this --jsonl file "
-                    "(the plan given by the other options sets planned_runs)")
+    ap.add_argument("--summarize", nargs="+", default=None, help="only the totals of the runs saved in these --jsonl "
+                    "files (pooled; with one file, the plan given by the other options sets planned_runs)")
     args = ap.parse_args(argv)
     types = [t.strip() for t in args.types.split(",") if t.strip()]
     if args.seeds < 0 or args.workers < 1 or not types or any(t not in ALL_TYPES for t in types):
@@ -344,8 +351,9 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     jobs = plan(args.seeds, args.first_seed, types, args.twins, IP_DATA if args.independent else None)
     if args.summarize:
-        runs = [json.loads(line) for line in Path(args.summarize).read_text().splitlines() if line.strip()]
-        summarize(runs, len(jobs), sum(r.get("seconds", 0.0) for r in runs) / max(args.workers, 1))
+        runs = [json.loads(line) for f in args.summarize for line in Path(f).read_text().splitlines() if line.strip()]
+        summarize(runs, len(jobs) if len(args.summarize) == 1 else None,
+                  sum(r.get("seconds", 0.0) for r in runs) / max(args.workers, 1))
         return 0
     jobs = jobs[args.skip:]
     if args.model_cache and not Path(args.model_cache).exists() and any(j["plant"] == "bench" for j in jobs):
