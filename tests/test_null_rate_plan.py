@@ -49,3 +49,20 @@ def test_unknown_type_is_one_line_and_exit_2(capsys):
     assert main(["--types", "sine_k0125,closed_loops", "--seeds", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "closed_loop" in err
+
+
+def test_summary_bounds_each_training_type_on_its_own(capsys):
+    import json
+
+    from benchmarks.null_rate import summarize
+
+    runs = [{"plant": "bench", "train": "closed_loop", "naming": "named", "effects": [], "structure": []}] * 30 + \
+        [{"plant": "bench", "train": "random", "naming": "named", "effects": ["delay"], "structure": []}] + \
+        [{"plant": "bench", "train": "random", "naming": "unnamed", "effects": [], "structure": []}] * 19
+    summarize(runs, None, 0.0)
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["clean_runs"] == 50 and out["false_effects"] == 1 and out["planned_runs"] is None
+    assert out["upper_95"] == pytest.approx(clopper_pearson(1, 50)[1])
+    cl, rnd = out["by"]["bench:closed_loop"], out["by"]["bench:random"]
+    assert cl["runs"] == 30 and cl["upper_95"] == pytest.approx(1 - 0.025 ** (1 / 30))   # 11.6 %
+    assert rnd["runs_with_false_effect"] == 1 and rnd["upper_95"] == pytest.approx(clopper_pearson(1, 20)[1])
