@@ -11,17 +11,13 @@ own end-to-end test drives); the fade is the demo's (:data:`rtlift.app.hil_track
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hil_sim.devices import SerialDaq
-from hil_sim.hil import HilStream
 from rtlift.app.cli import main
-from rtlift.app.hil_tracking import FADE
+from rtlift.app.hil_tracking import FADE, BenchTracking
 from rtlift.core.rate import FS_HZ
 from rtlift.core.records import read_record
 
@@ -33,36 +29,19 @@ SECONDS = 40
 FS = int(FS_HZ)
 
 
-def _start(tmp: Path, name: str, effects: list[str]):
-    stream = HilStream("random", seed=5, effects=effects)
-    dev = SerialDaq(stream)
-    stream.control = dev.control
-    log = tmp / f"{name}.bin"
-    cmd = [sys.executable, "-m", "rtlift", "control", "--serial", dev.path, "--model", str(MODEL),
-           "--reference", REFERENCE, "--seconds", str(SECONDS), "--feedback", "on", "--log", str(log),
-           "--json", str(tmp / f"{name}.json")]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    line = proc.stderr.readline()
-    assert "link open" in line, line + proc.stderr.read()
-    dev.start()
-    return dev, proc, log
-
-
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """The same closed loop with the fade and without it, side by side; each log replayed as a
     record and diagnosed as one run."""
     tmp = tmp_path_factory.mktemp("closed_loop")
-    started = {name: _start(tmp, name, effects) for name, effects in (("fade", [FADE]), ("clean", []))}
+    started = {name: BenchTracking(str(MODEL), REFERENCE, True, SECONDS, str(tmp / f"{name}.json"), seed=5,
+                                   effects=tuple(effects), log=str(tmp / f"{name}.bin")).start()
+               for name, effects in (("fade", [FADE]), ("clean", []))}
     out = {}
-    for name, (dev, proc, log) in started.items():
-        try:
-            _, err = proc.communicate(timeout=SECONDS + 120)
-        finally:
-            dev.stop()
-        assert proc.returncode == 0, err
+    for name, run in started.items():
+        run.finish()
         record = tmp / f"{name}_run.csv"
-        assert main(["replay", str(log), "--model", str(MODEL), "--record", str(record)]) == 0
+        run.record(str(record))
         assert main(["diagnose", "--model", str(MODEL), "--run", str(record), "--out", str(tmp / name)]) == 0
         out[name] = {"record": read_record(record), "report": json.loads((tmp / name / "report.json").read_text()),
                      "summary": json.loads((tmp / f"{name}.json").read_text())}

@@ -24,6 +24,10 @@ observer, :class:`~rtlift.app.closed_loop.ControlLoop`, the controller) in one t
 sent after sample k arriving before sample k + 1 (a command latency under one period, as measured
 live: p99 ≈ 1 ms). It runs as fast as the CPU allows (≈ 25 s of plant per second), for
 benchmarks and tests that need minutes of plant time.
+
+With ``log``, ``rtlift control`` also writes its log, and :meth:`~BenchTracking.record` turns it
+into a record file through ``rtlift replay LOG --record`` (issue 27's closed-loop record: the
+end-to-end test and ``benchmarks/null_rate.py``'s ``closed_loop`` training type).
 """
 
 from __future__ import annotations
@@ -99,7 +103,8 @@ class BenchTracking:
 
     def __init__(self, model: str, reference: str, feedback: bool, seconds: float, out_json: str, *,
                  seed: int = 11, effects: tuple[str, ...] = (FADE,), can: bool = False,
-                 experiment: str = "random", gust: str | None = None, extra: tuple[str, ...] = ()) -> None:
+                 experiment: str = "random", gust: str | None = None, log: str | None = None,
+                 extra: tuple[str, ...] = ()) -> None:
         from hil_sim.devices import SerialDaq, SlcanAdapter
         from hil_sim.gust import parse_gust
         from hil_sim.hil import HilStream
@@ -108,13 +113,15 @@ class BenchTracking:
         self.feedback = feedback
         self.seconds = seconds
         self.out_json = out_json
+        self.model = model
+        self.log = log
         self.stream = HilStream(experiment, seed=seed, effects=list(effects), gust=parse_gust(gust))
         self.device = (SlcanAdapter if can else SerialDaq)(self.stream)
         self.stream.control = self.device.control
         link = ["--can", f"slcan:{self.device.path}"] if can else ["--serial", self.device.path]
         self.cmd = [sys.executable, "-m", "rtlift", "control", *link, "--model", model, "--reference",
                     reference, "--seconds", str(seconds), "--feedback", "on" if feedback else "off",
-                    "--json", out_json, *extra]
+                    "--json", out_json, *(["--log", log] if log else []), *extra]
         self.summary: dict[str, Any] = {}
         self.stderr = ""
         self.proc: subprocess.Popen | None = None
@@ -158,6 +165,16 @@ class BenchTracking:
                 "command_latency_p50_ms": s["command_latency_p50_ms"],
                 "command_latency_p99_ms": s["command_latency_p99_ms"],
                 "saturated_fraction": s["saturated_fraction"]}
+
+    def record(self, path: str) -> None:
+        """After :meth:`finish`: the run's ``log`` as a record file at ``path`` (``rtlift replay
+        LOG --model M --record path``, in this process; its one-line summary goes to stdout)."""
+        from rtlift.app.cli import main
+
+        if self.log is None:
+            raise RuntimeError("BenchTracking(log=...) is needed for a record")
+        if main(["replay", self.log, "--model", self.model, "--record", path]) != 0:
+            raise RuntimeError(f"rtlift replay {self.log} --record {path} failed (its error is on stderr)")
 
     def traces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t from the start of tracking in s, bench truth ΔCL, commanded envelope in V) over
