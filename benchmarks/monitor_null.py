@@ -67,56 +67,32 @@ def new_monitor(model, thresholds: dict | None = None, history: bool = False) ->
 REFERENCE = "steps:0.06@0,0.12@12,0.08@24,0.14@36,0.06@48,0.12@60,0.09@72,0.13@84,0.07@96,0.11@108"
 
 
+def repeated(reference: str, seconds: float, period_s: float = 120.0) -> str:
+    """A ``steps:`` reference repeated every ``period_s`` for ``seconds``."""
+    steps = [(float(v), float(t)) for v, t in (p.split("@") for p in reference.removeprefix("steps:").split(","))]
+    out = [f"{v:g}@{t + k * period_s:g}" for k in range(int(seconds // period_s) + 1) for v, t in steps]
+    return "steps:" + ",".join(out)
+
+
+_CONFIGS: dict[int, object] = {}
+
+
 def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (), reference: str = REFERENCE,
                 thresholds: dict | None = None, history: bool = False) -> DepartureMonitor:
-    """A clean closed loop in this process: the bench as a HIL plant (:class:`hil_sim.hil.HilStream`
-    under a host control that applies every decision at the next burst onset, as the firmware does),
-    the observer, :class:`rtlift.app.control.LiftController` with feedback, and the monitor stepped
-    as the live loop steps it, from the tare on (no measurement then); the reference (repeated
-    every 120 s) starts after the 2 s tare."""
-    from types import SimpleNamespace
+    """``rtlift control``'s closed loop on the bench in this process
+    (:class:`rtlift.app.hil_tracking.InProcessTracking`: the serial wire, the converter, the observer
+    loop, the controller with the gains ``rtlift control`` designs by default), the monitor stepped
+    by the observer loop as ``--monitor`` steps it; the steps repeat every 120 s."""
+    from rtlift.app.commands.control import control_config
+    from rtlift.app.control import LiftController
+    from rtlift.app.hil_tracking import InProcessTracking
 
-    from hil_sim.hil import HilStream
-    from firmware_io.commands import ENVELOPE_LIMIT_CV
-    from rtlift.app.control import ControlConfig, LiftController
-    from rtlift.app.reference import parse_reference
-
-    stream = HilStream("random", seed=seed, effects=list(effects))
-    ctl_dev = SimpleNamespace(applied=1, enabled=True, envelope_cv=0, burst_period_ms=None)
-    stream.control = ctl_dev
-    cal = stream.calibration
-    obs = Observer.from_model(model)
+    if id(model) not in _CONFIGS:
+        _CONFIGS[id(model)] = control_config(model, True, None, None)[0]
     mon = new_monitor(model, thresholds, history)
-    ctl = LiftController(model, ControlConfig(feedback=True, fs_hz=model.fs_hz))
-    ref = parse_reference(reference)
-    fs = model.fs_hz
-    tare_n = int(round(cal.tare_seconds * fs))
-    total = int(round(seconds * fs))
-    k = 0
-    tare: list[float] = []
-    tare_cl = None
-    for piece in stream:
-        cl = np.asarray(cal.cl_from_ft(cal.ft_from_counts(piece.counts)), dtype=float)
-        cmu = np.asarray(cal.cmu_from_volts(piece.volts), dtype=float).tolist()
-        env = np.asarray(cal.cmu_from_volts(piece.envelope_volts), dtype=float).tolist()
-        for j, c in enumerate(cl.tolist()):
-            if k < tare_n:       # as the live loop: the observer and the monitor run through the tare
-                tare.append(c)
-                est = obs.step(cmu[j], env[j], None)
-                mon.step(None, est.model_dcl, est.innovation)
-            else:
-                if tare_cl is None:
-                    tare_cl = float(np.mean(tare))
-                z = c - tare_cl
-                est = obs.step(cmu[j], env[j], z)
-                mon.step(z, est.model_dcl, est.innovation)
-                u = ctl.step(est, ref.at(((k - tare_n) / fs) % 120.0))
-                if ctl.updated:
-                    v = float(cal.volts_from_cmu(u))
-                    ctl_dev.envelope_cv = min(ENVELOPE_LIMIT_CV, max(0, int(round(v * 100.0))))
-            k += 1
-        if k >= total:
-            break
+    ctl = LiftController(model, _CONFIGS[id(model)])
+    InProcessTracking(model, ctl, repeated(reference, seconds), seconds, seed=seed, effects=tuple(effects),
+                      monitor=mon).run()
     return mon
 
 

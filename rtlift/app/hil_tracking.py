@@ -229,10 +229,11 @@ class InProcessTracking:
 
     def __init__(self, model: Any, controller: Any, reference: str, seconds: float, *, seed: int = 11,
                  effects: tuple[str, ...] = (FADE,), gust: str | None = None,
-                 experiment: str = "random") -> None:
+                 experiment: str = "random", monitor: Any = None) -> None:
         from hil_sim.gust import parse_gust
         from hil_sim.hil import HilStream
 
+        self.monitor = monitor   # a DepartureMonitor stepped by the observer loop, as --monitor does
         self.model = model
         self.controller = controller
         self.reference = reference
@@ -265,7 +266,7 @@ class InProcessTracking:
         observer = Observer.from_model(self.model)
         observer.warm_up()
         self.controller.reset()
-        loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs)
+        loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs, monitor=self.monitor)
         closed = ControlLoop(link, loop, self.controller, parse_reference(self.reference), calibration, fs,
                              int(round(self.seconds * fs)))
         period_us = int(round(1e6 / fs))
