@@ -21,9 +21,7 @@ REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("design", help="design the lift loop's feedback from a model (python-control)",
-                              description="Design rtlift control's feedback from a model with python-control "
-                                          "(margins, predicted sensitivity, gain schedule over Cμ) and write "
-                                          "its report: report.json, report.md, bode.png.")
+                              description=__doc__.splitlines()[0])
     p.add_argument("--model", required=True, metavar="MODEL.json", help="model file")
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
     p.add_argument("--gm-db", type=float, default=6.0, help="gain margin at least (dB, default 6)")
