@@ -79,8 +79,8 @@ def main(argv: list[str] | None = None) -> int:
         traces[name] = (t, truth, ref)
         print(f"{name}: tracking RMSE {row['rmse_truth']:.4f} (last 40 s {row['rmse_truth_last40']:.4f}); lost "
               f"{row['lost']}; observer step p99 {row['step_p99_us']:.1f} µs, latency p99 "
-              f"{row['latency_p99_ms']:.2f} ms; departures " + ", ".join(f"{d['t_s']:.1f} s {d['test']} ({d['suspect']})"
-                                                      for d in row["departures"]) +
+              f"{row['latency_p99_ms']:.2f} ms; departures "
+              + ", ".join(f"{d['t_s']:.1f} s {d['test']} ({d['suspect']})" for d in row["departures"]) +
               "; adaptations " + ", ".join(f"{a['t_s'] if a['t_s'] is not None else '-'} s "
                                            f"{'+'.join(a['accepted'] or [])} {'swapped' if a['swapped'] else 'no swap'}"
                                            for a in row["adaptations"]), flush=True)

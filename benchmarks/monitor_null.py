@@ -101,7 +101,7 @@ def monitor_record(model, rec: Record, thresholds: dict | None = None, history: 
     obs = Observer.from_model(model)
     mon = new_monitor(model, thresholds, history)
     step, mstep = obs.step, mon.step
-    for c, v, z in zip(rec.cmu.tolist(), rec.cmu_envelope.tolist(), rec.dcl.tolist()):
+    for c, v, z in zip(rec.cmu.tolist(), rec.cmu_envelope.tolist(), rec.dcl.tolist(), strict=True):
         est = step(c, v, z)
         mstep(z, est.model_dcl, est.innovation)
     return mon

@@ -18,7 +18,6 @@ import pytest
 
 from rtlift.app.cli import main
 from rtlift.app.hil_tracking import BenchTracking, lowpass, reference_values
-from rtlift.core.rate import FS_HZ
 
 pytestmark = [pytest.mark.pty, pytest.mark.slow]
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from firmware_io.can_codec import SEQ_MODULUS
+from rtlift.core.rate import FS_HZ
 from tests.test_faults_support import (
-    FS,
     can_frames,
     counters,
     rtlift,
@@ -100,7 +100,7 @@ def test_wrapped_can_seq_and_device_clock(replay, record_property):
     t = np.array([float(r["t"]) for r in run.rows])
     t_us = np.array([int(r["t_us"]) for r in run.rows])
     wraps_seq, wraps_clock = (N - 1) // SEQ_MODULUS, int(np.sum(np.diff(t_us) < 0))
-    assert len(t) == N and np.allclose(np.diff(t), 1 / FS, rtol=0, atol=1e-12)
+    assert len(t) == N and np.allclose(np.diff(t), 1 / int(FS_HZ), rtol=0, atol=1e-12)
     assert wraps_seq == 7 and wraps_clock == 7
     record_property("measured", f"{wraps_seq} seq wraps, {wraps_clock} clock wraps in {N} samples: lost 0, "
                                 "t steps uniform 2.5 ms")

@@ -21,7 +21,8 @@ import pytest
 
 from firmware_io import read_log
 from hil_sim.devices import FaultPlan, SerialDaq, SlcanAdapter, synthetic_stream
-from tests.test_faults_support import FS, counters, read_estimates, write_calibration, write_model
+from rtlift.core.rate import FS_HZ
+from tests.test_faults_support import counters, read_estimates, write_calibration, write_model
 
 pytestmark = pytest.mark.pty
 
@@ -57,13 +58,13 @@ def test_live_link_faults(tmp_path, kind, record_property):
     completes, the counters equal what the device injected, one estimate per sample sent,
     and the log replays to the same counters."""
     make, suffix, link_args = LINKS[kind]
-    n = 2 * FS
+    n = 2 * int(FS_HZ)
     rate = 0.02 if kind == "serial" else 0.01  # per packet; per CAN frame (three per sample)
     plan = FaultPlan(corrupt=rate, drop=rate, duplicate=rate, garbage=rate, start=5, stop=n - 5)
     dev = make(synthetic_stream(7), faults=plan, seed=8, max_samples=n)
     log, summary, out = tmp_path / f"run{suffix}", tmp_path / "summary.json", tmp_path / "estimates.csv"
     with dev:
-        code, err = observe(dev, link_args(dev.path), tmp_path, "--seconds", str(n / FS), "--log", str(log),
+        code, err = observe(dev, link_args(dev.path), tmp_path, "--seconds", str(n / int(FS_HZ)), "--log", str(log),
                             "--json", str(summary), "--out", str(out))
     st = dev.stats
     s = json.loads(summary.read_text())
@@ -95,17 +96,17 @@ def test_device_disappears_mid_run_and_reappears(tmp_path, record_property):
     logged = read_log(log)
     assert code == 1 and not any("Traceback" in line for line in err), err
     assert err[-1] == f"rtlift observe: the device disappeared after {s['received']} samples; summary written"
-    assert s["end"] == "disconnected" and s["lost"] == 0 and 0.75 * FS <= s["received"] <= FS
+    assert s["end"] == "disconnected" and s["lost"] == 0 and 0.75 * int(FS_HZ) <= s["received"] <= int(FS_HZ)
     assert len(list(logged)) == s["received"] and counters(logged.counters.as_dict()) == counters(s)
 
-    back = SerialDaq(synthetic_stream(2), max_samples=FS, first_seq=40000)
+    back = SerialDaq(synthetic_stream(2), max_samples=int(FS_HZ), first_seq=40000)
     with back:
         port.unlink()
         port.symlink_to(back.path)
         code2, err2 = observe(back, ["--serial", str(port)], tmp_path, "--seconds", "0.5",
                               "--json", str(summary))
     s2 = json.loads(summary.read_text())
-    assert code2 == 0 and s2["received"] == FS // 2 and s2["lost"] == 0, err2
+    assert code2 == 0 and s2["received"] == int(FS_HZ) // 2 and s2["lost"] == 0, err2
     record_property("measured", f"gone after 1 s: exit {code}, '{err[-1]}'; log holds {s['received']} samples = "
                                 f"summary; after replug: exit {code2}, received {s2['received']}, lost 0")
 
@@ -115,7 +116,7 @@ def test_full_disk_for_the_log(tmp_path, kind, record_property):
     """The log's disk is full (/dev/full): the run stops with exit 2 and one line saying so,
     no traceback; the summary accounts for every sample received, each with its estimate."""
     make, suffix, link_args = LINKS[kind]
-    dev = make(synthetic_stream(3), max_samples=4 * FS)
+    dev = make(synthetic_stream(3), max_samples=4 * int(FS_HZ))
     log, summary, out = tmp_path / f"run{suffix}", tmp_path / "summary.json", tmp_path / "estimates.csv"
     log.symlink_to("/dev/full")
     with dev:
@@ -219,7 +220,7 @@ def test_reconnect_after_a_two_second_unplug(tmp_path, record_property):
     with dev:
         port.symlink_to(dev.path)
         cmd = [sys.executable, "-m", "rtlift", "observe", "--serial", str(port), "--model", str(model),
-               "--calibration", str(cal), "--reconnect", "--seconds", str(total / FS), "--log", str(log),
+               "--calibration", str(cal), "--reconnect", "--seconds", str(total / int(FS_HZ)), "--log", str(log),
                "--json", str(summary), "--out", str(out)]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 env={**os.environ, "PYTHONPATH": str(REPO)})
@@ -231,8 +232,9 @@ def test_reconnect_after_a_two_second_unplug(tmp_path, record_property):
             n1 = dev.stats.samples
             port.unlink()                   # udev removes the by-id link; the device is back 2 s later
             time.sleep(max(0.0, gone + 2.0 - time.perf_counter()))
-            back = SerialDaq(synthetic_stream(2), max_samples=total - n1 - 2 * FS, first_seq=n1 + 2 * FS,
-                             first_t_us=(n1 + 2 * FS) * 2500, unread_lost=True)
+            fs = int(FS_HZ)
+            back = SerialDaq(synthetic_stream(2), max_samples=total - n1 - 2 * fs, first_seq=n1 + 2 * fs,
+                             first_t_us=(n1 + 2 * fs) * 2500, unread_lost=True)
             with back:
                 port.symlink_to(back.path)
                 back.start()
@@ -248,7 +250,7 @@ def test_reconnect_after_a_two_second_unplug(tmp_path, record_property):
     # the replacement DAQ starts counting at n1 + 2 s and its clock runs whether or not the port is
     # open (unread_lost), so what it sampled before the host reopened the port is gap_lost - 2 s: the
     # path is watched while the device is down (issue 26: <= 50 at 400 Hz; the backoff alone: ~220)
-    missed_after_return = s["gap_lost"] - 2 * FS
+    missed_after_return = s["gap_lost"] - 2 * int(FS_HZ)
     assert missed_after_return == back.stats.samples_unread
     assert s["reconnects"] == 1 and s["gaps_unknown"] == 0 and 0 <= missed_after_return <= 50, s
     assert s["received"] + s["lost"] == total and s["crc_errors"] == 0 and s["duplicates"] == 0
@@ -274,7 +276,7 @@ def test_reconnect_to_a_new_path_on_can_when_the_gap_is_not_knowable(record_prop
     from firmware_io import open_link
 
     dev = SlcanAdapter(synthetic_stream(1), faults=FaultPlan(disconnect_after_s=0.5))
-    back = SlcanAdapter(synthetic_stream(2), max_samples=FS // 2)
+    back = SlcanAdapter(synthetic_stream(2), max_samples=int(FS_HZ) // 2)
     gaps = []
     with dev, back:
         cfg = {"kind": "can", "interface": "slcan", "channel": dev.path,
@@ -293,8 +295,8 @@ def test_reconnect_to_a_new_path_on_can_when_the_gap_is_not_knowable(record_prop
             c = link.counters
     n1 = dev.stats.samples
     assert c.reconnects == 1 and c.gaps_unknown == 1 and c.gap_lost == 0 and c.lost == 0
-    assert len(got) == c.received == n1 + FS // 2 and got[n1] == 0
-    assert len(gaps) == 1 and not gaps[0][1] and gaps[0][0] == c.gap_lost_estimated < FS
+    assert len(got) == c.received == n1 + int(FS_HZ) // 2 and got[n1] == 0
+    assert len(gaps) == 1 and not gaps[0][1] and gaps[0][0] == c.gap_lost_estimated < int(FS_HZ)
     record_property("measured", f"slcan adapter gone after {n1} samples, a restarted one at a new path: "
                                 f"reconnects {c.reconnects}, received {c.received} (all sent), gap not "
                                 f"knowable from seq, estimated {c.gap_lost_estimated} samples")

@@ -12,8 +12,9 @@ import pytest
 
 from firmware_io.serial_codec import SEQ_MODULUS
 from hil_sim.devices.serial_daq import cobs_data_positions, invalid_chunks
+from rtlift.core.rate import FS_HZ
 from rtlift.observer import FLAG_MISSING, FLAG_REJECTED
-from tests.test_faults_support import FS, counters, rtlift, serial_frame, wire, write_calibration, write_model
+from tests.test_faults_support import counters, rtlift, serial_frame, wire, write_calibration, write_model
 
 N = 2000
 
@@ -170,7 +171,7 @@ def test_wrapped_serial_seq_and_device_clock(replay, record_property):
     t = np.array([float(r["t"]) for r in run.rows])
     seq = [int(r["seq"]) for r in run.rows]
     t_us = [int(r["t_us"]) for r in run.rows]
-    assert len(t) == N and np.allclose(np.diff(t), 1 / FS, rtol=0, atol=1e-12)
+    assert len(t) == N and np.allclose(np.diff(t), 1 / int(FS_HZ), rtol=0, atol=1e-12)
     assert seq[N // 2] == 0 and t_us[N // 3] == 0  # both counters did wrap
     record_property("measured", f"seq {seq[0]}→{seq[-1]}, t_us {t_us[0]}→{t_us[-1]}: lost 0, {N} rows, "
                                 "t steps uniform 2.5 ms")

@@ -23,7 +23,8 @@ def _synthetic(seconds: float, seed: int = 0):
     """White measurement noise around a model lift that moves (a random envelope's lift)."""
     rng = np.random.default_rng(seed)
     n = int(seconds * FS_HZ)
-    m = 0.1 + 0.04 * np.sin(2 * np.pi * 0.15 * np.arange(n) / FS_HZ) + 0.02 * np.sin(2 * np.pi * 0.05 * np.arange(n) / FS_HZ)
+    t = np.arange(n) / FS_HZ
+    m = 0.1 + 0.04 * np.sin(2 * np.pi * 0.15 * t) + 0.02 * np.sin(2 * np.pi * 0.05 * t)
     noise = SIGMA * rng.standard_normal(n)
     return m, noise
 

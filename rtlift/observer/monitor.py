@@ -4,7 +4,8 @@
 :mod:`rtlift.diagnose.fingerprint`); its RMSE σ_fp on the records with a loop's kind of input
 (:func:`fingerprint_scale`) is the scale every statistic here is measured in. The monitor watches
 for what changes *while the loop runs*: a difference already there when it starts is the offline
-diagnosis's to find (``rtlift diagnose``), and the observer's bias state absorbs it meanwhile. Per sample the monitor takes the measured ΔCL z(k), the open-loop
+diagnosis's to find (``rtlift diagnose``), and the observer's bias state absorbs it meanwhile.
+Per sample the monitor takes the measured ΔCL z(k), the open-loop
 model's ΔCL_m(k) (``est.model_dcl``) and the observer's innovation ν(k), and accumulates, in
 blocks of ``block`` samples (1 s), the sums of
 
@@ -342,6 +343,6 @@ def monitor_arrays(monitor: DepartureMonitor, dcl: np.ndarray, model_dcl: np.nda
                    innovation: np.ndarray) -> DepartureMonitor:
     """Feed whole arrays (an estimate file, a replay) sample by sample through ``monitor``."""
     step = monitor.step
-    for z, m, v in zip(dcl.tolist(), model_dcl.tolist(), innovation.tolist()):
+    for z, m, v in zip(dcl.tolist(), model_dcl.tolist(), innovation.tolist(), strict=True):
         step(z, m, v)
     return monitor

@@ -58,13 +58,13 @@ def _spin_window(text: str) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rtlift.app.watch import attach
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
     from firmware_io.links import link_config_from_args, open_link
     from firmware_io.logs import graceful_exit
     from rtlift.app.live import EstimateWriter, ObserverLoop, summary, write_summary
     from rtlift.app.view.arguments import start_view
+    from rtlift.app.watch import attach
     from rtlift.model.domain import watch_domain
     from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
