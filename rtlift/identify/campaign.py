@@ -27,7 +27,7 @@
    single-burst record, so the burst harmonics come out right), kept where it lowers the
    held-out RMSE (``kernel="auto"``; the paper's ``"single_burst"`` keeps h as averaged).
 6. the residual fingerprint of the final model on the three records
-   (:mod:`rtlift.diagnose.fingerprint`), stored in the model file for later diagnoses, and
+   (:mod:`rtlift.residual.fingerprint`), stored in the model file for later diagnoses, and
    the model's domain (burst periods and Cμ range of the three records, :mod:`rtlift.model.domain`).
 
 Pure: takes :class:`~rtlift.core.records.Record` objects, returns an :class:`Identification`

@@ -1,7 +1,7 @@
 """The live departure monitor: a running loop's residual against the model's fingerprint.
 
 ``rtlift identify`` stores the model's residual on its own campaign (the fingerprint,
-:mod:`rtlift.diagnose.fingerprint`); its RMSE σ_fp on the records with a loop's kind of input
+:mod:`rtlift.residual.fingerprint`); its RMSE σ_fp on the records with a loop's kind of input
 (:func:`fingerprint_scale`) is the scale every statistic here is measured in. The monitor watches
 for what changes *while the loop runs*: a difference already there when it starts is the offline
 diagnosis's to find (``rtlift diagnose``), and the observer's bias state absorbs it meanwhile.
