@@ -72,6 +72,12 @@ class InteractionConvolution(BlockChain):
         m = self.momentum.momentum(u)
         return self.gain_h(m) * hf + self.gain(m) * (c - hf)
 
+    def steady_output(self, envelope: float) -> float:
+        """ΔCL_H's mean under lift-optimal bursting at ``envelope`` (duty d, so m ≈ the
+        envelope): HF removes the mean of c, the slow part keeps G(m) φ Σh · d · envelope (the
+        controller's static map adds it to the Wiener part's)."""
+        return self.gain(envelope) * self.phi * float(np.sum(self.kernel)) * self.momentum.duty * envelope
+
     def kernel_arrays(self) -> tuple[tuple[Any, ...], tuple[np.ndarray, ...]]:
         """For the compiled step (:func:`rtlift.blocks.compiled.interaction_step`): parameters
         (φh, HF sections, m's (λ, 1 − λ, 1/d), knots, G_H values and slopes, G values and

@@ -10,7 +10,6 @@ from rtlift.core.errors import UserError, require_finite
 
 LIFT_STRUCTURES = ("paper", "interaction")
 GENERIC_STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback", "store_chain")
-DEFAULT_LIFT_STRUCTURE = "paper"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -25,12 +24,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--record", metavar="F",
                    help="a generic single-input record (columns t,u,y) instead of the lift campaign")
     p.add_argument("--trains", nargs="+", metavar="F",
-                   help="burst-train records (train_T1p75, train_T3p5, train_T7): the interaction "
-                        "structure learns burst-burst interaction from them")
+                   help="burst-train records (train_T1p75, train_T3p5, train_T7): with them the "
+                        "interaction structure is identified (it learns burst-burst interaction from them), "
+                        "without them the paper's hybrid")
     p.add_argument("--structure", choices=(*LIFT_STRUCTURES, *GENERIC_STRUCTURES),
-                   help="lift campaign: paper (the paper's hybrid, default) or interaction (issue 18: "
-                        "slow part driven by the delivered momentum, per-burst gain of each burst's "
-                        "slow response; needs --trains to learn the interaction). With --record: the "
+                   help="lift campaign: paper (the paper's hybrid) or interaction (slow part driven by the "
+                        "delivered momentum, per-burst gain of each burst's slow response); default: "
+                        "interaction when --trains are given, else paper. With --record: the "
                         "W block in textbook form (LTI then static map, default), Wiener-Hammerstein (a "
                         "second LTI after the map) or nonlinear feedback (the output fed back through a "
                         "cubic map into the LTI's input)")
@@ -38,7 +38,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="Wiener LTI order (default: chosen from 1..4 by held-out error)")
     p.add_argument("--form", choices=("auto", "input_gain", "output_map"), default="auto",
                    help="Wiener nonlinearity: N(Cmu)*y as in the paper, f(y) with f the static map "
-                        "(textbook Wiener), or whichever has the lower held-out error (default)")
+                        "(textbook Wiener), or whichever has the lower held-out error (default; the "
+                        "interaction structure: N(Cmu)*y, the textbook form measured no better there)")
     p.add_argument("--dead-time", type=int, metavar="SAMPLES",
                    help="samples the measured lift lags the actuation record (default: chosen from "
                         "0..8 by held-out error)")
@@ -63,16 +64,17 @@ def run(args: argparse.Namespace) -> int:
                             f"{', '.join(GENERIC_STRUCTURES)}")
         args.structure = args.structure or GENERIC_STRUCTURES[0]
         return run_generic(args)
-    structure = args.structure or DEFAULT_LIFT_STRUCTURE
-    if structure not in LIFT_STRUCTURES:
-        raise UserError(f"--structure {structure} is for a generic --record; a lift campaign takes "
+    if args.structure is not None and args.structure not in LIFT_STRUCTURES:
+        raise UserError(f"--structure {args.structure} is for a generic --record; a lift campaign takes "
                         f"{' or '.join(LIFT_STRUCTURES)}")
     missing = [f"--{k.replace('_', '-')}" for k in ("static", "single_burst", "train") if not getattr(args, k)]
     if missing:
         raise UserError(f"{', '.join(missing)} missing: give --static, --single-burst and --train (a lift "
                         "campaign) or --record (a generic t,u,y record)")
     from rtlift.core.records import read_record
-    from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
+    from rtlift.identify.campaign import IdentifyOptions
+    from rtlift.identify.choice import choose_structure, identify_lift
+    from rtlift.identify.interaction import InteractionOptions
     from rtlift.observer import tune_observer
 
     if args.order is not None and not 1 <= args.order <= 8:
@@ -83,65 +85,58 @@ def run(args: argparse.Namespace) -> int:
     if args.dead_time is not None and not 0 <= args.dead_time <= 80:
         raise UserError(f"--dead-time {args.dead_time}: must be between 0 and 80 samples")
     trains = [read_record(f, min_samples=200) for f in args.trains or ()]
-    if structure == "interaction":
-        return run_interaction(args, static, burst, trains, train)
-    if trains:
+    names = ", ".join(str(f) for f in (args.static, args.single_burst, *(args.trains or ()), args.train))
+    try:
+        choice = choose_structure(trains, args.structure)
+    except ValueError as exc:
+        raise UserError(f"cannot identify from {names}: {exc}") from None
+    if choice.name == "interaction" and args.phi != "auto":
+        how = "--structure interaction" if args.structure else "the interaction structure (chosen for the --trains)"
+        raise UserError(f"--phi: not a choice of {how}: its burst part's gains are fitted instead; "
+                        "--structure paper fits the paper's hybrid")
+    if choice.name == "paper" and trains:
         print("rtlift identify: note: --trains are not fitted by --structure paper (the paper's hybrid); "
-              "use --structure interaction to learn from them", file=sys.stderr)
-    options = IdentifyOptions(order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time,
-                              kernel=args.kernel)
+              "leave --structure out to learn from them", file=sys.stderr)
     t0 = time.perf_counter()
     try:
-        idf = identify_hybrid(static, burst, train, options)
+        idf, choice = identify_lift(
+            static, burst, trains, train, args.structure,
+            hybrid=IdentifyOptions(order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time,
+                                   kernel=args.kernel),
+            interaction=InteractionOptions(order=args.order, dead_time=args.dead_time,
+                                           form="input_gain" if args.form == "auto" else args.form,
+                                           kernel=args.kernel))
     except ValueError as exc:
-        raise UserError(f"cannot identify from {args.static}, {args.single_burst}, "
-                        f"{args.train}: {exc}") from None
+        raise UserError(f"cannot identify from {names}: {exc}") from None
     seconds = time.perf_counter() - t0
     observer = {**idf.observer, **tune_observer(idf.model, [train])}   # Q, R from the data, for rtlift observe
     require_finite("observer tuning", train.name, observer=observer)
     idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
+                               **({"trains": [str(f) for f in args.trains]} if args.trains else {}),
                                "train": str(args.train)}
     _save(idf, args.out, observer)     # no clock in the file: the same inputs give the same bytes
-    print(summary(idf, args.out, seconds))
+    print(summary(idf, args.out, seconds) if choice.name == "paper" else interaction_summary(idf, args.out, seconds))
     return 0
 
 
-def run_interaction(args: argparse.Namespace, static, burst, trains, train) -> int:
-    """``rtlift identify --structure interaction``: the campaign with the trains (issue 18)."""
-    from rtlift.identify.interaction import InteractionOptions, identify_interaction
-    from rtlift.observer import tune_observer
-
-    fixed = [f"--{k.replace('_', '-')}" for k, default in (("form", "auto"), ("phi", "auto"), ("dead_time", None))
-             if getattr(args, k) != default]
-    if fixed:
-        raise UserError(f"{', '.join(fixed)}: not choices of --structure interaction (the paper's N(Cmu)*y form, "
-                        "single-burst phi, no dead time)")
-    t0 = time.perf_counter()
-    try:
-        idf = identify_interaction(static, burst, trains, train, InteractionOptions(order=args.order))
-    except ValueError as exc:
-        names = ", ".join(str(f) for f in (args.static, args.single_burst, *(args.trains or ()), args.train))
-        raise UserError(f"cannot identify from {names}: {exc}") from None
-    seconds = time.perf_counter() - t0
-    observer = {**idf.observer, **tune_observer(idf.model, [train])}
-    require_finite("observer tuning", train.name, observer=observer)
-    idf.provenance["files"] = {"static": str(args.static), "single_burst": str(args.single_burst),
-                               "trains": [str(f) for f in args.trains or ()], "train": str(args.train)}
-    _save(idf, args.out, observer)
+def interaction_summary(idf, out_path: str, seconds: float) -> str:
+    """Human summary of an identification of the interaction structure (a few lines)."""
     st, w, dom = idf.provenance["structure"], idf.provenance["wiener"], idf.provenance["domain"]
-    lines = [f"identified interaction model in {seconds:.2f} s -> {args.out}",
+    lines = [f"identified interaction model in {seconds:.2f} s -> {out_path}",
+             f"  structure: {st['choice']['why']}",
              f"  high-pass of the burst part: Butterworth order {st['highpass']['order']}, cutoff "
              f"{st['highpass']['cutoff_hz']:g} Hz; delivered-momentum memory "
              f"tau {st['time_constant_s']:g} s at duty {st['duty']:.4g}",
              "  per-burst gains G_H(m) / G(m) of the fast / slow part: " + ", ".join(
                  f"{gh:.3g}/{g:.3g}@{k:.3g}" for k, gh, g in zip(st["knots"], st["gains_h"], st["gains"], strict=True)),
-             f"  Wiener LTI (driven by m): order {w['order']}, DC gain {w['dc_gain']:.4g}",
+             f"  Wiener LTI (driven by m, {w['form']} form): order {w['order']}, DC gain {w['dc_gain']:.4g}; "
+             f"dead time {st['dead_time_samples']} samples",
+             f"  kernel: {_refinement_line(idf.provenance['kernel'].get('refinement', {}))}",
              "  domain: burst periods " + ", ".join(f"{p:.3g}" for p in dom["burst_periods_s"]) + " s"
              + (" and isolated bursts" if dom["isolated_bursts"] else "") + f", Cmu up to {dom['cmu_max']:.4g}"]
     lines += [f"  {name:14s} corr {v['corr']:.4f}  NRMSE {v['nrmse']:.4f}"
               for name, v in idf.metrics["records"].items()]
-    print("\n".join(lines))
-    return 0
+    return "\n".join(lines)
 
 
 def _save(idf, out: str, observer: dict) -> None:
