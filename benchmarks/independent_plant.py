@@ -1,6 +1,7 @@
 """The independent plant's protocol (``../shared/data/independent_plant/README.md``), as a user runs it.
 
-1. ``rtlift identify`` on the clean campaign (static, single burst, sine k = 0.125; defaults);
+1. ``rtlift identify`` on the clean campaign (static, single burst, sine k = 0.125; defaults; with
+   ``--trains`` the three burst trains too: the full campaign, the interaction structure);
 2. per case: ``rtlift diagnose --train CASE/sine_k0125 --validate CASE/sine_k025 CASE/random``;
 3. right when the accepted entries of kind ``effect`` are exactly the truth's names (none on
    ``clean``), the key parameters are close (frequency ±10 %, delay ±1 sample, fade fraction
@@ -42,6 +43,7 @@ from benchmarks._common import run_cli  # noqa: E402
 from rtlift.core.rate import FS_HZ  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "independent_plant"
+TRAINS = ("train_T1p75", "train_T3p5", "train_T7")
 CASES = ("clean", "delay", "resonance", "fade", "drift", "mains", "hysteresis", "delay_mains")
 SCALED = (("hysteresis", 0.5), ("hysteresis", 1.5), ("drift", 0.5), ("drift", 2.0), ("mains", 0.5))
 MIXES = (("drift", "mains"), ("fade", "mains"), ("resonance", "drift"), ("fade", "drift"),
@@ -151,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--field", action="store_true",
                     help="the second form: records renamed run_a/b/c, training on random, validating on the "
                          "two sines")
+    ap.add_argument("--trains", action="store_true",
+                    help="identify from the full campaign, the burst trains too (rtlift identify then chooses "
+                         "the interaction structure, issue 31)")
     args = ap.parse_args(argv)
     if not (args.data / "campaign" / "static.csv").exists():
         print(f"no independent plant data at {args.data}", file=sys.stderr)
@@ -161,8 +166,9 @@ def main(argv: list[str] | None = None) -> int:
         camp = args.data / "campaign"
         model = work / "model.json"
         t0 = time.perf_counter()
+        trains = ("--trains", *(camp / f"{t}.csv" for t in TRAINS)) if args.trains else ()
         run_cli("identify", "--static", camp / "static.csv", "--single-burst", camp / "single_burst.csv",
-                "--train", camp / "sine_k0125.csv", "-o", model)
+                *trains, "--train", camp / "sine_k0125.csv", "-o", model)
         identify_s = time.perf_counter() - t0
         scored = FIELD_SCORED if args.field else SCORED
         names = FIELD_NAMES if args.field else None
@@ -204,7 +210,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{'yes' if r['right'] else 'no'} |")
     right = sum(r["right"] for r in rows)
     print(f"\n{right} of {len(rows)} cases right; identify {identify_s:.1f} s")
-    print(json.dumps({"form": "field" if args.field else "development", "cases_right": right, "cases": len(rows),
+    print(json.dumps({"form": "field" if args.field else "development", "trains": args.trains,
+                      "cases_right": right, "cases": len(rows),
                       "identify_seconds": identify_s,
                       "rows": rows}))
     return 0

@@ -6,7 +6,10 @@ same model), warm_up_seconds (compile or cache load), batch_speedup (batch vs st
 ``step`` throughput on a 10-minute 400 Hz record, same output), batch_speedup_vs_reference
 (the same against ``reference_step``), max_abs_difference (batch vs streamed ``step``) and
 max_abs_difference_reference (compiled vs reference ``step``).
-Targets (issue 14): step median ≤ 2 µs, batch ≥ 100× faster than streaming.
+Targets (issue 14): step median ≤ 2 µs, batch ≥ 100× faster than streaming. The same figures
+for a model of the ``interaction`` structure (issue 31: order-3 Wiener part, a 2-sample delay,
+the same kernel length and input) under ``"interaction"``; its target: step median ≤ 2 µs,
+batch ≥ 100× faster per sample than the pure-Python step (``batch_speedup_vs_reference``).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit, percentiles_us  # noqa: E402
 from rtlift.core.rate import FS_HZ  # noqa: E402
-from testkit.synthetic import burst_input, make_model  # noqa: E402
+from testkit.synthetic import burst_input, interaction_model, make_model  # noqa: E402
 
 
 def _latency(step, cmu: np.ndarray, env: np.ndarray) -> tuple[float, float]:
@@ -44,24 +47,14 @@ def _stream(step, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, float]:
     return out, pc() - t0
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--minutes", type=float, default=10.0, help="record length for the throughput test")
-    ap.add_argument("--steps", type=int, default=50_000, help="timed single steps (each path)")
-    args = ap.parse_args()
-
-    rng = np.random.default_rng(0)
-    model = make_model(rng, kernel_len=300, order=2, hp_order=2)
-    n = int(args.minutes * 60 * FS_HZ)
-    cmu, env = burst_input(rng, n)
+def measure(model, cmu: np.ndarray, env: np.ndarray, steps: int) -> dict[str, float]:
+    """The figures of the module docstring for one model (compiled step, reference step, batch)."""
     if not model.compiled:
         raise SystemExit("step_latency: the benchmark model does not take the compiled step")
     warm_up_s = model.warm_up()
-
-    steps = cmu[: args.steps], env[: args.steps]
-    step_median, step_p99 = _latency(model.step, *steps)
+    step_median, step_p99 = _latency(model.step, cmu[:steps], env[:steps])
     model.reset()
-    ref_median, ref_p99 = _latency(model.reference_step, *steps)
+    ref_median, ref_p99 = _latency(model.reference_step, cmu[:steps], env[:steps])
 
     # throughput: the whole record streamed (compiled, then reference) vs in one batch call
     model.reset()
@@ -75,7 +68,7 @@ def main() -> None:
         batch = model.simulate(cmu, env).total
         batch_times.append(time.perf_counter() - t0)
     t_batch = float(np.median(batch_times))
-    emit({
+    return {
         "step_median_us": round(step_median, 3),
         "step_p99_us": round(step_p99, 3),
         "reference_step_median_us": round(ref_median, 3),
@@ -86,11 +79,24 @@ def main() -> None:
         "stream_seconds": round(t_stream, 3),
         "reference_stream_seconds": round(t_reference, 3),
         "batch_seconds": round(t_batch, 4),
-        "samples": n,
-        "kernel_len": 300,
         "max_abs_difference": float(np.max(np.abs(streamed - batch))),
         "max_abs_difference_reference": float(np.max(np.abs(streamed - reference))),
-    })
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=10.0, help="record length for the throughput test")
+    ap.add_argument("--steps", type=int, default=50_000, help="timed single steps (each path)")
+    args = ap.parse_args()
+
+    rng = np.random.default_rng(0)
+    model = make_model(rng, kernel_len=300, order=2, hp_order=2)
+    n = int(args.minutes * 60 * FS_HZ)
+    cmu, env = burst_input(rng, n)
+    hybrid = measure(model, cmu, env, args.steps)
+    inter = measure(interaction_model(rng, kernel_len=300, order=3, delay=2), cmu, env, args.steps)
+    emit({**hybrid, "samples": n, "kernel_len": 300, "interaction": inter})
 
 
 if __name__ == "__main__":

@@ -54,17 +54,21 @@ def is_generic(model: Any) -> bool:
     return isinstance(model, SISO_MODELS)
 
 
-def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any] = (), structure: str = "paper",
+def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any] = (), structure: str | None = None,
              order: int | None = None, form: str = "auto", phi: str = "auto", dead_time: int | None = None,
              kernel: str = "auto", out: PathLike | None = None):
-    """The hybrid lift model of a campaign (``rtlift identify --static --single-burst --train``):
+    """The lift model of a campaign (``rtlift identify --static --single-burst [--trains] --train``):
     an identification result whose ``.model`` carries its observer settings (Q, R tuned on the
     training record) and whose ``.provenance``/``.metrics`` are what the model file stores;
-    written to ``out`` when given. ``structure="interaction"`` learns burst-burst interaction
-    from ``trains`` (``form``, ``phi`` and ``dead_time`` are then fixed by the structure)."""
+    written to ``out`` when given. The structure is ``structure`` if given, else the interaction
+    structure when ``trains`` are given and the paper's hybrid when not
+    (:func:`rtlift.identify.choice.choose_structure`; ``provenance.structure.choice`` says why)."""
+    from rtlift.identify.campaign import IdentifyOptions
+    from rtlift.identify.choice import choose_structure, identify_lift
+    from rtlift.identify.interaction import InteractionOptions
     from rtlift.observer import tune_observer
 
-    if structure not in LIFT_STRUCTURES:
+    if structure is not None and structure not in LIFT_STRUCTURES:
         raise UserError(f"structure {structure!r}: a lift campaign takes {' or '.join(LIFT_STRUCTURES)}")
     if order is not None and not 1 <= order <= 8:
         raise UserError(f"--order {order}: must be between 1 and 8")
@@ -76,20 +80,19 @@ def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any
     trains = [_lift(r, 200) for r in trains]
     names = ", ".join(str(f) for f in (files["static"], files["single_burst"], *files["trains"], files["train"]))
     try:
-        if structure == "interaction":
-            from rtlift.identify.interaction import InteractionOptions, identify_interaction
-
-            fixed = [f"--{k.replace('_', '-')}" for k, v, default in
-                     (("form", form, "auto"), ("phi", phi, "auto"), ("dead_time", dead_time, None)) if v != default]
-            if fixed:
-                raise UserError(f"{', '.join(fixed)}: not choices of --structure interaction (the paper's "
-                                "N(Cmu)*y form, single-burst phi, no dead time)")
-            idf = identify_interaction(static, single_burst, trains, train, InteractionOptions(order=order))
-        else:
-            from rtlift.identify.campaign import IdentifyOptions, identify_hybrid
-
-            idf = identify_hybrid(static, single_burst, train, IdentifyOptions(
-                order=order, form=form, phi=phi, dead_time=dead_time, kernel=kernel))
+        choice = choose_structure(trains, structure)
+    except ValueError as exc:
+        raise UserError(f"cannot identify from {names}: {exc}") from None
+    if choice.name == "interaction" and phi != "auto":
+        how = "--structure interaction" if structure else "the interaction structure (chosen for the --trains)"
+        raise UserError(f"--phi: not a choice of {how}: its burst part's gains are fitted instead; "
+                        "--structure paper fits the paper's hybrid")
+    try:
+        idf, choice = identify_lift(
+            static, single_burst, trains, train, structure,
+            hybrid=IdentifyOptions(order=order, form=form, phi=phi, dead_time=dead_time, kernel=kernel),
+            interaction=InteractionOptions(order=order, dead_time=dead_time,
+                                           form="input_gain" if form == "auto" else form, kernel=kernel))
     except ValueError as exc:
         raise UserError(f"cannot identify from {names}: {exc}") from None
     observer = {**idf.observer, **tune_observer(idf.model, [train])}   # Q, R from the data, for rtlift observe
@@ -97,7 +100,7 @@ def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any
     idf.model.observer_config = observer
     if all(isinstance(f, (str, os.PathLike)) for f in (files["static"], files["single_burst"], files["train"])):
         idf.provenance["files"] = {k: [str(f) for f in v] if k == "trains" else str(v) for k, v in files.items()
-                                   if k != "trains" or structure == "interaction"}
+                                   if k != "trains" or v}
     if out is not None:
         from rtlift.model.modelfile import save_model
 

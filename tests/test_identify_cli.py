@@ -46,6 +46,8 @@ def test_identify_writes_a_model_that_loads_and_is_stable(model_file):
               and c["dead_time_samples"] == structure["dead_time_samples"]]
     assert chosen[0]["holdout_rmse"] <= 1.01 * min(c["holdout_rmse"] for c in structure["candidates"])
     assert [s.name for s in m.input_stages] == (["delay"] if structure["dead_time_samples"] else [])
+    assert structure["name"] == "paper" and structure["choice"]["chosen"] == "paper"    # no trains given
+    assert "no burst-train records" in structure["choice"]["why"]
 
 
 def test_model_file_records_hpf_phi_orders_uncertainty_and_observer_hints(model_file):

@@ -1,5 +1,6 @@
 """The interaction structure's blocks (issue 18): streaming equals batch, state carries, the
-model file and the observer take it as they take the paper's model."""
+model file and the observer take it as they take the paper's model; its compiled step and
+batch are judged by the blocks' own pure-Python step and numpy batch."""
 
 from __future__ import annotations
 
@@ -8,36 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtlift.blocks import HighPassFilter, InputGain, WienerBlock
-from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.stages import DeliveredMomentum
+from rtlift.blocks import HighPassFilter
+from rtlift.blocks.interaction import InteractionConvolution
+from rtlift.blocks.stages import DeliveredMomentum, ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
-from rtlift.model.hybrid import HybridModel
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig
-from testkit.synthetic import burst_input, model_steps, random_stable_A, run_in_chunks
+from testkit.synthetic import burst_input, interaction_model, model_steps, run_in_chunks
 
 TOL = 1e-12
-
-
-def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int = 2) -> HybridModel:
-    """A random model of the structure: ΔCL = G_H(m) HF(c) + G(m) (c − HF(c)) + N(m) C x."""
-    tau = float(rng.uniform(0.02, 1.0))
-    duty = float(rng.uniform(0.05, 0.5))
-    knots = np.array([0.0, 0.002, 0.006, 0.012, 0.022])
-    burst = InteractionConvolution(rng.normal(size=kernel_len) * np.exp(-np.arange(kernel_len) / 12.0),
-                                   float(rng.uniform(20, 120)),
-                                   HighPassFilter.design(int(rng.integers(1, 5)), float(rng.uniform(0.5, 8)), FS),
-                                   knots, rng.uniform(0.2, 1.2, knots.size), rng.uniform(-0.2, 1.0, knots.size),
-                                   DeliveredMomentum(tau, duty, FS))
-    A = random_stable_A(rng, order)
-    B = np.zeros(order)
-    B[0] = 1.0
-    C = rng.normal(size=order)
-    C /= C @ np.linalg.solve(np.eye(order) - A, B)
-    wiener = WienerBlock(A, B, C, InputGain(np.linspace(0, 0.022, 8), 10 + rng.uniform(0, 5, size=8)))
-    return HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), wiener, FS,
-                       input_stages=(DeliveredMomentum(tau, duty, FS),))
 
 
 @settings(max_examples=30, deadline=None)
@@ -65,6 +45,59 @@ def test_interaction_chunks_and_steps_carry_state_through_get_set(seed, cuts):
     whole = m.simulate(cmu, env).total
     m.reset()
     np.testing.assert_allclose(run_in_chunks(m, cmu, env, cuts), whole, atol=TOL, rtol=0)
+
+
+def _run(step, cmu, env):
+    return np.array([step(c, e) for c, e in zip(cmu, env, strict=True)]).reshape(-1, 3).T
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), kernel_len=st.integers(1, 60),
+       order=st.integers(1, 3), delay=st.integers(0, 4), output_form=st.booleans(), warm=st.integers(0, 50))
+def test_compiled_interaction_step_equals_reference_step(seed, n, kernel_len, order, delay, output_form, warm):
+    """(ΔCL, ΔCL_H, ΔCL_L) and the state after the steps agree to 1e-12, from any starting state."""
+    rng = np.random.default_rng(seed)
+    m = interaction_model(rng, kernel_len, order, delay, output_form)
+    assert m.compiled
+    cmu, env = burst_input(rng, n + warm, period=int(rng.integers(5, 300)))
+    _run(m.reference_step, cmu[:warm], env[:warm])
+    start = m.get_state()
+    compiled = _run(m.step, cmu[warm:], env[warm:])
+    after_compiled = m.get_state()
+    m.set_state(start)
+    reference = _run(m.reference_step, cmu[warm:], env[warm:])
+    scale = max(1.0, float(np.max(np.abs(reference))))
+    np.testing.assert_allclose(compiled, reference, atol=TOL * scale, rtol=0)
+    np.testing.assert_allclose(after_compiled, m.get_state(), atol=TOL, rtol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 3000), warm=st.integers(0, 400), delay=st.integers(0, 3),
+       output_form=st.booleans())
+def test_compiled_interaction_batch_equals_the_numpy_batch(seed, n, warm, delay, output_form):
+    """The fused loop and the blocks' numpy/scipy chain (``reference_simulate``) agree to 1e-12
+    from a mid-record state, with a kernel as long as an identified one, and leave the same state."""
+    rng = np.random.default_rng(seed)
+    m = interaction_model(rng, 300, 2, delay, output_form)
+    cmu, env = burst_input(rng, warm + n, period=int(rng.integers(20, 300)))
+    _run(m.step, cmu[:warm], env[:warm])
+    start = m.get_state()
+    fused = np.array(m.simulate(cmu[warm:], env[warm:]))
+    after = m.get_state()
+    m.set_state(start)
+    reference = np.array(m.reference_simulate(cmu[warm:], env[warm:]))
+    scale = max(1.0, float(np.max(np.abs(reference), initial=0.0)))
+    np.testing.assert_allclose(fused, reference, atol=TOL * scale, rtol=0)
+    np.testing.assert_allclose(after, m.get_state(), atol=TOL, rtol=1e-12)
+
+
+def test_interaction_model_with_an_output_stage_steps_with_the_reference():
+    m = interaction_model(np.random.default_rng(3)).with_stages(output_stages=(ZeroDrift(FS, rate_per_s=0.01),))
+    assert not m.compiled
+    cmu, env = burst_input(np.random.default_rng(4), 300, period=60)
+    stepped = _run(m.step, cmu, env)
+    m.reset()
+    np.testing.assert_array_equal(stepped, _run(m.reference_step, cmu, env))
 
 
 def test_delivered_momentum_settles_at_the_envelope_for_bursts_at_the_duty():

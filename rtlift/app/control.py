@@ -130,7 +130,8 @@ def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> float:
 
 
 def static_map(model: Any, cmu_max: float, points: int = MAP_POINTS) -> tuple[np.ndarray, np.ndarray]:
-    """(Cμ grid on [0, cmu_max], S(Cμ)) of the model's Wiener part, made non-decreasing."""
+    """(Cμ grid on [0, cmu_max], S(Cμ)) of the model's Wiener part (and of the interaction
+    structure's burst part, whose slow response has a mean), made non-decreasing."""
     w = model.wiener
     g0 = dc_gain(w.A, w.B, w.C)
     cmu = np.linspace(0.0, cmu_max, points)
@@ -139,6 +140,9 @@ def static_map(model: Any, cmu_max: float, points: int = MAP_POINTS) -> tuple[np
         dcl = np.array([nl.gain_at(c) * g0 * c for c in cmu])
     else:
         dcl = np.array([nl.output_at(c, g0 * c) for c in cmu])
+    burst = getattr(model.convolution, "steady_output", None)     # the interaction structure's slow burst part
+    if burst is not None:
+        dcl = dcl + np.array([burst(c) for c in cmu])
     return cmu, np.maximum.accumulate(dcl)
 
 

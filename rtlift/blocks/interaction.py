@@ -72,6 +72,22 @@ class InteractionConvolution(BlockChain):
         m = self.momentum.momentum(u)
         return self.gain_h(m) * hf + self.gain(m) * (c - hf)
 
+    def steady_output(self, envelope: float) -> float:
+        """ΔCL_H's mean under lift-optimal bursting at ``envelope`` (duty d, so m ≈ the
+        envelope): HF removes the mean of c, the slow part keeps G(m) φ Σh · d · envelope (the
+        controller's static map adds it to the Wiener part's)."""
+        return self.gain(envelope) * self.phi * float(np.sum(self.kernel)) * self.momentum.duty * envelope
+
+    def kernel_arrays(self) -> tuple[tuple[Any, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step (:func:`rtlift.blocks.compiled.interaction_step`): parameters
+        (φh, HF sections, m's (λ, 1 − λ, 1/d), knots, G_H values and slopes, G values and
+        slopes) and state (convolution buffer and position, HF state, m), not copies."""
+        (taps,), conv_state = self.conv.kernel_arrays()
+        (coef,), hp_state = self.highpass.kernel_arrays()
+        m_par, m_state = self.momentum.kernel_arrays()
+        gh, g = self.gain_h, self.gain
+        return (taps, coef, m_par, g.x, gh.f, gh.slope, g.f, g.slope), (*conv_state, *hp_state, *m_state)
+
     def simulate(self, u: np.ndarray) -> np.ndarray:
         """Batch twin of :meth:`step`; starts from and advances the current state."""
         u = np.asarray(u, dtype=float)

@@ -572,7 +572,7 @@ class DeliveredMomentum(InputStage):
         self._lam = math.exp(-1.0 / (tau * fs))
         self._b = 1.0 - self._lam
         self._inv_d = 1.0 / d
-        self._m = 0.0
+        self._m = np.zeros(1)           # numpy, so the compiled step advances it too
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> DeliveredMomentum:
@@ -583,8 +583,13 @@ class DeliveredMomentum(InputStage):
 
     def momentum(self, cmu: float) -> float:
         """One sample of m (what :meth:`step` returns as the envelope)."""
-        self._m = self._b * (cmu * self._inv_d) + self._lam * self._m
-        return self._m
+        m = self._b * (cmu * self._inv_d) + self._lam * self._m.item()
+        self._m[0] = m
+        return m
+
+    def kernel_arrays(self) -> tuple[tuple[float, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: parameters (λ, 1 − λ, 1/d) and state (m,), not a copy."""
+        return (self._lam, self._b, self._inv_d), (self._m,)
 
     def step(self, cmu: float, env: float) -> tuple[float, float]:
         return cmu, self.momentum(cmu)
@@ -594,8 +599,8 @@ class DeliveredMomentum(InputStage):
         cmu = np.asarray(cmu, dtype=float)
         if cmu.size == 0:
             return cmu.copy()
-        m, _ = signal.lfilter([self._b], [1.0, -self._lam], cmu * self._inv_d, zi=[self._lam * self._m])
-        self._m = float(m[-1])
+        m, _ = signal.lfilter([self._b], [1.0, -self._lam], cmu * self._inv_d, zi=[self._lam * self._m.item()])
+        self._m[0] = m[-1]
         return m
 
     def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -603,13 +608,13 @@ class DeliveredMomentum(InputStage):
         return cmu.copy(), self.momentum_batch(cmu)
 
     def get_state(self) -> np.ndarray:
-        return np.array([self._m])
+        return self._m.copy()
 
     def set_state(self, state: np.ndarray) -> None:
         s = np.asarray(state, dtype=float)
         if s.shape != (1,):
             raise ValueError(f"delivered_momentum state must have shape (1,), got {s.shape}")
-        self._m = float(s[0])
+        self._m[0] = s[0]
 
 
 STAGES: dict[str, Any] = {c.name: c for c in (Delay, ActuatorFade, SensorResonance, ZeroDrift,

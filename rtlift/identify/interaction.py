@@ -16,14 +16,39 @@ interaction) instead of being filtered away.
 Recipe: static map → N (:mod:`.static_map`), single bursts → h and φ (:mod:`.kernel`),
 d = burst length / median burst interval of the training record (lift-optimal bursting);
 then, for each HF (Butterworth order, cutoff) and τ of the grids, one output-error PEM
-(:func:`~rtlift.identify.pem.fit_wiener`, the paper's N(m)·y form) with β_H and the G knots
-as linear regressors, on every record laid end to end — static sweep (thinned), single
-bursts, each train, the training record — each record weighted by 1/(σ_r √n_r) so that every
-record type counts alike, fitted on the first 70 % of each and scored on the last 30 % (mean
-over the records of the held-out RMSE / the record's σ). The best (HF, τ), then the Wiener
-order (1 … 4, the smallest within 1 %), are chosen by that held-out error, and the chosen
-structure is refitted on the whole records. G_H (the fast part's gain table of
+(:func:`~rtlift.identify.pem.fit_wiener`, the paper's N(m)·y form, or the textbook f(y) with
+``form``) with β_H and the G knots as linear regressors, on every record laid end to end —
+static sweep (thinned), single bursts, each train, the training record — each record weighted
+by 1/(σ_r √n_r) so that every record type counts alike (the training record × ``train_weight``),
+fitted on the first 70 % of each and scored on the last 30 % (mean over the records of the
+held-out RMSE / the record's σ). The best (HF, τ), then the Wiener order (1 … 4), then a dead
+time D (0 … 4 samples the measured lift lags the actuation: a ``delay`` stage before the
+delivered momentum), each the smallest within 1 %, are chosen by that held-out error, and the
+chosen structure is refitted on the whole records. G_H (the fast part's gain table of
 :class:`~rtlift.blocks.interaction.InteractionConvolution`) is fitted as one constant β_H.
+Finally, as the hybrid's identification does (:func:`~rtlift.identify.kernel.refine_kernel`),
+the kernel's first burst period is re-estimated on the training record — for the m it
+delivers the burst part is linear in h — kept where it lowers the training record's held-out
+RMSE by 1 %, and β_H, G and the Wiener part are refitted on the refined kernel.
+
+Measured on the independent plant (identified on ``campaign/``, scored on ``clean/``, whole
+records, ``benchmarks/burst_patterns.py``; issue 31): the refinement lifts sine_k025 / random
+from ρ 0.944 / 0.955 to 0.952 / 0.965 and the dead time (2 samples) to 0.957 / 0.967, single
+bursts and trains unchanged (0.905 … 0.967). Still short of the hybrid's 0.973 / 0.984 there
+(textbook form, identified on the sine alone): the residual on sine_k025 is a lag of ≈ 45 ms of
+the slow part (the m memory's, compensated by the Wiener LTI at the training frequency only).
+What did not close it: the textbook form here (0.952 / 0.949), a smaller τ (0.03–0.05 s: 0.878
+on sine_k025, m's 8 Hz ripple), the Wiener part driven by the envelope itself (0.898) or by the
+envelope gated on a burst in the last lift-optimal period (0.935), G scheduled on the burst
+rate instead of m (sine_k025 0.968 but random 0.953), nine G knots instead of five (0.958).
+Weighting the training record more trades sines for sparse bursts (sine_k025 / random /
+single_burst / T7): × 1 0.952 / 0.965 / 0.906 / 0.908, × 5 0.962 / 0.971 / 0.899 / 0.902, × 8
+0.972 / 0.974 / 0.899 / 0.903, × 12 0.973 / 0.976 / 0.894 / 0.898. × 8 is the default: the
+amplitude-modulated training record (what a controller drives) weighs about as much as the
+other five records together, and every record type stays within 0.02 of its noise ceiling but
+sine_k025 and random (0.003 and 0.001 short of it; issue 31). Weighting the static sweep more
+(``static_weight``) lowers random's NRMSE (× 8: 0.26, × 30: 0.21, against 0.34) but costs single
+bursts and T7 (0.890 / 0.893 at × 8) or the sines (0.957 at × 30); the default is × 1.
 
 Why this structure. Candidates, each identified on the independent plant's campaign (static,
 single burst, the three trains, sine_k0125) and scored on its ``clean/`` records (another
@@ -51,7 +76,7 @@ Pure: takes :class:`~rtlift.core.records.Record` objects, returns an :class:`Int
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import signal
@@ -59,11 +84,11 @@ from scipy import signal
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
 from rtlift.blocks.stages import Delay, DeliveredMomentum
-from rtlift.blocks.wiener import InputGain, WienerBlock
+from rtlift.blocks.wiener import WienerBlock
 from rtlift.core.metrics import rmse, scores
 from rtlift.core.records import Record
-from rtlift.identify.campaign import fit_metrics, quiet_noise_std
-from rtlift.identify.kernel import SingleBurstKernel, fit_kernel
+from rtlift.identify.campaign import delayed, fit_metrics, nonlinearity_for, quiet_noise_std
+from rtlift.identify.kernel import KernelRefinement, SingleBurstKernel, fit_kernel, refine_kernel
 from rtlift.identify.pem import PEMResult, fit_wiener
 from rtlift.identify.static_map import StaticMap, fit_static_map
 from rtlift.model.domain import domain_of
@@ -80,10 +105,16 @@ class InteractionOptions:
     search_order: int = 3                         # Wiener order while searching HF and τ
     highpasses: tuple[tuple[int, float], ...] = ((2, 2.0), (4, 2.0), (2, 4.0))
     taus_s: tuple[float, ...] = (0.1, 0.2, 0.3, 0.5)
-    dead_time: int = 0                            # samples the measured lift lags the actuation
+    dead_time: int | None = None                  # samples the measured lift lags the actuation; None: choose
+    max_dead_time: int = 4
     knot_fractions: tuple[float, ...] = (0.0, 0.1, 0.25, 0.5, 1.0)   # G knots × the sweep's Cμ max
     holdout_fraction: float = 0.3
     skip_s: float = 0.5
+    form: str = "input_gain"                      # Wiener nonlinearity: "input_gain" (paper) or "output_map"
+    kernel: str = "auto"                          # "single_burst" or "auto": first period refined
+    refine_tolerance: float = 0.01                # the refinement must beat the kernel by this (relative)
+    train_weight: float = 8.0                     # the training record's weight × that of each other record
+    static_weight: float = 1.0                    # the static sweep's weight × that of each other record
 
 
 @dataclass
@@ -134,7 +165,7 @@ def _lay(records: list[Record], static: StaticMap, kernel: SingleBurstKernel, hp
     return _Laid(m, static.gain_at(m), X, np.concatenate([r.dcl for r in records]), parts)
 
 
-def _weights(laid: _Laid, cost: np.ndarray) -> np.ndarray:
+def _weights(laid: _Laid, cost: np.ndarray, train_weight: float = 1.0, static_weight: float = 1.0) -> np.ndarray:
     """Per sample 1 / (σ_r √n_r) for record r (σ_r its ΔCL's std, n_r its samples in the
     cost): every record weighs alike in the cost, as every record type counts alike in the
     goal (NRMSE per record). The output is linear in N(m)·y and in the regressors, so
@@ -143,14 +174,51 @@ def _weights(laid: _Laid, cost: np.ndarray) -> np.ndarray:
     for s in laid.parts:
         n = np.count_nonzero((cost >= s.start) & (cost < s.stop))
         w[s] = 1.0 / (np.std(laid.dcl[s]) * np.sqrt(max(n, 1)))
+    w[laid.parts[-1]] *= np.sqrt(train_weight)
+    w[laid.parts[0]] *= np.sqrt(static_weight)
     return w / np.max(w)
 
 
-def _fit(laid: _Laid, order: int, cost: np.ndarray, fs: float) -> tuple[PEMResult, np.ndarray]:
-    w = _weights(laid, cost)
-    res = fit_wiener(laid.m, w * laid.dcl, order, form="input_gain", fs_hz=fs, gain=w * laid.gain,
-                     extra=w[:, None] * laid.X, cost=cost)
-    return res, laid.gain * res.lti.simulate(laid.m) + laid.X @ res.extra_coef
+def _fit(laid: _Laid, order: int, cost: np.ndarray, fs: float, static: StaticMap, form: str,
+         train_weight: float = 1.0, static_weight: float = 1.0) -> tuple[PEMResult, np.ndarray]:
+    """Output-error PEM of the Wiener part (``form``: N(m)·y or f(y), f the static map) with
+    β_H and the G knots as linear regressors, each record weighted (:func:`_weights`)."""
+    table = (static.cmu, static.dcl) if form == "output_map" else None
+    res = fit_wiener(laid.m, laid.dcl, order, form=form, fs_hz=fs, gain=laid.gain, table=table,
+                     extra=laid.X, cost=cost, weight=_weights(laid, cost, train_weight, static_weight))
+    low = nonlinearity_for(static, form).simulate(laid.m, res.lti.simulate(laid.m))
+    return res, low + laid.X @ res.extra_coef
+
+
+def _model(kernel: SingleBurstKernel, static: StaticMap, hp: tuple[int, float], tau: float, duty: float,
+           knots: np.ndarray, pem: PEMResult, fs: float, dead_time: int, form: str) -> HybridModel:
+    """The structure with the fitted β_H (one constant G_H), G knots and Wiener LTI."""
+    beta, lti = pem.extra_coef, pem.lti
+    burst = InteractionConvolution(kernel.kernel, kernel.phi, HighPassFilter.design(hp[0], hp[1], fs),
+                                   knots, np.full(knots.size, beta[0]), beta[1:], DeliveredMomentum(tau, duty, fs))
+    return HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(
+        lti.A, lti.B, lti.C, nonlinearity_for(static, form)), fs,
+        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), DeliveredMomentum(tau, duty, fs)))
+
+
+def _refine_kernel(model: HybridModel, train: Record, skip: int, dead_time: int,
+                   opt: InteractionOptions) -> KernelRefinement:
+    """The kernel's first burst period re-estimated on the training record
+    (:func:`~rtlift.identify.kernel.refine_kernel`), the rest of the model as fitted: for the
+    m the record delivers, the burst part is linear in h."""
+    burst = model.convolution
+    n_est = int(round((1 - opt.holdout_fraction) * len(train)))
+    if opt.kernel == "single_burst":
+        return KernelRefinement(burst.kernel, 0, None, {})
+    model.reset()
+    resid = train.dcl - model.simulate(train.cmu, train.cmu_envelope).total
+    model.reset()
+    cmu = delayed(train, dead_time).cmu
+    m = DeliveredMomentum(burst.momentum.time_constant_s, burst.momentum.duty, model.fs_hz).momentum_batch(cmu)
+    c0 = burst.phi * cmu
+    hf0 = HighPassFilter(burst.highpass.sos).simulate(c0)
+    parts = ((hf0, burst.gain_h.batch(m)), (c0 - hf0, burst.gain.batch(m)))
+    return refine_kernel(burst.kernel, parts, resid, cmu, n_est, skip, opt.refine_tolerance)
 
 
 def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Record], train_rec: Record,
@@ -170,6 +238,7 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     knots = np.asarray(opt.knot_fractions) * static.cmu_max
     skip = int(round(opt.skip_s * fs))
     stride = max(1, int(round(len(static_rec) / max(len(train_rec), 1))))
+    form = opt.form
 
     def costs(laid: _Laid) -> tuple[np.ndarray, np.ndarray, list[slice]]:
         est, held, scored = [], [], []
@@ -187,32 +256,41 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
 
     def held_out(laid: _Laid, order: int) -> tuple[float, PEMResult]:
         est, _, scored = costs(laid)
-        res, pred = _fit(laid, order, est, fs)
+        res, pred = _fit(laid, order, est, fs, static, form, opt.train_weight, opt.static_weight)
         return float(np.mean([rmse(laid.dcl[s], pred[s]) / np.std(laid.dcl[p])
                               for s, p in zip(scored, laid.parts[1:], strict=True)])), res
 
     grid = []
     for hp in opt.highpasses:
         for tau in opt.taus_s:
-            laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time)
+            laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time or 0)
             grid.append((held_out(laid, opt.order or opt.search_order)[0], hp, tau))
     _, hp, tau = min(grid, key=lambda g: g[0])
-    laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time)
+    laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time or 0)
     orders = [opt.order] if opt.order else list(range(1, opt.max_order + 1))
     by_order = {k: held_out(laid, k)[0] for k in orders}
     best = min(by_order.values())
     order = min(k for k, v in by_order.items() if v <= 1.01 * best)      # the smallest within 1 %
+    by_dead_time = {opt.dead_time or 0: by_order[order]}
+    if opt.dead_time is None:                 # then the dead time, the structure as chosen
+        for d in range(1, opt.max_dead_time + 1):
+            by_dead_time[d] = held_out(_lay(records, static, kernel, hp, tau, duty, knots, fs, d), order)[0]
+    best = min(by_dead_time.values())
+    dead_time = min(d for d, v in by_dead_time.items() if v <= 1.01 * best)
+    laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, dead_time)
 
     est, held, _ = costs(laid)
-    pem, _ = _fit(laid, order, np.sort(np.concatenate([est, held])), fs)
+    full = np.sort(np.concatenate([est, held]))
+    pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
+    model = _model(kernel, static, hp, tau, duty, knots, pem, fs, dead_time, form)
+    refined = _refine_kernel(model, train_rec, skip, dead_time, opt)
+    if refined.ridge is not None:             # refit the gains and the Wiener part on the refined kernel
+        kernel = replace(kernel, kernel=refined.kernel)
+        laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, dead_time)
+        pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
+        model = _model(kernel, static, hp, tau, duty, knots, pem, fs, dead_time, form)
     beta = pem.extra_coef
     lti = pem.lti
-    burst = InteractionConvolution(kernel.kernel, kernel.phi, HighPassFilter.design(hp[0], hp[1], fs),
-                                   knots, np.full(knots.size, beta[0]), beta[1:], DeliveredMomentum(tau, duty, fs))
-    model = HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(
-        lti.A, lti.B, lti.C, InputGain(static.gain_cmu, static.gain)), fs,
-        input_stages=(*((Delay(opt.dead_time / fs, fs),) if opt.dead_time else ()),
-                      DeliveredMomentum(tau, duty, fs)))
 
     per_record = {}
     for r in records:
@@ -228,7 +306,8 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
         "train": {"record": train_rec.name, **per_record[train_rec.name]},
         "records": per_record,
         "holdout": {"fraction": opt.holdout_fraction, "mean_nrmse": float(min(g[0] for g in grid)),
-                    "by_order": {str(k): v for k, v in by_order.items()}},
+                    "by_order": {str(k): v for k, v in by_order.items()},
+                    "by_dead_time": {str(d): v for d, v in by_dead_time.items()}},
         **fit_metrics(resid[skip:], noise_std, static, kernel, pem),
     }
     provenance = {
@@ -236,19 +315,23 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
         "records": {"static": static_rec.name, "single_burst": burst_rec.name,
                     "trains": [t.name for t in trains], "train": train_rec.name},
         "fs_hz": fs,
-        "structure": {"name": "interaction", "form": "input_gain", "dead_time_samples": opt.dead_time,
+        "structure": {"name": "interaction", "form": form, "dead_time_samples": dead_time,
                       "highpass": {"order": hp[0], "cutoff_hz": hp[1]}, "time_constant_s": tau,
                       "duty": duty, "knots": knots.tolist(), "gains_h": [float(beta[0])] * knots.size,
                       "gains": beta[1:].tolist(),
-                      "rule": f"HF and τ, then the Wiener order, by the mean held-out NRMSE of the last "
-                              f"{100 * opt.holdout_fraction:.0f} % of each record",
+                      "rule": f"HF and τ, then the Wiener order, then the dead time, by the mean held-out NRMSE "
+                              f"of the last {100 * opt.holdout_fraction:.0f} % of each record (the smaller order "
+                              "and dead time within 1 %); the kernel's first burst period refined on the "
+                              "training record where that lowers its held-out RMSE",
+                      "record_weights": {"rule": "1 / (σ_r √n_r): every record weighs alike",
+                                         "training_record_factor": opt.train_weight},
                       "candidates": [{"highpass": list(g[1]), "time_constant_s": g[2],
                                       "holdout_mean_nrmse": g[0]} for g in grid]},
         "static_map": {"cmu_max": static.cmu_max, "limit_slope": static.limit_slope,
                        "hysteresis": static.hysteresis.to_dict(), "notes": static.notes},
-        "kernel": kernel.to_dict(),
+        "kernel": {**kernel.to_dict(), "refinement": refined.to_dict()},
         "phi": kernel.phi,
-        "wiener": {"form": "input_gain", "order": order,
+        "wiener": {"form": form, "order": order,
                    "poles": [[float(p.real), float(p.imag)] for p in lti.poles],
                    "spectral_radius": lti.spectral_radius, "dc_gain": lti.dc_gain,
                    "time_constants_s": [float(t) for t in lti.time_constants_s(fs)],

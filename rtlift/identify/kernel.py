@@ -67,6 +67,26 @@ def phase_average(x: np.ndarray, onsets: np.ndarray, pre: int, post: int
     return mean, sem
 
 
+def burst_scatter_std(cmu: np.ndarray, dcl: np.ndarray) -> float:
+    """The measurement noise while bursts fire: the scatter of ΔCL across repeated, identical
+    isolated bursts around their phase average, √(mean over the phase of the variance over
+    bursts, ddof 1), each window from an onset to the nearest next one. What the balance adds to
+    the lift during actuation (sensor noise, buffeting, burst-to-burst variation), where the
+    noise at rest (:func:`rtlift.identify.campaign.quiet_noise_std`) can be smaller. NaN with
+    fewer than two complete bursts."""
+    cmu = np.asarray(cmu, dtype=float)
+    dcl = np.asarray(dcl, dtype=float)
+    onsets = burst_onsets(cmu)
+    if onsets.size < 2:
+        return float("nan")
+    width = int(np.min(np.diff(onsets)))
+    onsets = onsets[onsets + width <= dcl.size]
+    if onsets.size < 2:
+        return float("nan")
+    rows = np.stack([dcl[o:o + width] for o in onsets])
+    return float(np.sqrt(np.mean(np.var(rows, axis=0, ddof=1))))
+
+
 def smooth_growing(h: np.ndarray, fs_hz: float, min_window_s: float = 0.0125,
                    growth: float = 0.15, max_window_s: float = 0.1) -> np.ndarray:
     """Savitzky–Golay (cubic) smoothing with a window ≈ max(min_window, growth · lag),
@@ -168,7 +188,8 @@ class KernelRefinement:
                         "single-burst kernel; λ and whether to use it by held-out RMSE"}
 
 
-def refine_kernel(kernel: np.ndarray, unit_high: np.ndarray, resid: np.ndarray, cmu: np.ndarray,
+def refine_kernel(kernel: np.ndarray, unit_high: np.ndarray | tuple[tuple[np.ndarray, np.ndarray], ...],
+                  resid: np.ndarray, cmu: np.ndarray,
                   n_est: int, skip: int, tolerance: float,
                   ridges: tuple[float, ...] = (1e-4, 1e-3, 1e-2, 1e-1)) -> KernelRefinement:
     """Re-estimate the kernel's first burst period on the training record.
@@ -181,7 +202,11 @@ def refine_kernel(kernel: np.ndarray, unit_high: np.ndarray, resid: np.ndarray, 
 
         ΔCL − ŷ ≈ Σ_{j<P} δh(j) b(k − j),   b = HF(φ Cμ) (the high branch of a unit kernel),
 
-    so δh is one ridge regression, shrunk toward the single-burst kernel:
+    ``unit_high`` may also be pairs (u, g) of a signal and a gain on the time: the output of a
+    unit kernel at tap j is then Σ g(k) u(k − j) over the pairs (the interaction structure,
+    whose burst part G_H(m) HF(c) + G(m) (c − HF(c)) is linear in h for a given m:
+    (HF(φ Cμ), G_H(m)) and (φ Cμ − HF(φ Cμ), G(m))). δh is one ridge regression, shrunk toward
+    the single-burst kernel:
 
         δh = argmin ‖r − X δh‖² + λ · mean(diag XᵀX) · ‖δh‖².
 
@@ -192,6 +217,7 @@ def refine_kernel(kernel: np.ndarray, unit_high: np.ndarray, resid: np.ndarray, 
     ``tolerance`` (relative), and is then refitted on the whole record [skip, N).
     """
     kernel = np.asarray(kernel, dtype=float)
+    parts = ((unit_high, None),) if isinstance(unit_high, np.ndarray) else tuple(unit_high)
     onsets = burst_onsets(np.asarray(cmu, dtype=float))
     period = int(np.median(np.diff(onsets))) if onsets.size > 2 else 0
     P = min(period, kernel.size)
@@ -200,8 +226,9 @@ def refine_kernel(kernel: np.ndarray, unit_high: np.ndarray, resid: np.ndarray, 
         return KernelRefinement(kernel, 0, None, {"single_burst": base})
     N = resid.size
     X = np.zeros((N, P))
-    for j in range(P):
-        X[j:, j] = unit_high[:N - j]
+    for u, g in parts:
+        for j in range(P):
+            X[j:, j] += u[:N - j] if g is None else g[j:] * u[:N - j]
 
     def solve(rows: slice, lam: float) -> np.ndarray:
         A, r = X[rows], resid[rows]

@@ -229,6 +229,7 @@ class _Problem:
     mask: slice | np.ndarray          # samples in the cost (skip:, or explicit indices)
     r_max: float
     extra: np.ndarray | None = None   # (N, m) regressors entering linearly: ẑ += extra β
+    weight: np.ndarray | None = None  # (N,) weights of the output error (output forms; input_gain pre-weights)
 
     @property
     def n_theta(self) -> int:
@@ -279,6 +280,10 @@ class _Problem:
         k = Phi.shape[1]
         if self.extra is not None:
             Phi = np.hstack([Phi, self.extra[self.mask]])
+        if self.weight is not None:
+            w = self.weight[self.mask]
+            z = w * z
+            Phi = w[:, None] * Phi
         if Phi.shape[1] == 0:
             return z, a, c, None, None
         coef = _linear_ls(Phi, z)
@@ -394,7 +399,8 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
                table: tuple[np.ndarray, np.ndarray] | None = None, degree: int = 3,
                skip: int = 0, theta0: np.ndarray | None = None, n_starts: int = 2,
                max_nfev: int = 400, r_max: float = R_MAX,
-               extra: np.ndarray | None = None, cost: np.ndarray | None = None) -> PEMResult:
+               extra: np.ndarray | None = None, cost: np.ndarray | None = None,
+               weight: np.ndarray | None = None) -> PEMResult:
     """Identify the Wiener model ẑ = static(u, y), y = G(q) u by output-error PEM.
 
     ``u``: the Wiener input (the envelope Cμ); ``z``: its target output (for the hybrid,
@@ -404,7 +410,8 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
     are further regressors entering linearly, ẑ += extra·β (for the hybrid: the high-passed
     convolution, whose scale β refines φ). ``cost`` (indices) replaces ``skip``: the samples
     in the cost, e.g. several records laid end to end with rest between them, one of them
-    thinned so that each weighs alike. ``theta0`` warm
+    thinned so that each weighs alike. ``weight`` (N,) weighs each sample's output error
+    (w(z − ẑ)): several records, each weighing alike whatever its length and size. ``theta0`` warm
     starts (e.g. from a neighbouring candidate); otherwise the best ``n_starts`` of the ARX
     and bandwidth-grid starts are refined and the best result is kept.
     """
@@ -421,8 +428,16 @@ def fit_wiener(u: np.ndarray, z: np.ndarray, order: int, *, form: str = "input_g
     mask = slice(skip, None) if cost is None else np.asarray(cost, dtype=np.intp)
     if extra is not None:
         extra = np.asarray(extra, dtype=float).reshape(u.size, -1)
+    if weight is not None:
+        weight = np.asarray(weight, dtype=float)
+        if weight.shape != u.shape:
+            raise ValueError("weight must have the length of u")
+        if form == "input_gain":                # ẑ is linear in N(u)·y and β: weigh them, the target too
+            z, gain = weight * z, weight * np.asarray(gain, float)
+            extra = None if extra is None else weight[:, None] * extra
+            weight = None
     prob = _Problem(u, z, order, form, None if gain is None else np.asarray(gain, float),
-                    table, degree, mask, r_max, extra)
+                    table, degree, mask, r_max, extra, weight)
     if theta0 is not None:
         starts = [np.asarray(theta0, dtype=float)]
     else:

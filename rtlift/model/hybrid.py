@@ -12,15 +12,18 @@ its batch twin; both carry one explicit state.
 The hot path is compiled (:mod:`rtlift.blocks.compiled`, numba) for every model whose
 nonlinearity has a compiled form (``input_gain``, ``output``) and whose only augmentation
 stage is at most one input ``delay``: the paper's model and a model as ``rtlift identify``
-writes it. The other effect stages (``actuator_fade``, ``sensor_resonance``, ``zero_drift``,
+writes it; and for the ``interaction`` structure (:mod:`rtlift.blocks.interaction`: its burst
+part in the convolution slot, its ``delivered_momentum`` stage after at most one ``delay``).
+The other effect stages (``actuator_fade``, ``sensor_resonance``, ``zero_drift``,
 ``periodic_disturbance``) and the hysteresis nonlinearities are not compiled yet: a model that
 carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain of the
 blocks' own ``step`` (``model.compiled`` says which). That chain is also the compiled
 step's test oracle; both advance the same state arrays. :meth:`simulate` follows the same
-choice: one compiled loop over the samples (:func:`rtlift.blocks.compiled.hybrid_simulate`)
-for a compiled model, else :meth:`HybridModel.reference_simulate`, the chain of the blocks'
-vectorised ``simulate`` (numpy, scipy). The compiled step is bound to the
-blocks on the first step after a block or stage field of the model is assigned; a part swapped
+choice: one compiled loop over the samples (:func:`rtlift.blocks.compiled.hybrid_simulate`,
+:func:`~rtlift.blocks.compiled.interaction_simulate`) for a compiled model, else
+:meth:`HybridModel.reference_simulate`, the chain of the blocks' vectorised ``simulate``
+(numpy, scipy). The compiled step is bound to the blocks on the first step after a block or
+stage field of the model is assigned; a part swapped
 inside a block (``model.wiener.nonlinearity = ...``) is not seen: build a new model instead.
 """
 
@@ -36,7 +39,8 @@ import numpy as np
 from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
-from rtlift.blocks.stages import Delay, InputStage, OutputStage
+from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
+from rtlift.blocks.stages import Delay, DeliveredMomentum, InputStage, OutputStage
 from rtlift.blocks.wiener import WienerBlock
 
 _STRUCTURE = frozenset({"convolution", "highpass", "wiener", "input_stages", "output_stages"})
@@ -92,26 +96,62 @@ class HybridModel(BlockChain):
         return (*self.input_stages, self.convolution, self.highpass, self.wiener, *self.output_stages)
 
     def _bind_kernel(self) -> tuple[Any, ...]:
-        """(compiled step, its arguments after Cμ and Cμ_env), or () when this model takes
-        :meth:`reference_step` (module docstring). The arguments are the blocks' own state
-        arrays and one copy of their parameters (fixed after construction)."""
+        """(compiled step, its arguments after Cμ and Cμ_env, compiled batch, its size
+        arguments), or () when this model takes :meth:`reference_step` (module docstring). The
+        arguments are the blocks' own state arrays and one copy of their parameters (fixed
+        after construction)."""
         kernel: tuple[Any, ...] = ()
-        stages = self.input_stages
-        delay = stages[0].kernel_arrays()[1] if len(stages) == 1 and type(stages[0]) is Delay else None
         wiener = self.wiener.kernel_arrays()
-        plain = type(self.convolution) is RingConvolution       # not the interaction structure's
-        if (delay is not None or not stages) and not self.output_stages and wiener is not None and plain:
-            from rtlift.blocks.compiled import hybrid_step, pack_parameters
-
-            (taps,), conv_state = self.convolution.kernel_arrays()
-            (coef,), hp_state = self.highpass.kernel_arrays()
-            (A, B, C, form, xs, fs, slopes), wiener_state = wiener
-            if delay is None:
-                delay = (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
-            par = pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes)
-            kernel = (hybrid_step, (par, *delay, *conv_state, *hp_state, *wiener_state))
+        if wiener is not None and not self.output_stages:
+            if type(self.convolution) is RingConvolution:
+                kernel = self._bind_hybrid(wiener)
+            elif type(self.convolution) is InteractionConvolution:
+                kernel = self._bind_interaction(wiener)
         object.__setattr__(self, "_kernel", kernel)
         return kernel
+
+    def _delay_state(self, stages: tuple[InputStage, ...]) -> tuple[np.ndarray, ...] | None:
+        """The ``delay`` stage's state arrays when ``stages`` is at most that one stage, else None."""
+        if not stages:
+            return (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
+        if len(stages) == 1 and type(stages[0]) is Delay:
+            return stages[0].kernel_arrays()[1]
+        return None
+
+    def _bind_hybrid(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
+        """The paper's structure: at most one input ``delay``."""
+        delay = self._delay_state(self.input_stages)
+        if delay is None:
+            return ()
+        from rtlift.blocks.compiled import hybrid_simulate, hybrid_step, pack_parameters, state_slots
+
+        (taps,), conv_state = self.convolution.kernel_arrays()
+        (coef,), hp_state = self.highpass.kernel_arrays()
+        (A, B, C, form, xs, fs, slopes), wiener_state = wiener
+        par = pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes)
+        return (hybrid_step, (par, *delay, *conv_state, *hp_state, *wiener_state), hybrid_simulate,
+                state_slots(hp_state[0], wiener_state[0]))
+
+    def _bind_interaction(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
+        """The interaction structure: input stages [``delay``,] ``delivered_momentum``, the model's
+        ``highpass`` the identity (its HF lives in the burst part)."""
+        stages = self.input_stages
+        identity = self.highpass.sos.shape == IDENTITY_SOS.shape and np.array_equal(self.highpass.sos, IDENTITY_SOS)
+        if not stages or type(stages[-1]) is not DeliveredMomentum or not identity:
+            return ()
+        delay = self._delay_state(stages[:-1])
+        if delay is None:
+            return ()
+        from rtlift.blocks.compiled import interaction_simulate, interaction_step, pack_interaction, pack_parameters
+
+        m_par, (m_in,) = stages[-1].kernel_arrays()
+        (taps, coef, m_conv_par, knots, gh, gh_slopes, g, g_slopes), (buf, pos, z, m_conv) = \
+            self.convolution.kernel_arrays()
+        (A, B, C, form, xs, fs, slopes), (x,) = wiener
+        par = pack_interaction(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), m_par, m_conv_par,
+                               knots, gh, gh_slopes, g, g_slopes)
+        return (interaction_step, (par, *delay, m_in, buf, pos, z, m_conv, x), interaction_simulate,
+                ((0.0,) * z.size, (0.0,) * x.size))
 
     @property
     def compiled(self) -> bool:
@@ -124,7 +164,7 @@ class HybridModel(BlockChain):
         t0 = time.perf_counter()
         kernel = self._bind_kernel()
         if kernel:
-            fn, args = kernel
+            fn, args = kernel[:2]
             fn(0.0, 0.0, *(a.copy() if isinstance(a, np.ndarray) else a for a in args))
         return time.perf_counter() - t0
 
@@ -135,8 +175,7 @@ class HybridModel(BlockChain):
         if kernel is None:
             kernel = self._bind_kernel()
         if kernel:
-            fn, args = kernel
-            return fn(float(cmu), float(cmu_envelope), *args)
+            return kernel[0](float(cmu), float(cmu_envelope), *kernel[1])
         return self.reference_step(cmu, cmu_envelope)
 
     def reference_step(self, cmu: float, cmu_envelope: float) -> tuple[float, float, float]:
@@ -160,12 +199,9 @@ class HybridModel(BlockChain):
         if kernel is None:
             kernel = self._bind_kernel()
         if kernel:                                # the compiled step's model: one compiled loop
-            from rtlift.blocks.compiled import hybrid_simulate, state_slots
-
-            args = kernel[1]
+            _, args, batch, slots = kernel
             total, high, low = np.empty(cmu.size), np.empty(cmu.size), np.empty(cmu.size)
-            hybrid_simulate(np.ascontiguousarray(cmu), np.ascontiguousarray(env), total, high, low, *args,
-                            *state_slots(*args[-2:]))
+            batch(np.ascontiguousarray(cmu), np.ascontiguousarray(env), total, high, low, *args, *slots)
             return HybridOutput(total, high, low)
         return self.reference_simulate(cmu, env)
 

@@ -126,9 +126,10 @@ class Observer:
 
     def _bind_kernel(self) -> tuple:
         """(compiled step, its arguments after Cμ, Cμ_env, ΔCL), or () for the reference step."""
-        if not self.model.compiled:
+        kernel = self.model._bind_kernel()
+        if not kernel or kernel[0] is not cs.hybrid_step:    # the paper's structure only, not the interaction one
             return ()
-        _, model_args = self.model._bind_kernel()
+        model_args = kernel[1]
         lay = self.layout
         ipar, fpar = cs.pack_layout(lay, self.config.R, self.gate, self.config.max_rejections)
         d = lay.dim_x

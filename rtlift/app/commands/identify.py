@@ -9,8 +9,6 @@ import time
 from rtlift.api import GENERIC_STRUCTURES, LIFT_STRUCTURES
 from rtlift.core.errors import UserError
 
-DEFAULT_LIFT_STRUCTURE = "paper"
-
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -26,21 +24,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--record", metavar="F",
                    help="a generic single-input record (columns t,u,y) instead of the lift campaign")
     p.add_argument("--trains", nargs="+", metavar="F",
-                   help="burst-train records (train_T1p75, train_T3p5, train_T7): the interaction "
-                        "structure learns burst-burst interaction from them")
+                   help="burst-train records (train_T1p75, train_T3p5, train_T7): with them the "
+                        "interaction structure is identified (it learns burst-burst interaction from them), "
+                        "without them the paper's hybrid")
     p.add_argument("--structure", choices=(*LIFT_STRUCTURES, *GENERIC_STRUCTURES),
-                   help="lift campaign: paper (the paper's hybrid, default) or interaction (the slow "
-                        "part driven by the delivered momentum, a gain per burst; needs --trains). "
-                        "With --record: wiener (an LTI then a static map, default), wiener_hammerstein "
-                        "(a second LTI after the map), nonlinear_feedback (the output fed back through "
-                        "a cubic map into the LTI's input) or store_chain (two stores in cascade, each "
-                        "draining through a power-law outflow, like two tanks)")
+                   help="lift campaign: paper (the paper's hybrid) or interaction (the slow part driven by "
+                        "the delivered momentum, a gain per burst); default: interaction when --trains are "
+                        "given, else paper. With --record: wiener (an LTI then a static map, default), "
+                        "wiener_hammerstein (a second LTI after the map), nonlinear_feedback (the output fed "
+                        "back through a cubic map into the LTI's input) or store_chain (two stores in "
+                        "cascade, each draining through a power-law outflow, like two tanks)")
     p.add_argument("--order", type=int, metavar="N",
                    help="Wiener LTI order (default: chosen from 1..4 by held-out error)")
     p.add_argument("--form", choices=("auto", "input_gain", "output_map"), default="auto",
                    help="Wiener nonlinearity: input_gain, N(Cmu)*y as in the paper; output_map, f(y) with f "
                         "the static map (textbook Wiener); auto, whichever has the lower held-out error "
-                        "(default)")
+                        "(default; the interaction structure: input_gain, the textbook form measured no "
+                        "better there)")
     p.add_argument("--dead-time", type=int, metavar="SAMPLES",
                    help="samples the measured lift lags the actuation record (default: chosen from "
                         "0..8 by held-out error)")
@@ -65,9 +65,8 @@ def run(args: argparse.Namespace) -> int:
                             f"{', '.join(GENERIC_STRUCTURES)}")
         args.structure = args.structure or GENERIC_STRUCTURES[0]
         return run_generic(args)
-    structure = args.structure or DEFAULT_LIFT_STRUCTURE
-    if structure not in LIFT_STRUCTURES:
-        raise UserError(f"--structure {structure} is for a generic --record; a lift campaign takes "
+    if args.structure is not None and args.structure not in LIFT_STRUCTURES:
+        raise UserError(f"--structure {args.structure} is for a generic --record; a lift campaign takes "
                         f"{' or '.join(LIFT_STRUCTURES)}")
     missing = [f"--{k.replace('_', '-')}" for k in ("static", "single_burst", "train") if not getattr(args, k)]
     if missing:
@@ -75,16 +74,16 @@ def run(args: argparse.Namespace) -> int:
                         "campaign) or --record (a generic t,u,y record)")
     from rtlift.api import identify
 
-    if args.trains and structure != "interaction":
+    if args.trains and args.structure == "paper":
         print("rtlift identify: note: --trains are not fitted by --structure paper (the paper's hybrid); "
-              "use --structure interaction to learn from them", file=sys.stderr)
+              "leave --structure out to learn from them", file=sys.stderr)
     t0 = time.perf_counter()
     idf = identify(args.static, args.single_burst, args.train,
-                   trains=args.trains or (), structure=structure,
+                   trains=args.trains or (), structure=args.structure,
                    order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time, kernel=args.kernel,
                    out=args.out)
     seconds = time.perf_counter() - t0
-    if structure == "interaction":
+    if idf.provenance["structure"]["name"] == "interaction":
         print(interaction_summary(idf, args.out, seconds))
     else:
         print(summary(idf, args.out, seconds))
@@ -92,15 +91,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def interaction_summary(idf, out_path: str, seconds: float) -> str:
-    """Human summary of an interaction-structure identification (issue 18)."""
+    """Human summary of an identification of the interaction structure (a few lines)."""
     st, w, dom = idf.provenance["structure"], idf.provenance["wiener"], idf.provenance["domain"]
     lines = [f"identified interaction model in {seconds:.2f} s -> {out_path}",
+             f"  structure: {st['choice']['why']}",
              f"  high-pass of the burst part: Butterworth order {st['highpass']['order']}, cutoff "
              f"{st['highpass']['cutoff_hz']:g} Hz; delivered-momentum memory "
              f"tau {st['time_constant_s']:g} s at duty {st['duty']:.4g}",
              "  per-burst gains G_H(m) / G(m) of the fast / slow part: " + ", ".join(
                  f"{gh:.3g}/{g:.3g}@{k:.3g}" for k, gh, g in zip(st["knots"], st["gains_h"], st["gains"], strict=True)),
-             f"  Wiener LTI (driven by m): order {w['order']}, DC gain {w['dc_gain']:.4g}",
+             f"  Wiener LTI (driven by m, {w['form']} form): order {w['order']}, DC gain {w['dc_gain']:.4g}; "
+             f"dead time {st['dead_time_samples']} samples",
+             f"  kernel: {_refinement_line(idf.provenance['kernel'].get('refinement', {}))}",
              "  domain: burst periods " + ", ".join(f"{p:.3g}" for p in dom["burst_periods_s"]) + " s"
              + (" and isolated bursts" if dom["isolated_bursts"] else "") + f", Cmu up to {dom['cmu_max']:.4g}"]
     lines += [f"  {name:14s} corr {v['corr']:.4f}  NRMSE {v['nrmse']:.4f}"
