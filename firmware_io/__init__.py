@@ -20,9 +20,7 @@ from firmware_io.links import (
     CanLink,
     Link,
     SerialLink,
-    add_link_arguments,
     link_config,
-    link_config_from_args,
     open_link,
     parse_can_spec,
 )
@@ -31,7 +29,7 @@ from firmware_io.samples import Counters, Sample
 
 __all__ = [
     "Calibration", "CalibrationError", "CanLink", "Command", "Converter", "Counters", "FirmwareIOError", "Link",
-    "LinkError", "LogError", "RecordWriter", "Sample", "SerialLink", "add_link_arguments", "capture",
-    "graceful_exit", "link_config", "link_config_from_args", "open_link", "parse_can_spec", "read_log",
+    "LinkError", "LogError", "RecordWriter", "Sample", "SerialLink", "capture",
+    "graceful_exit", "link_config", "open_link", "parse_can_spec", "read_log",
     "record_from_samples",
 ]

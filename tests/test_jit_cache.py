@@ -67,7 +67,7 @@ def test_the_cache_lives_in_the_users_cache_home_unless_numba_cache_dir_is_set(t
     home, path = json.loads(subprocess.run([sys.executable, "-c", probe], env={**env, "NUMBA_CACHE_DIR": str(mine)},
                                            capture_output=True, text=True, check=True).stdout)
     assert home == str(mine) and path.startswith(str(mine))
-    assert not str(REPO / "rtlift") in path
+    assert str(REPO / "rtlift") not in path
 
 
 @pytest.mark.slow

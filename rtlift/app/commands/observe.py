@@ -19,7 +19,7 @@ from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from firmware_io.links import add_link_arguments, add_reconnect_argument
+    from rtlift.app.link_options import add_link_arguments, add_reconnect_argument
     from rtlift.app.view.arguments import add_view_argument
     from rtlift.app.watch import add_arguments as add_watch_arguments
 
@@ -60,8 +60,9 @@ def _spin_window(text: str) -> float:
 def run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
-    from firmware_io.links import link_config_from_args, open_link
+    from firmware_io.links import open_link
     from firmware_io.logs import graceful_exit
+    from rtlift.app.link_options import link_config_from_args
     from rtlift.app.live import EstimateWriter, ObserverLoop, summary, write_summary
     from rtlift.app.view.arguments import start_view
     from rtlift.app.watch import attach

@@ -23,7 +23,7 @@ from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from firmware_io.links import add_link_arguments
+    from rtlift.app.link_options import add_link_arguments
 
     p = subparsers.add_parser(
         "record", help="record experiments on a rig over protocol version 2",
@@ -86,7 +86,8 @@ def _bar(total: int, name: str) -> Any:
 
 def _run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
-    from firmware_io.links import link_config_from_args, open_link
+    from firmware_io.links import open_link
+    from rtlift.app.link_options import link_config_from_args
     from rtlift.app.record import OFF_PERIOD_MS, Recorder
 
     if args.seed < 0:
