@@ -3,10 +3,10 @@
 The paper's actuation signal nests three signals: a 400 Hz pulse carrier (the actuator
 resonance; not modelled — one DAQ sample *is* one carrier period), bursts of
 Δt_b = 0.01 s = 0.125 t⁺ = 4 samples repeated every T, and the control signal that sets the
-burst amplitude. The bench drives the actuators with a voltage amplitude; Cμ = κ V² through
-:class:`firmware_io.calibration.Calibration` (60 V ↔ Cμ 0.0022). Voltages are quantised to
-PROTOCOL.md's 0.01 V, and the Cμ columns are computed from the quantised voltages exactly as
-the host computes them.
+burst amplitude. The bench drives the actuators with a voltage amplitude; the actuators deliver
+Cμ = κ V² (:class:`hil_sim.physics.BenchPhysics`, 60 V ↔ Cμ 0.0022: the rig's own law, not the
+host's calibration). Voltages are quantised to PROTOCOL.md's 0.01 V, and the Cμ columns are the
+quantised voltages' Cμ.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_io.calibration import Calibration
 from hil_sim import FS_HZ, T_CONV_S
+from hil_sim.physics import BenchPhysics
 from rtlift.core.programs import CMU_AT_60V, OPTIMAL_PERIOD_MS, samples_of_ms
 from rtlift.core.programs import CMU_MAX as CMU_MAX
 
@@ -66,15 +66,11 @@ def quantise_volts(volts: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(volts, dtype=float) / VOLT_STEP) * VOLT_STEP
 
 
-def actuate(cmu_envelope: np.ndarray, gate: np.ndarray, calibration: Calibration) -> Actuation:
-    """Envelope (as Cμ) and burst gate → voltages and the Cμ the host will compute from them."""
-    return actuate_volts(calibration.volts_from_cmu(np.asarray(cmu_envelope, dtype=float)), gate, calibration)
-
-
-def actuate_volts(envelope_volts: np.ndarray, gate: np.ndarray, calibration: Calibration) -> Actuation:
-    """Envelope (as a drive amplitude, V) and burst gate → quantised voltages and their Cμ."""
+def actuate_volts(envelope_volts: np.ndarray, gate: np.ndarray, physics: BenchPhysics) -> Actuation:
+    """Envelope (as a drive amplitude, V) and burst gate → quantised voltages and the Cμ the
+    actuators deliver at them."""
     env_v = quantise_volts(envelope_volts)
     volts = np.where(gate, env_v, 0.0)
-    cmu_env = np.asarray(calibration.cmu_from_volts(env_v), dtype=float)
+    cmu_env = physics.cmu_from_volts(env_v)
     cmu = np.where(volts != 0.0, cmu_env, 0.0)
     return Actuation(volts, env_v, cmu, cmu_env, volts != 0.0)

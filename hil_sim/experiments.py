@@ -32,6 +32,7 @@ from hil_sim import FS_HZ, T_CONV_S
 from hil_sim.actuation import BURST_SAMPLES, actuate_volts
 from hil_sim.effects import Effect, as_effect, processor
 from hil_sim.gust import Gust
+from hil_sim.physics import BenchPhysics
 from hil_sim.plant import PlantParams, TruthPlant
 from hil_sim.sensors import (
     STATUS_ACTUATOR_ENABLED,
@@ -101,8 +102,11 @@ class Bench:
 
     def __init__(self, seed: int, effects: Sequence[Effect], calibration: Calibration,
                  plant: PlantParams | None = None, sensor: SensorParams | None = None,
-                 gust: Gust | None = None) -> None:
+                 gust: Gust | None = None, physics: BenchPhysics | None = None) -> None:
         self.calibration = calibration
+        """The host's calibration: what :meth:`BenchRun.to_record` converts the counts with (the host's part)."""
+        self.physics = physics or BenchPhysics()
+        """The rig's own constants: what the truth is made with (:mod:`hil_sim.physics`)."""
         self.gust = gust or Gust()
         """Lift disturbance added to the plant's ΔCL (:mod:`hil_sim.gust`), part of the truth."""
         self.fs_hz = FS_HZ
@@ -125,7 +129,7 @@ class Bench:
     def process(self, t: np.ndarray, env_volts: np.ndarray, gate: np.ndarray,
                 meta: dict[str, str]) -> BenchRun:
         """Envelope (V) and burst gate per sample through the actuator, plant and sensor chains."""
-        act = actuate_volts(env_volts, gate, self.calibration)
+        act = actuate_volts(env_volts, gate, self.physics)
         delivered = act.cmu
         for stage in self.stages["actuator"]:
             delivered = stage.process(delivered)
@@ -138,7 +142,7 @@ class Bench:
             coeffs = stage.process(coeffs)
         for stage in self.stages["offset"]:
             coeffs[:, 0] += stage.process(t)
-        counts, saturated = transducer(coeffs, self.calibration, self.sensor, self.sensor_rng)
+        counts, saturated = transducer(coeffs, self.physics, self.sensor, self.sensor_rng)
         status = (np.where(act.envelope_volts > 0, STATUS_ACTUATOR_ENABLED, 0)
                   | np.where(saturated, STATUS_ADC_SATURATED, 0)
                   | np.where(act.burst, STATUS_BURST_ON, 0)).astype(np.uint8)
@@ -154,7 +158,8 @@ def bench_program(program: Program) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _setup(name: str, seed: int, effects: Iterable[Effect | str], calibration: Calibration | None,
-           gust: Gust | None = None) -> tuple[tuple[np.ndarray, np.ndarray], Bench, dict[str, str]]:
+           gust: Gust | None = None, physics: BenchPhysics | None = None
+           ) -> tuple[tuple[np.ndarray, np.ndarray], Bench, dict[str, str]]:
     if name not in EXPERIMENTS:
         raise UserError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -168,14 +173,17 @@ def _setup(name: str, seed: int, effects: Iterable[Effect | str], calibration: C
             "t_conv_s": f"{T_CONV_S:.6f}", "burst_samples": str(BURST_SAMPLES)}
     if gust:
         meta["gust"] = gust.spec()
-    return bench_program(program), Bench(int(seed), effs, cal, gust=gust), meta
+    return bench_program(program), Bench(int(seed), effs, cal, gust=gust, physics=physics), meta
 
 
 def run_experiment(name: str, seed: int = 0, effects: Iterable[Effect | str] = (),
-                   calibration: Calibration | None = None, gust: Gust | None = None) -> BenchRun:
+                   calibration: Calibration | None = None, gust: Gust | None = None,
+                   physics: BenchPhysics | None = None) -> BenchRun:
     """One experiment of the standard campaign on the simulated bench (``gust``: a lift
-    disturbance added to the truth, :mod:`hil_sim.gust`)."""
-    (env, gate), bench, meta = _setup(name, seed, effects, calibration, gust)
+    disturbance added to the truth, :mod:`hil_sim.gust`). ``physics`` is the rig (default: the
+    paper's wing, :mod:`hil_sim.physics`); ``calibration`` the host's, which turns the program's Cμ
+    into drive volts and the counts into the record (default: the one describing the default rig)."""
+    (env, gate), bench, meta = _setup(name, seed, effects, calibration, gust, physics)
     t = np.arange(len(env)) / FS_HZ
     return bench.process(t, env, gate, meta)
 

@@ -67,7 +67,6 @@ class HilStream:
                  calibration: Calibration | None = None, truth_seconds: float = 600.0,
                  gust: Gust | None = None) -> None:
         (self._env, self._gate), self.bench, self.meta = _setup(experiment, seed, effects, calibration, gust)
-        self.calibration = self.bench.calibration
         self.control = None
         self.host_since: int | None = None
         """Sample index of the first host-controlled burst onset (``None``: not yet)."""

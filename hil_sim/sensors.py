@@ -1,6 +1,7 @@
 """Sensor chain: aerodynamic coefficients → transducer axes → noise → resolution → counts.
 
-Equations (SI units; α the angle of attack, q_A = ½ ρ U∞² c b from the Calibration):
+Equations (SI units; α the angle of attack, q_A = ½ ρ U∞² c b of the rig,
+:class:`hil_sim.physics.BenchPhysics`):
 
 - aerodynamic coefficients: ``CL = CL₀ + ΔCL + b(t)``, ``CD = CD₀ + k_D ΔCL + ½ b(t)``, with
   ``b`` the separated-flow buffeting: white noise through a broad resonator at the
@@ -11,7 +12,7 @@ Equations (SI units; α the angle of attack, q_A = ½ ρ U∞² c b from the Cal
   ``Fx = s_x q_A (−CL sin α + CD cos α)``, pitching moment ``Ty = q_A c CM``;
 - electrical noise ``σ_e`` on every channel, then the ADC resolution (``res_n`` N,
   ``res_nm`` N·m) and the transducer range (saturation sets status bit 1);
-- counts = round(Calibration.counts_from_ft(ft)).
+- counts = round(BenchPhysics.counts(ft)), the transducer's firmware scaling.
 
 Numbers: CL₀ ≈ 0.7 and CD₀ ≈ 0.3 are the order of the normal force of a stalled thin
 wing at 20° (CN ≈ 0.75, CL = CN cos α, CD = CN sin α); σ_t, σ_e and σ_b together give
@@ -28,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
-from firmware_io.calibration import Calibration
 from hil_sim import FS_HZ
+from hil_sim.physics import BenchPhysics
 
 STATUS_ACTUATOR_ENABLED = 0x01
 STATUS_ADC_SATURATED = 0x02
@@ -96,25 +97,19 @@ def coefficients(dcl: np.ndarray, aero_noise: np.ndarray, params: SensorParams) 
     return np.column_stack([cl, cd, cm])
 
 
-def transducer(coeffs: np.ndarray, calibration: Calibration, params: SensorParams,
+def transducer(coeffs: np.ndarray, physics: BenchPhysics, params: SensorParams,
                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(n, 3) CL CD CM → (counts (n, 6) int64, saturated (n,) bool): axes, noise, ADC."""
-    cal = calibration
-    alpha = math.radians(cal.alpha_deg)
-    qa = cal.q_area
-    cl, cd, cm = coeffs[:, 0], coeffs[:, 1], coeffs[:, 2]
-    n = len(cl)
-    ft = np.zeros((n, 6))
-    ft[:, 0] = cal.sign_fx * qa * (-cl * math.sin(alpha) + cd * math.cos(alpha))
-    ft[:, 2] = cal.sign_fz * qa * (cl * math.cos(alpha) + cd * math.sin(alpha))
-    ft[:, 4] = qa * cal.chord_m * cm
+    qa = physics.q_area
+    ft = physics.forces(coeffs)
+    n = len(ft)
     w = rng.standard_normal((n, 6))  # sample-major: chunking does not change the draws
     ft[:, :3] += params.electrical_sigma * qa * w[:, :3]
-    ft[:, 3:] += params.electrical_sigma * qa * cal.chord_m * 0.1 * w[:, 3:]
+    ft[:, 3:] += params.electrical_sigma * qa * physics.chord_m * 0.1 * w[:, 3:]
     ft[:, :3] = np.round(ft[:, :3] / params.resolution_n) * params.resolution_n
     ft[:, 3:] = np.round(ft[:, 3:] / params.resolution_nm) * params.resolution_nm
     limits = np.array([*params.range_n, params.range_nm, params.range_nm, params.range_nm])
     saturated = np.any(np.abs(ft) > limits, axis=1)
     ft = np.clip(ft, -limits, limits)
-    counts = np.round(cal.counts_from_ft(ft)).astype(np.int64)
+    counts = np.round(physics.counts(ft)).astype(np.int64)
     return counts, saturated

@@ -11,6 +11,7 @@ from scipy import signal
 from firmware_io.calibration import Calibration
 from hil_sim.actuation import period_samples
 from hil_sim.experiments import EXPERIMENTS, TARE_SAMPLES, daq_stream, run_experiment
+from hil_sim.physics import BenchPhysics
 from hil_sim.sensors import STATUS_ACTUATOR_ENABLED, STATUS_ADC_SATURATED, STATUS_BURST_ON
 from rtlift.core.errors import UserError
 from rtlift.core.rate import FS_HZ as FS
@@ -130,10 +131,20 @@ def test_noise_has_a_broad_buffeting_bump_near_7_hz(runs):
     assert p[f == 4].item() > 0.25 * peak and p[f == 11].item() > 0.25 * peak  # broad, not a line
 
 
-def test_record_reproduces_a_calibration_with_other_signs_and_angle():
-    cal = Calibration(sign_fx=-1.0, alpha_deg=18.0, counts_per_n=2.0e5)
-    rec = run_experiment("train_T3p5", seed=1, calibration=cal).to_record()
-    assert np.std(rec.dcl - rec.extra["dcl_true"]) < 0.006
+def test_a_rig_read_with_its_own_calibration_is_right_and_with_another_it_is_not():
+    """The bench's truth is made with the rig's own constants (hil_sim.physics), not the host's
+    calibration: a rig with other signs, angle and scale reads right only through a calibration
+    that describes it; through the default one the error more than doubles (it does not cancel)."""
+    rig = BenchPhysics(sign_fx=-1.0, alpha_deg=18.0, counts_per_n=2.0e5)
+    right = run_experiment("train_T3p5", seed=1, physics=rig, calibration=rig.calibration()).to_record()
+    wrong = run_experiment("train_T3p5", seed=1, physics=rig, calibration=Calibration()).to_record()
+    err_right = np.std(right.dcl - right.extra["dcl_true"])
+    assert err_right < 0.006
+    assert np.std(wrong.dcl - wrong.extra["dcl_true"]) > 2.0 * err_right
+
+
+def test_the_default_rig_is_the_one_the_default_calibration_describes():
+    assert BenchPhysics().calibration() == Calibration()
 
 
 def test_the_same_seed_gives_the_same_record_bit_for_bit():

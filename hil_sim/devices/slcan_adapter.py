@@ -28,13 +28,13 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from firmware_io.calibration import Calibration
 from firmware_io.can_codec import CMD_ID, DLC, decode_command_frame, encode_sample_frames, load_dbc
 from firmware_io.commands import CAN_CMD_SEQ_MODULUS
 from hil_sim.devices.faults import FaultPlan
 from hil_sim.devices.host_control import HostControl
 from hil_sim.devices.pty_device import FS_HZ, PtyDevice
 from hil_sim.devices.source import can_wire, wire_samples
+from hil_sim.physics import BenchPhysics
 
 OK = b"\r"
 ERROR = b"\a"
@@ -54,10 +54,9 @@ class SlcanAdapter(PtyDevice):
 
     def __init__(self, chunks: Iterable[object], *, fs_hz: float = FS_HZ, faults: FaultPlan | None = None,
                  seed: int = 0, max_samples: int | None = None, keep_sent: bool = False,
-                 first_seq: int = 0, calibration: Calibration | None = None,
+                 first_seq: int = 0, physics: BenchPhysics | None = None,
                  clock_hz: float | None = None) -> None:
-        cal = calibration or Calibration()
-        super().__init__(wire_samples(chunks, lambda c: can_wire(c, cal)), fs_hz=fs_hz, faults=faults,
+        super().__init__(wire_samples(chunks, lambda c: can_wire(c, physics)), fs_hz=fs_hz, faults=faults,
                          seed=seed, max_samples=max_samples, keep_sent=keep_sent)
         self.first_seq = first_seq
         self.is_open = False

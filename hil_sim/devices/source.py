@@ -10,8 +10,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from firmware_io.calibration import Calibration
 from firmware_io.can_codec import FT_FORCE_ID, FT_TORQUE_ID, load_dbc
+from hil_sim.physics import BenchPhysics
 from rtlift.core.rate import FS_HZ
 
 I16 = (-32768, 32767)
@@ -44,27 +44,26 @@ def serial_wire(chunk: object) -> WireChunk:
                      [tuple(row) for row in counts.tolist()])
 
 
-def can_wire(chunk: object, calibration: Calibration | None = None) -> WireChunk:
+def can_wire(chunk: object, physics: BenchPhysics | None = None) -> WireChunk:
     """CAN frame fields: drive and envelope u16 cV, forces/torques in the DBC's raw units
-    (counts → N, N·m with the calibration's counts per unit, no matrix; then ÷ DBC scale)."""
-    cal = calibration or Calibration()
+    (counts → N, N·m with the transducer's own scaling, :mod:`hil_sim.physics`; then ÷ DBC scale)."""
+    phys = physics or BenchPhysics()
     db = load_dbc()
     f_scale = db.get_message_by_frame_id(FT_FORCE_ID).get_signal_by_name("fx").scale
     t_scale = db.get_message_by_frame_id(FT_TORQUE_ID).get_signal_by_name("tx").scale
     counts = np.asarray(chunk.counts, dtype=float).reshape(-1, 6)
-    raw = np.concatenate([counts[:, :3] / cal.counts_per_n / f_scale,
-                          counts[:, 3:] / cal.counts_per_nm / t_scale], axis=1)
+    raw = phys.si(counts) / np.array([f_scale] * 3 + [t_scale] * 3)
     raw = np.clip(np.rint(raw), *I16).astype(np.int64)
     return WireChunk(_cv(chunk.volts, 0, 65535), _cv(chunk.envelope_volts, 0, 65535),
                      (np.asarray(chunk.status, dtype=np.int64) & 0xFF).tolist(),
                      [tuple(row) for row in raw.tolist()])
 
 
-def synthetic_stream(seed: int = 0, fs_hz: float = FS_HZ, calibration: Calibration | None = None
+def synthetic_stream(seed: int = 0, fs_hz: float = FS_HZ, physics: BenchPhysics | None = None
                      ) -> Iterator[SimpleNamespace]:
     """A stand-in for ``daq_stream``: one-second chunks of bursts (4 samples every 50) whose
     amplitude follows a slow sine, forces with a burst-following lift and noise, forever."""
-    cal = calibration or Calibration()
+    phys = physics or BenchPhysics()
     rng = np.random.default_rng(seed)
     n = int(round(fs_hz))
     k0 = 0
@@ -77,7 +76,7 @@ def synthetic_stream(seed: int = 0, fs_hz: float = FS_HZ, calibration: Calibrati
         ft[:, 0] = -0.5 + 0.02 * rng.standard_normal(n)
         ft[:, 2] = 2.0 + 0.004 * volts + 0.02 * rng.standard_normal(n)
         ft[:, 4] = 0.01 + 0.001 * rng.standard_normal(n)
-        counts = np.rint(cal.counts_from_ft(ft)).astype(np.int64)
+        counts = np.rint(phys.counts(ft)).astype(np.int64)
         status = (1 | np.where(burst, 8, 0)).astype(np.uint8)
         yield SimpleNamespace(volts=volts, envelope_volts=env, counts=counts, status=status)
         k0 += n

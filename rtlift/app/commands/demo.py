@@ -27,7 +27,8 @@ def run(args: argparse.Namespace) -> int:
     import os
 
     from hil_sim.effects import parse_effect
-    from rtlift.app.demo import DEMO_EFFECT, DemoOptions, results_table, run_demo
+    from rtlift.app.demo import DEMO_EFFECT, DemoOptions, run_demo
+    from rtlift.app.demo_report import results_table
 
     if not args.live_seconds > 0:
         raise UserError(f"--live-seconds must be positive, got {args.live_seconds}")
