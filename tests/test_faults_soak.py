@@ -1,10 +1,11 @@
-"""Fault matrix, every fault at once over a long stream: the soak benchmark's seeded injector
-(``benchmarks/soak.py``) on half a minute of bench frames, through the decoder, the
-converter and the observer loop. The full hour (memory) is ``python benchmarks/soak.py``."""
+"""Fault matrix, every fault at once over a long stream: the soak's seeded injector
+(:mod:`testkit.wire_faults`, ``benchmarks/soak.py`` its command line) on half a minute of bench
+frames, through the decoder, the converter and the observer loop. The full hour (memory) is
+``python benchmarks/soak.py``."""
 
 from __future__ import annotations
 
-from benchmarks.soak import RATES, soak
+from testkit.wire_faults import RATES, soak
 
 
 def _exact(r: dict) -> dict:
@@ -27,7 +28,7 @@ def test_mixed_can_faults_long_stream(record_property):
     """The CAN soak's injector (three frames per sample: truncated, dropped, duplicated, late,
     reordered, error and foreign frames, flagged and absurd samples) at ~30× its rates: the
     assembler's counters equal what was injected and the observer's steps add up."""
-    from benchmarks.soak import CAN_RATES, can_soak
+    from testkit.wire_faults import CAN_RATES, can_soak
 
     r = _exact(can_soak(0.5, seed=4, rates={k: 30 * v for k, v in CAN_RATES.items()}))
     record_property("measured", f"CAN: {r['samples']} samples, {r['faults_injected']} faults of {len(CAN_RATES)} "

@@ -114,7 +114,8 @@ def random_chain(rng: np.random.Generator, limited: bool, fs: float = 0.25) -> S
     a1, a2 = level ** (1 - p1) / (p1 * t1), level ** (1 - p2) / (p2 * t2)
     params = {"inflow": a1 * level**p1 / u_mean, "outflow_1": a1, "exponent_1": p1,
               "transfer": a2 * level**p2 / (a1 * level**p1), "outflow_2": a2, "exponent_2": p2,
-              "brim_1": rng.uniform(5.5, 8.0) if limited else None, "ceiling": rng.uniform(6.0, 7.0) if limited else None,
+              "brim_1": rng.uniform(5.5, 8.0) if limited else None,
+              "ceiling": rng.uniform(6.0, 7.0) if limited else None,
               "spill": rng.uniform(0, 1) if limited else 0.0, "offset": rng.normal()}
     return StoreChainModel(params, fs)
 

@@ -28,7 +28,26 @@ from dataclasses import dataclass, fields, replace
 
 from rtlift.core.errors import UserError
 
+WIRE_FAULTS: dict[str, str] = {
+    "corrupt": "a frame's bytes changed (serial: one COBS data byte, the CRC catches it; CAN: a frame cut to DLC 4)",
+    "drop": "a frame never arrives (serial: the packet; CAN: one of the sample's three frames)",
+    "duplicate": "a frame sent twice",
+    "garbage": "random bytes and a delimiter before a packet (serial)",
+    "zero_byte": "a byte inside a packet becomes 0x00 (serial): two invalid packets",
+    "truncate": "a packet's tail and delimiter cut (serial): glued to the next packet",
+    "late": "a sample arrives after the next one: counted lost, then a stale duplicate",
+    "event": "a firmware event packet before the sample (serial)",
+    "reorder": "the sample's three frames in another order (CAN)",
+    "error_frame": "an error frame before the sample (CAN)",
+    "foreign": "another node's frame before the sample (CAN)",
+    "flag": "a sensor-fault or ADC-saturated status: received, predicted through",
+    "absurd": "forces and torques at the integer limits: received, gated by the observer",
+}
+"""Every fault on the wire the project injects, by name: the pty devices (:data:`RATE_FAULTS`, at a
+rate per frame) and the soak's in-process injectors (:mod:`testkit.wire_faults`) share these names."""
 RATE_FAULTS = ("corrupt", "drop", "duplicate", "garbage")
+"""The wire faults a pty device injects at a rate (``--fault KIND=RATE``)."""
+assert set(RATE_FAULTS) <= set(WIRE_FAULTS)
 COMMAND_FAULTS = ("cmd_drop", "cmd_corrupt", "cmd_late")
 DEFAULT_CMD_DELAY_MS = 50.0
 
