@@ -83,7 +83,7 @@ from scipy import signal
 
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.stages import Delay, DeliveredMomentum
+from rtlift.blocks.stages import Delay, DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.wiener import WienerBlock
 from rtlift.core.metrics import rmse, scores
 from rtlift.core.records import Record
@@ -141,9 +141,25 @@ def _hats(m: np.ndarray, knots: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class _Rate:
+    """Lift-optimal bursting as the training record does it: ``burst_samples`` on every
+    ``period_samples`` (duty d = their ratio)."""
+
+    burst_samples: int
+    period_samples: int
+
+    @property
+    def duty(self) -> float:
+        return self.burst_samples / self.period_samples
+
+    def envelope(self, tau: float, fs: float) -> DeliveredEnvelope:
+        return DeliveredEnvelope(tau, self.burst_samples, self.period_samples, fs)
+
+
+@dataclass(frozen=True)
 class _Laid:
-    """The records end to end: the Wiener input m, its gain N(m), the linear regressors
-    [HF(c), W_i(m)·(c − HF(c))], the target, and per record its slice."""
+    """The records end to end: the Wiener input u (the delivered envelope), its gain N(u), the
+    linear regressors [HF(c), W_i(m)·(c − HF(c)), W_i(u)·u], the target, and per record its slice."""
 
     m: np.ndarray
     gain: np.ndarray
@@ -153,16 +169,18 @@ class _Laid:
 
 
 def _lay(records: list[Record], static: StaticMap, kernel: SingleBurstKernel, hp: tuple[int, float],
-         tau: float, duty: float, knots: np.ndarray, fs: float, dead_time: int) -> _Laid:
-    cmu = np.concatenate([np.zeros(dead_time)] + [r.cmu for r in records])[: sum(len(r) for r in records)]
-    mom = DeliveredMomentum(tau, duty, fs)
-    m = mom.momentum_batch(cmu)
+         tau: float, rate: _Rate, knots: np.ndarray, fs: float, dead_time: int) -> _Laid:
+    n = sum(len(r) for r in records)
+    cmu = np.concatenate([np.zeros(dead_time)] + [r.cmu for r in records])[:n]
+    env = np.concatenate([np.zeros(dead_time)] + [r.cmu_envelope for r in records])[:n]
+    m = DeliveredMomentum(tau, rate.duty, fs).momentum_batch(cmu)
+    _, u = rate.envelope(tau, fs).simulate(cmu, env)
     c = kernel.phi * signal.lfilter(kernel.kernel, [1.0], cmu)
     hf = HighPassFilter.design(hp[0], hp[1], fs).simulate(c)
-    X = np.column_stack([hf, _hats(m, knots) * (c - hf)[:, None]])
+    X = np.column_stack([hf, _hats(m, knots) * (c - hf)[:, None], _hats(u, knots) * u[:, None]])
     bounds = np.cumsum([0] + [len(r) for r in records])
     parts = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True))
-    return _Laid(m, static.gain_at(m), X, np.concatenate([r.dcl for r in records]), parts)
+    return _Laid(u, static.gain_at(u), X, np.concatenate([r.dcl for r in records]), parts)
 
 
 def _weights(laid: _Laid, cost: np.ndarray, train_weight: float = 1.0, static_weight: float = 1.0) -> np.ndarray:
@@ -190,15 +208,16 @@ def _fit(laid: _Laid, order: int, cost: np.ndarray, fs: float, static: StaticMap
     return res, low + laid.X @ res.extra_coef
 
 
-def _model(kernel: SingleBurstKernel, static: StaticMap, hp: tuple[int, float], tau: float, duty: float,
+def _model(kernel: SingleBurstKernel, static: StaticMap, hp: tuple[int, float], tau: float, rate: _Rate,
            knots: np.ndarray, pem: PEMResult, fs: float, dead_time: int, form: str) -> HybridModel:
-    """The structure with the fitted β_H (one constant G_H), G knots and Wiener LTI."""
-    beta, lti = pem.extra_coef, pem.lti
+    """The structure with the fitted β_H (one constant G_H), G and S knots and Wiener LTI."""
+    beta, lti, k = pem.extra_coef, pem.lti, knots.size
     burst = InteractionConvolution(kernel.kernel, kernel.phi, HighPassFilter.design(hp[0], hp[1], fs),
-                                   knots, np.full(knots.size, beta[0]), beta[1:], DeliveredMomentum(tau, duty, fs))
+                                   knots, np.full(k, beta[0]), beta[1:1 + k], DeliveredMomentum(tau, rate.duty, fs),
+                                   beta[1 + k:])
     return HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(
         lti.A, lti.B, lti.C, nonlinearity_for(static, form)), fs,
-        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), DeliveredMomentum(tau, duty, fs)))
+        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), rate.envelope(tau, fs)))
 
 
 def _refine_kernel(model: HybridModel, train: Record, skip: int, dead_time: int,
@@ -234,7 +253,8 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     on = np.diff(np.flatnonzero((train_rec.cmu[1:] > 0) & (train_rec.cmu[:-1] <= 0)))
     if on.size == 0:
         raise ValueError(f"no burst train in the training record {train_rec.name}")
-    duty = min(1.0, kernel.burst_samples / float(np.median(on)))
+    period = int(round(float(np.median(on))))
+    rate = _Rate(min(kernel.burst_samples, period), period)
     knots = np.asarray(opt.knot_fractions) * static.cmu_max
     skip = int(round(opt.skip_s * fs))
     stride = max(1, int(round(len(static_rec) / max(len(train_rec), 1))))
@@ -263,10 +283,10 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     grid = []
     for hp in opt.highpasses:
         for tau in opt.taus_s:
-            laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time or 0)
+            laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0)
             grid.append((held_out(laid, opt.order or opt.search_order)[0], hp, tau))
     _, hp, tau = min(grid, key=lambda g: g[0])
-    laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time or 0)
+    laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0)
     orders = [opt.order] if opt.order else list(range(1, opt.max_order + 1))
     by_order = {k: held_out(laid, k)[0] for k in orders}
     best = min(by_order.values())
@@ -274,21 +294,21 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     by_dead_time = {opt.dead_time or 0: by_order[order]}
     if opt.dead_time is None:                 # then the dead time, the structure as chosen
         for d in range(1, opt.max_dead_time + 1):
-            by_dead_time[d] = held_out(_lay(records, static, kernel, hp, tau, duty, knots, fs, d), order)[0]
+            by_dead_time[d] = held_out(_lay(records, static, kernel, hp, tau, rate, knots, fs, d), order)[0]
     best = min(by_dead_time.values())
     dead_time = min(d for d, v in by_dead_time.items() if v <= 1.01 * best)
-    laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, dead_time)
+    laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time)
 
     est, held, _ = costs(laid)
     full = np.sort(np.concatenate([est, held]))
     pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
-    model = _model(kernel, static, hp, tau, duty, knots, pem, fs, dead_time, form)
+    model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form)
     refined = _refine_kernel(model, train_rec, skip, dead_time, opt)
     if refined.ridge is not None:             # refit the gains and the Wiener part on the refined kernel
         kernel = replace(kernel, kernel=refined.kernel)
-        laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, dead_time)
+        laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time)
         pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
-        model = _model(kernel, static, hp, tau, duty, knots, pem, fs, dead_time, form)
+        model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form)
     beta = pem.extra_coef
     lti = pem.lti
 
@@ -317,8 +337,10 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
         "fs_hz": fs,
         "structure": {"name": "interaction", "form": form, "dead_time_samples": dead_time,
                       "highpass": {"order": hp[0], "cutoff_hz": hp[1]}, "time_constant_s": tau,
-                      "duty": duty, "knots": knots.tolist(), "gains_h": [float(beta[0])] * knots.size,
-                      "gains": beta[1:].tolist(),
+                      "duty": rate.duty, "knots": knots.tolist(), "gains_h": [float(beta[0])] * knots.size,
+                      "gains": beta[1:1 + knots.size].tolist(), "gains_static": beta[1 + knots.size:].tolist(),
+                      "wiener_input": {"name": "delivered_envelope", "time_constant_s": tau,
+                                       "burst_samples": rate.burst_samples, "period_samples": rate.period_samples},
                       "rule": f"HF and τ, then the Wiener order, then the dead time, by the mean held-out NRMSE "
                               f"of the last {100 * opt.holdout_fraction:.0f} % of each record (the smaller order "
                               "and dead time within 1 %); the kernel's first burst period refined on the "
