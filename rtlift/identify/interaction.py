@@ -2,8 +2,9 @@
 
 The structure (equation and blocks: :mod:`rtlift.blocks.interaction`)::
 
-    ΔCL(k) = β_H HF(c)(k) + G(m(k)) (c − HF(c))(k) + N(m(k)) C x(k),   x(k) = A x(k−1) + B m(k)
-    c = φ h ∗ Cμ,   m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d,   λ = exp(−1/(τ fs))
+    ΔCL(k) = β_H HF(c)(k) + G(m(k)) (c − HF(c))(k) + S(u(k)) u(k) + N(u(k)) C x(k),
+    x(k) = A x(k−1) + B u(k),   c = φ h ∗ Cμ,   m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d,
+    u(k) = Cμ_env(k) · min(1, q(k)/q₀),   q(k) = λ q(k−1) + (1 − λ) [Cμ(k) > 0],   λ = exp(−1/(τ fs))
 
 The paper's hybrid drives its slow part with the commanded envelope and high-passes the
 convolution: an isolated burst or a sparse train (whose envelope says "0.0022" between
@@ -13,11 +14,21 @@ lift-optimal duty d), and the slow part of each burst's own response is kept, sc
 per-burst gain G(m) that falls as recent bursts have already moved the flow (burst–burst
 interaction) instead of being filtered away.
 
+The Wiener part and a static term S(u)·u (S piecewise linear on the G knots) are driven by the
+delivered envelope u (issue 31): where bursts fire at the lift-optimal rate or denser u is the
+envelope, the paper's hybrid's Wiener input, without the lag of m (m, a memory of the
+burst-modulated Cμ, lags an amplitude-modulated envelope by about τ, which the Wiener LTI
+compensated at the training frequency only); between sparse bursts u falls with the memory q
+of the samples with a burst on, q₀ its floor at the optimal rate. S lets the level at each u
+differ from N's shape (u enters without lag; m's G·(c − HF(c)) and the Wiener LTI bring the
+dynamics).
+
 Recipe: static map → N (:mod:`.static_map`), single bursts → h and φ (:mod:`.kernel`),
-d = burst length / median burst interval of the training record (lift-optimal bursting);
-then, for each HF (Butterworth order, cutoff) and τ of the grids, one output-error PEM
-(:func:`~rtlift.identify.pem.fit_wiener`, the paper's N(m)·y form, or the textbook f(y) with
-``form``) with β_H and the G knots as linear regressors, on every record laid end to end —
+d = burst length / median burst interval T of the training record (lift-optimal bursting;
+q₀ from the same burst length and T); then, for each HF (Butterworth order, cutoff) and τ of
+the grids (τ that of m and of q), one output-error PEM (:func:`~rtlift.identify.pem.fit_wiener`,
+the paper's N(u)·y form, or the textbook f(y) with ``form``) with β_H, the G knots and the S
+knots as linear regressors, on every record laid end to end —
 static sweep (thinned), single bursts, each train, the training record — each record weighted
 by 1/(σ_r √n_r) so that every record type counts alike (the training record × ``train_weight``),
 fitted on the first 70 % of each and scored on the last 30 % (mean over the records of the
@@ -32,7 +43,17 @@ delivers the burst part is linear in h — kept where it lowers the training rec
 RMSE by 1 %, and β_H, G and the Wiener part are refitted on the refined kernel.
 
 Measured on the independent plant (identified on ``campaign/``, scored on ``clean/``, whole
-records, ``benchmarks/burst_patterns.py``; issue 31): the refinement lifts sine_k025 / random
+records, ``benchmarks/burst_patterns.py``; issue 31). With u and S (this structure): ρ / NRMSE
+sine_k025 0.978 / 0.22, random 0.981 / 0.28, single_burst 0.902 / 0.46, train_T7 0.902 / 0.46,
+every record type within its goal (the paper's hybrid: 0.973 / 0.34, 0.984 / 0.19 on the first
+two). u without S: sine_k025 0.973 / 0.23, random 0.980 / 0.29; u with G scheduled on u too:
+sine_k025 0.786 (G's memory of m is the plant's interaction); S on m instead of u: sine_k025
+0.790; u = the last burst's amplitude held × min(1, q/q₀) (no envelope): sine_k025 0.967.
+With m (as first merged), G zero above 0.5 Cμ_max (the slow path at dense bursting the Wiener
+part's alone): sine_k025 0.746 and every train below its goal.
+
+History, with the Wiener part driven by m (the structure as first merged): the refinement lifts
+sine_k025 / random
 from ρ 0.944 / 0.955 to 0.952 / 0.965 and the dead time (2 samples) to 0.957 / 0.967, single
 bursts and trains unchanged (0.905 … 0.967). Still short of the hybrid's 0.973 / 0.984 there
 (textbook form, identified on the sine alone): the residual on sine_k025 is a lag of ≈ 45 ms of
