@@ -6,7 +6,7 @@ import numpy as np
 
 from rtlift.blocks import HighPassFilter, InputGain, OutputNonlinearity, RingConvolution, WienerBlock
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.stages import Delay, DeliveredMomentum
+from rtlift.blocks.stages import Delay, DeliveredEnvelope, DeliveredMomentum
 from rtlift.core.rate import FS_HZ
 from rtlift.model.hybrid import HybridModel
 
@@ -63,8 +63,8 @@ def model_steps(model, cmu: np.ndarray, env: np.ndarray) -> np.ndarray:
 def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int = 2, delay: int = 0,
                       output_form: bool = False, fs_hz: float = FS_HZ) -> HybridModel:
     """A random model of the ``interaction`` structure (:mod:`rtlift.blocks.interaction`):
-    ΔCL = G_H(m) HF(c) + G(m) (c − HF(c)) + N(m) C x (or f(C x), ``output_form``), its input
-    ``delay`` samples late."""
+    ΔCL = G_H(m) HF(c) + G(m) (c − HF(c)) + S(u) u + N(u) C x (or f(C x), ``output_form``), u
+    the delivered envelope, its input ``delay`` samples late."""
     tau = float(rng.uniform(0.02, 1.0))
     duty = float(rng.uniform(0.05, 0.5))
     knots = np.array([0.0, 0.002, 0.006, 0.012, 0.022])
@@ -72,7 +72,7 @@ def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int
                                    float(rng.uniform(20, 120)),
                                    HighPassFilter.design(int(rng.integers(1, 5)), float(rng.uniform(0.5, 8)), fs_hz),
                                    knots, rng.uniform(0.2, 1.2, knots.size), rng.uniform(-0.2, 1.0, knots.size),
-                                   DeliveredMomentum(tau, duty, fs_hz))
+                                   DeliveredMomentum(tau, duty, fs_hz), rng.uniform(-5.0, 5.0, knots.size))
     A = random_stable_A(rng, order)
     B = np.zeros(order)
     B[0] = 1.0
@@ -81,7 +81,9 @@ def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int
     grid = np.linspace(0, 0.022, 8)
     nonlinearity = (OutputNonlinearity(grid, 10 * grid + rng.uniform(0, 0.01, size=8).cumsum()) if output_form
                     else InputGain(grid, 10 + rng.uniform(0, 5, size=8)))
-    stages = (*((Delay(delay / fs_hz, fs_hz),) if delay else ()), DeliveredMomentum(tau, duty, fs_hz))
+    on = int(rng.integers(1, 9))
+    stages = (*((Delay(delay / fs_hz, fs_hz),) if delay else ()),
+              DeliveredEnvelope(float(rng.uniform(0.02, 1.0)), on, on + int(rng.integers(0, 80)), fs_hz))
     return HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(A, B, C, nonlinearity), fs_hz,
                        input_stages=stages)
 

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from rtlift.blocks import HighPassFilter
 from rtlift.blocks.interaction import InteractionConvolution
-from rtlift.blocks.stages import DeliveredMomentum, ZeroDrift
+from rtlift.blocks.stages import DeliveredEnvelope, DeliveredMomentum, ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig
@@ -108,6 +108,44 @@ def test_delivered_momentum_settles_at_the_envelope_for_bursts_at_the_duty():
     assert np.mean(m[-400:]) == pytest.approx(0.01, rel=0.01)
 
 
+def test_delivered_envelope_is_the_envelope_at_the_lift_optimal_rate_and_falls_for_sparse_bursts():
+    """Bursts of 4 samples every 50 (the optimal period given) or denser: u is the envelope
+    (the paper's Wiener input) once q has settled (from rest it rises with τ); bursts every 200 samples: u/env
+    decays between bursts as the memory q does, by λ^195 from the burst's last sample to the
+    sample before the next burst."""
+    stage = DeliveredEnvelope(0.2, 4, 50, FS)
+    env = 0.01 + 0.005 * np.sin(np.arange(4000) / 300.0)
+    for period in (50, 40):
+        stage.reset()
+        cmu = np.where(np.arange(4000) % period < 4, env, 0.0)
+        _, u = stage.simulate(cmu, env)
+        np.testing.assert_allclose(u[3000:], env[3000:], rtol=1e-12)
+    stage.reset()
+    cmu = np.where(np.arange(4000) % 200 < 4, env, 0.0)
+    _, u = stage.simulate(cmu, env)
+    r = u[3600:3800] / env[3600:3800]
+    assert np.all(r < 1.0) and np.all(np.diff(r[3:]) < 0)
+    assert r[199] / r[3] == pytest.approx(np.exp(-196 / (0.2 * FS)), rel=1e-9)
+
+
+def test_a_model_of_the_first_merged_form_runs_with_its_wiener_input_m():
+    """A model file of the structure as first merged (``delivered_momentum`` stage, no S table)
+    loads and runs by the reference step: S = 0 and the Wiener part driven by m."""
+    d = model_to_dict(interaction_model(np.random.default_rng(5)))
+    d["convolution"]["interaction"].pop("gains_static")
+    mom = d["convolution"]["interaction"]["momentum"]
+    d["input_stages"] = [{"name": "delivered_momentum", "params": mom}]
+    old = model_from_dict(d)
+    assert not old.compiled and [s.name for s in old.input_stages] == ["delivered_momentum"]
+    cmu, env = burst_input(np.random.default_rng(6), 600, period=60)
+    _, m = DeliveredMomentum.from_params(mom, FS).simulate(cmu, env)
+    out = old.simulate(cmu, env)
+    np.testing.assert_array_equal(out.high, old.copy().convolution.simulate(cmu, np.zeros(600)))
+    np.testing.assert_array_equal(out.low, old.copy().wiener.simulate(m)[0])
+    old.reset()
+    np.testing.assert_allclose(_run(old.step, cmu, env), np.array(out), atol=1e-12, rtol=0)
+
+
 def test_an_isolated_burst_with_unit_gains_and_no_wiener_part_is_the_papers_convolution():
     """G_H = G = 1 and C = 0: ΔCL_H is φ h ∗ Cμ exactly (eq. 1), whatever the HF."""
     h = np.exp(-np.arange(80) / 15.0)
@@ -116,7 +154,8 @@ def test_an_isolated_burst_with_unit_gains_and_no_wiener_part_is_the_papers_conv
                                    DeliveredMomentum(0.3, 0.08, FS))
     cmu = np.zeros(400)
     cmu[50:54] = 0.0022
-    np.testing.assert_allclose(burst.simulate(cmu), 2.0 * np.convolve(cmu, h)[:400], atol=1e-15, rtol=1e-9)
+    np.testing.assert_allclose(burst.simulate(cmu, np.zeros(400)), 2.0 * np.convolve(cmu, h)[:400], atol=1e-15,
+                               rtol=1e-9)
 
 
 def test_interaction_model_survives_its_model_file():
@@ -126,7 +165,7 @@ def test_interaction_model_survives_its_model_file():
     before = m.simulate(cmu, env).total
     again = model_from_dict(model_to_dict(m))
     assert isinstance(again.convolution, InteractionConvolution)
-    assert [s.name for s in again.input_stages] == ["delivered_momentum"]
+    assert [s.name for s in again.input_stages] == ["delivered_envelope"]
     np.testing.assert_array_equal(again.simulate(cmu, env).total, before)
 
 

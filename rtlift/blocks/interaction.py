@@ -4,8 +4,9 @@ The structure (identified by :mod:`rtlift.identify.interaction`)::
 
     c(k)    = φ Σ_j h(j) Cμ(k−j)                              convolution (paper eq. 1)
     m(k)    = λ m(k−1) + (1 − λ) Cμ(k) / d,   λ = exp(−1/(τ fs))  delivered momentum
-    ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k)      burst part
-    ΔCL_L(k) = N(m(k)) · C x(k),   x(k) = A x(k−1) + B m(k)       Wiener part, driven by m
+    u(k)    = Cμ_env(k) · min(1, q(k)/q₀)                          delivered envelope
+    ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k) + S(u(k)) u(k)   burst part
+    ΔCL_L(k) = N(u(k)) · C x(k),   x(k) = A x(k−1) + B u(k)       Wiener part, driven by u
     ΔCL(k)  = ΔCL_H(k) + ΔCL_L(k)
 
 ``m`` is the momentum the actuators delivered recently (a first-order memory of time constant
@@ -17,14 +18,22 @@ the per-burst gains of the slow and of the fast (high-passed) part of each burst
 those of an isolated burst at m ≈ 0, smaller when recent bursts have already moved the flow
 (the interaction the convolution alone over-predicts).
 
+The Wiener part and the static term S(u)·u (S piecewise linear on the same knots) are driven by
+the delivered envelope u (:class:`~rtlift.blocks.stages.DeliveredEnvelope`, q a memory of the
+samples with a burst on, q₀ its floor at the lift-optimal rate): where bursts fire at that rate
+u is the envelope itself, as in the paper's hybrid, with no lag (m lags an amplitude-modulated
+envelope by about τ, issue 31); where they fire sparsely u falls with q. A model whose Wiener
+input is m (the ``delivered_momentum`` stage, the structure as first merged) runs with S = 0.
+
 Blocks, so that a :class:`~rtlift.model.hybrid.HybridModel` — and the Kalman observer, which steps
 the model's blocks one by one — runs the structure unchanged:
 
-- :class:`~rtlift.blocks.stages.DeliveredMomentum`, an input stage ``(Cμ, Cμ_env) → (Cμ, m)``: the Wiener part and
-  its gain see m instead of the envelope;
+- :class:`~rtlift.blocks.stages.DeliveredEnvelope`, an input stage ``(Cμ, Cμ_env) → (Cμ, u)``: the Wiener
+  part and its gain see u instead of the envelope;
 - :class:`InteractionConvolution`, in the model's ``convolution`` slot: ΔCL_H above (its own
-  HF inside), with the model's ``highpass`` the identity. ΔCL_H depends on the input only, so
-  the observer takes it as its known input, as it does the paper's HF(convolution).
+  HF and m inside), stepped with (Cμ′, u) — the input stages' outputs — and the model's
+  ``highpass`` the identity. ΔCL_H depends on the input only, so the observer takes it as its
+  known input, as it does the paper's HF(convolution).
 """
 
 from __future__ import annotations
@@ -44,17 +53,21 @@ IDENTITY_SOS = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
 
 
 class InteractionConvolution(BlockChain):
-    """``ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k)`` (module docstring), streaming,
-    with a batch twin. ``kernel``/``phi`` as :class:`RingConvolution`; ``highpass`` the HF;
-    ``knots`` (m, in Cμ), ``gains_h`` and ``gains`` the G_H and G tables (held beyond the
-    ends); ``momentum`` the m recursion."""
+    """``ΔCL_H(k) = G_H(m(k)) HF(c)(k) + G(m(k)) (c − HF(c))(k) + S(u(k)) u(k)`` (module
+    docstring), streaming, with a batch twin. ``kernel``/``phi`` as :class:`RingConvolution`;
+    ``highpass`` the HF; ``knots`` (m and u, in Cμ), ``gains_h``, ``gains`` and ``gains_static``
+    the G_H, G and S tables (held beyond the ends; S zero if not given); ``momentum`` the m
+    recursion. u, the Wiener input, comes with each sample (:meth:`step`'s ``w``)."""
 
     def __init__(self, kernel: np.ndarray, phi: float, highpass: HighPassFilter, knots: np.ndarray,
-                 gains_h: np.ndarray, gains: np.ndarray, momentum: DeliveredMomentum) -> None:
+                 gains_h: np.ndarray, gains: np.ndarray, momentum: DeliveredMomentum,
+                 gains_static: np.ndarray | None = None) -> None:
         self.conv = RingConvolution(kernel, phi)
         self.highpass = highpass
         self.gain_h = _Table(*_check_table(knots, gains_h, "interaction fast gain"), extrapolate=False)
         self.gain = _Table(*_check_table(knots, gains, "interaction gain"), extrapolate=False)
+        static = np.zeros(np.size(knots)) if gains_static is None else gains_static
+        self.gain_static = _Table(*_check_table(knots, static, "interaction static gain"), extrapolate=False)
         self.momentum = momentum
         self.kernel, self.phi = self.conv.kernel, self.conv.phi
 
@@ -65,41 +78,47 @@ class InteractionConvolution(BlockChain):
         """State order: [convolution (last L inputs, newest first), HF, m]."""
         return (self.conv, self.highpass, self.momentum)
 
-    def step(self, u: float) -> float:
-        """Push Cμ(k), return ΔCL_H(k). No array allocation."""
+    def step(self, u: float, w: float) -> float:
+        """Push Cμ(k) (``u``) and the Wiener input u(k) (``w``), return ΔCL_H(k). No array allocation."""
         c = self.conv.step(u)
         hf = self.highpass.step(c)
         m = self.momentum.momentum(u)
-        return self.gain_h(m) * hf + self.gain(m) * (c - hf)
+        return self.gain_h(m) * hf + self.gain(m) * (c - hf) + self.gain_static(w) * w
 
     def steady_output(self, envelope: float) -> float:
-        """ΔCL_H's mean under lift-optimal bursting at ``envelope`` (duty d, so m ≈ the
-        envelope): HF removes the mean of c, the slow part keeps G(m) φ Σh · d · envelope (the
-        controller's static map adds it to the Wiener part's)."""
-        return self.gain(envelope) * self.phi * float(np.sum(self.kernel)) * self.momentum.duty * envelope
+        """ΔCL_H's mean under lift-optimal bursting at ``envelope`` (duty d, so m ≈ u ≈ the
+        envelope): HF removes the mean of c, the slow part keeps G(m) φ Σh · d · envelope, the
+        static term S(u) u (the controller's static map adds them to the Wiener part's)."""
+        return (self.gain(envelope) * self.phi * float(np.sum(self.kernel)) * self.momentum.duty
+                + self.gain_static(envelope)) * envelope
 
     def kernel_arrays(self) -> tuple[tuple[Any, ...], tuple[np.ndarray, ...]]:
         """For the compiled step (:func:`rtlift.blocks.compiled.interaction_step`): parameters
         (φh, HF sections, m's (λ, 1 − λ, 1/d), knots, G_H values and slopes, G values and
-        slopes) and state (convolution buffer and position, HF state, m), not copies."""
+        slopes, S values and slopes) and state (convolution buffer and position, HF state, m),
+        not copies."""
         (taps,), conv_state = self.conv.kernel_arrays()
         (coef,), hp_state = self.highpass.kernel_arrays()
         m_par, m_state = self.momentum.kernel_arrays()
-        gh, g = self.gain_h, self.gain
-        return (taps, coef, m_par, g.x, gh.f, gh.slope, g.f, g.slope), (*conv_state, *hp_state, *m_state)
+        gh, g, gs = self.gain_h, self.gain, self.gain_static
+        return ((taps, coef, m_par, g.x, gh.f, gh.slope, g.f, g.slope, gs.f, gs.slope),
+                (*conv_state, *hp_state, *m_state))
 
-    def simulate(self, u: np.ndarray) -> np.ndarray:
-        """Batch twin of :meth:`step`; starts from and advances the current state."""
+    def simulate(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Batch twin of :meth:`step` (``w`` the Wiener input u); starts from and advances the
+        current state."""
         u = np.asarray(u, dtype=float)
+        w = np.asarray(w, dtype=float)
         c = self.conv.simulate(u)
         hf = self.highpass.simulate(c)
         m = self.momentum.momentum_batch(u)
-        return self.gain_h.batch(m) * hf + self.gain.batch(m) * (c - hf)
+        return self.gain_h.batch(m) * hf + self.gain.batch(m) * (c - hf) + self.gain_static.batch(w) * w
 
     def params(self) -> dict[str, Any]:
         """The model file's ``convolution.interaction`` entry."""
         hp = self.highpass
         return {"knots": self.gain.x.tolist(), "gains_h": self.gain_h.f.tolist(), "gains": self.gain.f.tolist(),
+                "gains_static": self.gain_static.f.tolist(),
                 "highpass": {"order": hp.order, "cutoff_hz": hp.cutoff_hz, "sos": hp.sos.tolist()},
                 "momentum": self.momentum.params()}
 
@@ -112,4 +131,5 @@ class InteractionConvolution(BlockChain):
                                                cutoff_hz=hp.get("cutoff_hz")),
                    np.asarray(params["knots"], dtype=float), np.asarray(params["gains_h"], dtype=float),
                    np.asarray(params["gains"], dtype=float),
-                   DeliveredMomentum.from_params(params["momentum"], fs_hz))
+                   DeliveredMomentum.from_params(params["momentum"], fs_hz),
+                   np.asarray(params["gains_static"], dtype=float) if "gains_static" in params else None)

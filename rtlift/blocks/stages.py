@@ -13,8 +13,11 @@ Catalog (``name``: equation; k = 0 is the first sample after ``reset()``, t_k = 
 - ``actuator_fade`` (input): g(k) = f + (1 − f) exp(−E(k)/τ), Cμ′ = g Cμ, Cμ_env′ = g Cμ_env,
   E(k) the burst on-time (s) accumulated *before* sample k (E += 1/fs while Cμ(k) > 0), or
   the wall time (``clock`` "time").
-- ``delivered_momentum`` (input, part of the ``interaction`` structure, not an effect):
-  Cμ_env′(k) = m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d, λ = exp(−1/(τ fs)); Cμ′ = Cμ.
+- ``delivered_momentum`` (input, part of the ``interaction`` structure as first merged, not an
+  effect): Cμ_env′(k) = m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d, λ = exp(−1/(τ fs)); Cμ′ = Cμ.
+- ``delivered_envelope`` (input, the ``interaction`` structure's Wiener input, not an effect):
+  Cμ_env′(k) = Cμ_env(k) · min(1, q(k)/q₀), q(k) = λ q(k−1) + (1 − λ) [Cμ(k) > 0], q₀ the
+  minimum of q at the lift-optimal burst rate; Cμ′ = Cμ.
 - ``sensor_resonance`` (output, kind "filter"): the unity-DC-gain mode
   ω²/(s² + 2ζωs + ω²), bilinear with pre-warping at ω (as on the bench).
 - ``zero_drift`` (output, kind "additive"): d(k) = offset + rate · t_k, or
@@ -617,8 +620,82 @@ class DeliveredMomentum(InputStage):
         self._m[0] = s[0]
 
 
+class DeliveredEnvelope(InputStage):
+    """The envelope where bursts fire at least at the lift-optimal rate, less where they fire
+    more sparsely (the Wiener input of the ``interaction`` structure, issue 31)::
+
+        q(k) = λ q(k−1) + (1 − λ) [Cμ(k) > 0],   λ = exp(−1/(τ fs))
+        u(k) = Cμ_env(k) · min(1, q(k)/q₀)
+
+    maps (Cμ, Cμ_env) to (Cμ, u). q is the recent fraction of samples with a burst on, q₀ its
+    minimum under bursting at the lift-optimal period (``burst_samples`` on in every
+    ``period_samples``, :func:`optimal_rate_floor`): at that rate or denser u is the envelope
+    itself, the paper's hybrid's Wiener input, with no lag; after an isolated burst or between
+    the bursts of a sparse train u falls with the memory q. ``time_constant_s`` = τ > 0.
+    State: [q(k)]."""
+
+    name = "delivered_envelope"
+    state_size = 1
+
+    def __init__(self, time_constant_s: float, burst_samples: int, period_samples: int, fs_hz: float) -> None:
+        tau, fs = _positive(time_constant_s, "delivered_envelope time_constant_s"), _positive(fs_hz, "fs_hz")
+        on, period = int(burst_samples), int(period_samples)
+        if not 0 < on <= period:
+            raise ValueError(f"delivered_envelope needs 0 < burst_samples <= period_samples, got {on}, {period}")
+        self.time_constant_s, self.burst_samples, self.period_samples, self.fs_hz = tau, on, period, fs
+        self._lam = math.exp(-1.0 / (tau * fs))
+        self._b = 1.0 - self._lam
+        self._scale = 1.0 / optimal_rate_floor(self._lam, on, period)
+        self._q = np.zeros(1)           # numpy, so the compiled step advances it too
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> DeliveredEnvelope:
+        return cls(float(params["time_constant_s"]), int(params["burst_samples"]), int(params["period_samples"]),
+                   fs_hz)
+
+    def params(self) -> dict[str, float]:
+        return {"time_constant_s": self.time_constant_s, "burst_samples": self.burst_samples,
+                "period_samples": self.period_samples}
+
+    def step(self, cmu: float, env: float) -> tuple[float, float]:
+        q = self._b * (1.0 if cmu > 0.0 else 0.0) + self._lam * self._q.item()
+        self._q[0] = q
+        return cmu, env * min(1.0, self._scale * q)
+
+    def kernel_arrays(self) -> tuple[tuple[float, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: parameters (λ, 1 − λ, 1/q₀) and state (q,), not a copy."""
+        return (self._lam, self._b, self._scale), (self._q,)
+
+    def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cmu = np.asarray(cmu, dtype=float)
+        env = np.asarray(env, dtype=float)
+        if cmu.size == 0:
+            return cmu.copy(), env.copy()
+        q, _ = signal.lfilter([self._b], [1.0, -self._lam], (cmu > 0).astype(float), zi=[self._lam * self._q.item()])
+        self._q[0] = q[-1]
+        return cmu.copy(), env * np.minimum(1.0, self._scale * q)
+
+    def get_state(self) -> np.ndarray:
+        return self._q.copy()
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (1,):
+            raise ValueError(f"delivered_envelope state must have shape (1,), got {s.shape}")
+        self._q[0] = s[0]
+
+
+def optimal_rate_floor(lam: float, burst_samples: int, period_samples: int) -> float:
+    """The minimum over a period of q(k) = λ q(k−1) + (1 − λ) x(k) in the periodic steady state of
+    x = ``burst_samples`` ones then zeros, every ``period_samples``: q just before a burst,
+    (1 − λ^on) λ^(T − on) / (1 − λ^T)."""
+    on, period = int(burst_samples), int(period_samples)
+    return (1.0 - lam ** on) * lam ** (period - on) / (1.0 - lam ** period)
+
+
 STAGES: dict[str, Any] = {c.name: c for c in (Delay, ActuatorFade, SensorResonance, ZeroDrift,
-                                               PeriodicDisturbance, DeliveredMomentum)}
+                                               PeriodicDisturbance, DeliveredMomentum,
+                                               DeliveredEnvelope)}
 
 
 def stage_from_spec(name: str, params: dict[str, Any], fs_hz: float) -> InputStage:

@@ -14,9 +14,9 @@
 (``provenance.structure.choice``).
 
 Known limit (issue 31, ``docs/results/bursts.md``): ``rtlift diagnose`` on the independent plant's
-development set gets 4 of 8 cases right with the interaction model identified from the full
-campaign, 8 of 8 with the hybrid: the interaction model's remaining misfit on the
-amplitude-modulated records (random NRMSE 0.34 against 0.19) hides a fade, a drift and a
+development set gets 5 of 8 cases right with the interaction model identified from the full
+campaign, 8 of 8 with the hybrid: the interaction model's remaining misfit on the random record
+(NRMSE 0.28 against the hybrid's 0.19, its level 0.008 low) hides a fade, a drift and a
 hysteresis. For a diagnosis, identify without ``--trains`` (or with ``--structure paper``).
 """
 

@@ -2,8 +2,9 @@
 
 The structure (equation and blocks: :mod:`rtlift.blocks.interaction`)::
 
-    ΔCL(k) = β_H HF(c)(k) + G(m(k)) (c − HF(c))(k) + N(m(k)) C x(k),   x(k) = A x(k−1) + B m(k)
-    c = φ h ∗ Cμ,   m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d,   λ = exp(−1/(τ fs))
+    ΔCL(k) = β_H HF(c)(k) + G(m(k)) (c − HF(c))(k) + S(u(k)) u(k) + N(u(k)) C x(k),
+    x(k) = A x(k−1) + B u(k),   c = φ h ∗ Cμ,   m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d,
+    u(k) = Cμ_env(k) · min(1, q(k)/q₀),   q(k) = λ q(k−1) + (1 − λ) [Cμ(k) > 0],   λ = exp(−1/(τ fs))
 
 The paper's hybrid drives its slow part with the commanded envelope and high-passes the
 convolution: an isolated burst or a sparse train (whose envelope says "0.0022" between
@@ -13,11 +14,21 @@ lift-optimal duty d), and the slow part of each burst's own response is kept, sc
 per-burst gain G(m) that falls as recent bursts have already moved the flow (burst–burst
 interaction) instead of being filtered away.
 
+The Wiener part and a static term S(u)·u (S piecewise linear on the G knots) are driven by the
+delivered envelope u (issue 31): where bursts fire at the lift-optimal rate or denser u is the
+envelope, the paper's hybrid's Wiener input, without the lag of m (m, a memory of the
+burst-modulated Cμ, lags an amplitude-modulated envelope by about τ, which the Wiener LTI
+compensated at the training frequency only); between sparse bursts u falls with the memory q
+of the samples with a burst on, q₀ its floor at the optimal rate. S lets the level at each u
+differ from N's shape (u enters without lag; m's G·(c − HF(c)) and the Wiener LTI bring the
+dynamics).
+
 Recipe: static map → N (:mod:`.static_map`), single bursts → h and φ (:mod:`.kernel`),
-d = burst length / median burst interval of the training record (lift-optimal bursting);
-then, for each HF (Butterworth order, cutoff) and τ of the grids, one output-error PEM
-(:func:`~rtlift.identify.pem.fit_wiener`, the paper's N(m)·y form, or the textbook f(y) with
-``form``) with β_H and the G knots as linear regressors, on every record laid end to end —
+d = burst length / median burst interval T of the training record (lift-optimal bursting;
+q₀ from the same burst length and T); then, for each HF (Butterworth order, cutoff) and τ of
+the grids (τ that of m and of q), one output-error PEM (:func:`~rtlift.identify.pem.fit_wiener`,
+the paper's N(u)·y form, or the textbook f(y) with ``form``) with β_H, the G knots and the S
+knots as linear regressors, on every record laid end to end —
 static sweep (thinned), single bursts, each train, the training record — each record weighted
 by 1/(σ_r √n_r) so that every record type counts alike (the training record × ``train_weight``),
 fitted on the first 70 % of each and scored on the last 30 % (mean over the records of the
@@ -32,7 +43,17 @@ delivers the burst part is linear in h — kept where it lowers the training rec
 RMSE by 1 %, and β_H, G and the Wiener part are refitted on the refined kernel.
 
 Measured on the independent plant (identified on ``campaign/``, scored on ``clean/``, whole
-records, ``benchmarks/burst_patterns.py``; issue 31): the refinement lifts sine_k025 / random
+records, ``benchmarks/burst_patterns.py``; issue 31). With u and S (this structure): ρ / NRMSE
+sine_k025 0.978 / 0.22, random 0.981 / 0.28, single_burst 0.902 / 0.46, train_T7 0.902 / 0.46,
+every record type within its goal (the paper's hybrid: 0.973 / 0.34, 0.984 / 0.19 on the first
+two). u without S: sine_k025 0.973 / 0.23, random 0.980 / 0.29; u with G scheduled on u too:
+sine_k025 0.786 (G's memory of m is the plant's interaction); S on m instead of u: sine_k025
+0.790; u = the last burst's amplitude held × min(1, q/q₀) (no envelope): sine_k025 0.967.
+With m (as first merged), G zero above 0.5 Cμ_max (the slow path at dense bursting the Wiener
+part's alone): sine_k025 0.746 and every train below its goal.
+
+History, with the Wiener part driven by m (the structure as first merged): the refinement lifts
+sine_k025 / random
 from ρ 0.944 / 0.955 to 0.952 / 0.965 and the dead time (2 samples) to 0.957 / 0.967, single
 bursts and trains unchanged (0.905 … 0.967). Still short of the hybrid's 0.973 / 0.984 there
 (textbook form, identified on the sine alone): the residual on sine_k025 is a lag of ≈ 45 ms of
@@ -83,7 +104,7 @@ from scipy import signal
 
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.stages import Delay, DeliveredMomentum
+from rtlift.blocks.stages import Delay, DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.wiener import WienerBlock
 from rtlift.core.metrics import rmse, scores
 from rtlift.core.records import Record
@@ -141,9 +162,25 @@ def _hats(m: np.ndarray, knots: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class _Rate:
+    """Lift-optimal bursting as the training record does it: ``burst_samples`` on every
+    ``period_samples`` (duty d = their ratio)."""
+
+    burst_samples: int
+    period_samples: int
+
+    @property
+    def duty(self) -> float:
+        return self.burst_samples / self.period_samples
+
+    def envelope(self, tau: float, fs: float) -> DeliveredEnvelope:
+        return DeliveredEnvelope(tau, self.burst_samples, self.period_samples, fs)
+
+
+@dataclass(frozen=True)
 class _Laid:
-    """The records end to end: the Wiener input m, its gain N(m), the linear regressors
-    [HF(c), W_i(m)·(c − HF(c))], the target, and per record its slice."""
+    """The records end to end: the Wiener input u (the delivered envelope), its gain N(u), the
+    linear regressors [HF(c), W_i(m)·(c − HF(c)), W_i(u)·u], the target, and per record its slice."""
 
     m: np.ndarray
     gain: np.ndarray
@@ -153,16 +190,18 @@ class _Laid:
 
 
 def _lay(records: list[Record], static: StaticMap, kernel: SingleBurstKernel, hp: tuple[int, float],
-         tau: float, duty: float, knots: np.ndarray, fs: float, dead_time: int) -> _Laid:
-    cmu = np.concatenate([np.zeros(dead_time)] + [r.cmu for r in records])[: sum(len(r) for r in records)]
-    mom = DeliveredMomentum(tau, duty, fs)
-    m = mom.momentum_batch(cmu)
+         tau: float, rate: _Rate, knots: np.ndarray, fs: float, dead_time: int) -> _Laid:
+    n = sum(len(r) for r in records)
+    cmu = np.concatenate([np.zeros(dead_time)] + [r.cmu for r in records])[:n]
+    env = np.concatenate([np.zeros(dead_time)] + [r.cmu_envelope for r in records])[:n]
+    m = DeliveredMomentum(tau, rate.duty, fs).momentum_batch(cmu)
+    _, u = rate.envelope(tau, fs).simulate(cmu, env)
     c = kernel.phi * signal.lfilter(kernel.kernel, [1.0], cmu)
     hf = HighPassFilter.design(hp[0], hp[1], fs).simulate(c)
-    X = np.column_stack([hf, _hats(m, knots) * (c - hf)[:, None]])
+    X = np.column_stack([hf, _hats(m, knots) * (c - hf)[:, None], _hats(u, knots) * u[:, None]])
     bounds = np.cumsum([0] + [len(r) for r in records])
     parts = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True))
-    return _Laid(m, static.gain_at(m), X, np.concatenate([r.dcl for r in records]), parts)
+    return _Laid(u, static.gain_at(u), X, np.concatenate([r.dcl for r in records]), parts)
 
 
 def _weights(laid: _Laid, cost: np.ndarray, train_weight: float = 1.0, static_weight: float = 1.0) -> np.ndarray:
@@ -190,15 +229,16 @@ def _fit(laid: _Laid, order: int, cost: np.ndarray, fs: float, static: StaticMap
     return res, low + laid.X @ res.extra_coef
 
 
-def _model(kernel: SingleBurstKernel, static: StaticMap, hp: tuple[int, float], tau: float, duty: float,
+def _model(kernel: SingleBurstKernel, static: StaticMap, hp: tuple[int, float], tau: float, rate: _Rate,
            knots: np.ndarray, pem: PEMResult, fs: float, dead_time: int, form: str) -> HybridModel:
-    """The structure with the fitted β_H (one constant G_H), G knots and Wiener LTI."""
-    beta, lti = pem.extra_coef, pem.lti
+    """The structure with the fitted β_H (one constant G_H), G and S knots and Wiener LTI."""
+    beta, lti, k = pem.extra_coef, pem.lti, knots.size
     burst = InteractionConvolution(kernel.kernel, kernel.phi, HighPassFilter.design(hp[0], hp[1], fs),
-                                   knots, np.full(knots.size, beta[0]), beta[1:], DeliveredMomentum(tau, duty, fs))
+                                   knots, np.full(k, beta[0]), beta[1:1 + k], DeliveredMomentum(tau, rate.duty, fs),
+                                   beta[1 + k:])
     return HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(
         lti.A, lti.B, lti.C, nonlinearity_for(static, form)), fs,
-        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), DeliveredMomentum(tau, duty, fs)))
+        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), rate.envelope(tau, fs)))
 
 
 def _refine_kernel(model: HybridModel, train: Record, skip: int, dead_time: int,
@@ -234,7 +274,8 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     on = np.diff(np.flatnonzero((train_rec.cmu[1:] > 0) & (train_rec.cmu[:-1] <= 0)))
     if on.size == 0:
         raise ValueError(f"no burst train in the training record {train_rec.name}")
-    duty = min(1.0, kernel.burst_samples / float(np.median(on)))
+    period = int(round(float(np.median(on))))
+    rate = _Rate(min(kernel.burst_samples, period), period)
     knots = np.asarray(opt.knot_fractions) * static.cmu_max
     skip = int(round(opt.skip_s * fs))
     stride = max(1, int(round(len(static_rec) / max(len(train_rec), 1))))
@@ -263,10 +304,10 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     grid = []
     for hp in opt.highpasses:
         for tau in opt.taus_s:
-            laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time or 0)
+            laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0)
             grid.append((held_out(laid, opt.order or opt.search_order)[0], hp, tau))
     _, hp, tau = min(grid, key=lambda g: g[0])
-    laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, opt.dead_time or 0)
+    laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0)
     orders = [opt.order] if opt.order else list(range(1, opt.max_order + 1))
     by_order = {k: held_out(laid, k)[0] for k in orders}
     best = min(by_order.values())
@@ -274,21 +315,21 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     by_dead_time = {opt.dead_time or 0: by_order[order]}
     if opt.dead_time is None:                 # then the dead time, the structure as chosen
         for d in range(1, opt.max_dead_time + 1):
-            by_dead_time[d] = held_out(_lay(records, static, kernel, hp, tau, duty, knots, fs, d), order)[0]
+            by_dead_time[d] = held_out(_lay(records, static, kernel, hp, tau, rate, knots, fs, d), order)[0]
     best = min(by_dead_time.values())
     dead_time = min(d for d, v in by_dead_time.items() if v <= 1.01 * best)
-    laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, dead_time)
+    laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time)
 
     est, held, _ = costs(laid)
     full = np.sort(np.concatenate([est, held]))
     pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
-    model = _model(kernel, static, hp, tau, duty, knots, pem, fs, dead_time, form)
+    model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form)
     refined = _refine_kernel(model, train_rec, skip, dead_time, opt)
     if refined.ridge is not None:             # refit the gains and the Wiener part on the refined kernel
         kernel = replace(kernel, kernel=refined.kernel)
-        laid = _lay(records, static, kernel, hp, tau, duty, knots, fs, dead_time)
+        laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time)
         pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
-        model = _model(kernel, static, hp, tau, duty, knots, pem, fs, dead_time, form)
+        model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form)
     beta = pem.extra_coef
     lti = pem.lti
 
@@ -317,8 +358,10 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
         "fs_hz": fs,
         "structure": {"name": "interaction", "form": form, "dead_time_samples": dead_time,
                       "highpass": {"order": hp[0], "cutoff_hz": hp[1]}, "time_constant_s": tau,
-                      "duty": duty, "knots": knots.tolist(), "gains_h": [float(beta[0])] * knots.size,
-                      "gains": beta[1:].tolist(),
+                      "duty": rate.duty, "knots": knots.tolist(), "gains_h": [float(beta[0])] * knots.size,
+                      "gains": beta[1:1 + knots.size].tolist(), "gains_static": beta[1 + knots.size:].tolist(),
+                      "wiener_input": {"name": "delivered_envelope", "time_constant_s": tau,
+                                       "burst_samples": rate.burst_samples, "period_samples": rate.period_samples},
                       "rule": f"HF and τ, then the Wiener order, then the dead time, by the mean held-out NRMSE "
                               f"of the last {100 * opt.holdout_fraction:.0f} % of each record (the smaller order "
                               "and dead time within 1 %); the kernel's first burst period refined on the "

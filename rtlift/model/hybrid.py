@@ -13,7 +13,7 @@ The hot path is compiled (:mod:`rtlift.blocks.compiled`, numba) for every model 
 nonlinearity has a compiled form (``input_gain``, ``output``) and whose only augmentation
 stage is at most one input ``delay``: the paper's model and a model as ``rtlift identify``
 writes it; and for the ``interaction`` structure (:mod:`rtlift.blocks.interaction`: its burst
-part in the convolution slot, its ``delivered_momentum`` stage after at most one ``delay``).
+part in the convolution slot, its ``delivered_envelope`` stage after at most one ``delay``).
 The other effect stages (``actuator_fade``, ``sensor_resonance``, ``zero_drift``,
 ``periodic_disturbance``) and the hysteresis nonlinearities are not compiled yet: a model that
 carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain of the
@@ -40,7 +40,7 @@ from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.stages import Delay, DeliveredMomentum, InputStage, OutputStage
+from rtlift.blocks.stages import Delay, DeliveredEnvelope, InputStage, OutputStage
 from rtlift.blocks.wiener import WienerBlock
 
 _STRUCTURE = frozenset({"convolution", "highpass", "wiener", "input_stages", "output_stages"})
@@ -133,11 +133,12 @@ class HybridModel(BlockChain):
                 state_slots(hp_state[0], wiener_state[0]))
 
     def _bind_interaction(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
-        """The interaction structure: input stages [``delay``,] ``delivered_momentum``, the model's
-        ``highpass`` the identity (its HF lives in the burst part)."""
+        """The interaction structure: input stages [``delay``,] ``delivered_envelope``, the model's
+        ``highpass`` the identity (its HF lives in the burst part). A model whose Wiener input is
+        ``delivered_momentum`` (as first merged) takes :meth:`reference_step`."""
         stages = self.input_stages
         identity = self.highpass.sos.shape == IDENTITY_SOS.shape and np.array_equal(self.highpass.sos, IDENTITY_SOS)
-        if not stages or type(stages[-1]) is not DeliveredMomentum or not identity:
+        if not stages or type(stages[-1]) is not DeliveredEnvelope or not identity:
             return ()
         delay = self._delay_state(stages[:-1])
         if delay is None:
@@ -145,11 +146,11 @@ class HybridModel(BlockChain):
         from rtlift.blocks.compiled import interaction_simulate, interaction_step, pack_interaction, pack_parameters
 
         m_par, (m_in,) = stages[-1].kernel_arrays()
-        (taps, coef, m_conv_par, knots, gh, gh_slopes, g, g_slopes), (buf, pos, z, m_conv) = \
+        (taps, coef, m_conv_par, knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes), (buf, pos, z, m_conv) = \
             self.convolution.kernel_arrays()
         (A, B, C, form, xs, fs, slopes), (x,) = wiener
         par = pack_interaction(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), m_par, m_conv_par,
-                               knots, gh, gh_slopes, g, g_slopes)
+                               knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes)
         return (interaction_step, (par, *delay, m_in, buf, pos, z, m_conv, x), interaction_simulate,
                 ((0.0,) * z.size, (0.0,) * x.size))
 
@@ -182,12 +183,25 @@ class HybridModel(BlockChain):
         """:meth:`step` in pure Python, block by block (the compiled step's oracle)."""
         for s in self.input_stages:
             cmu, cmu_envelope = s.step(cmu, cmu_envelope)
-        high = self.highpass.step(self.convolution.step(cmu))
+        high = self.high_step(cmu, cmu_envelope)
         low = self.wiener.step(cmu_envelope)
         total = high + low
         for s in self.output_stages:
             total = s.step(total)
         return total, high, low
+
+    def high_step(self, cmu: float, cmu_envelope: float) -> float:
+        """ΔCL_H(k) of the inputs after the input stages: HF(convolution) (paper), or the
+        interaction structure's burst part, which also takes the Wiener input (Cμ_env′)."""
+        if type(self.convolution) is InteractionConvolution:
+            return self.highpass.step(self.convolution.step(cmu, cmu_envelope))
+        return self.highpass.step(self.convolution.step(cmu))
+
+    def high_simulate(self, cmu: np.ndarray, cmu_envelope: np.ndarray) -> np.ndarray:
+        """Batch twin of :meth:`high_step`."""
+        if type(self.convolution) is InteractionConvolution:
+            return self.highpass.simulate(self.convolution.simulate(cmu, cmu_envelope))
+        return self.highpass.simulate(self.convolution.simulate(cmu))
 
     def simulate(self, cmu: np.ndarray, cmu_envelope: np.ndarray) -> HybridOutput:
         """Batch twin of :meth:`step` over arrays; starts from and advances the current state."""
@@ -213,7 +227,7 @@ class HybridModel(BlockChain):
         env = np.asarray(cmu_envelope, dtype=float)
         for s in self.input_stages:
             cmu, env = s.simulate(cmu, env)
-        high = self.highpass.simulate(self.convolution.simulate(cmu))
+        high = self.high_simulate(cmu, env)
         low, _ = self.wiener.simulate(env)
         total = high + low
         for s in self.output_stages:

@@ -279,7 +279,7 @@ class Observer:
         m = self.model
         for stage in m.input_stages:
             cmu, env = stage.step(cmu, env)
-        high = m.highpass.step(m.convolution.step(cmu))
+        high = m.high_step(cmu, env)
         known = high
         total = high + m.wiener.step(env)
         for stage, replaced in self._output_stages:
