@@ -5,7 +5,8 @@ An *input stage* maps the actuation record before the model sees it,
 model's ΔCL to what the balance reports, ``ΔCL → ΔCL′`` (a sensor mode, a drift, a pickup).
 Every stage is a streaming block (``step``, batch twin ``simulate``, explicit state) and is
 named and parametrised as in INTERFACES.md, so a model file can list it and
-:data:`STAGES` can rebuild it with ``from_params(params, fs_hz)``.
+:data:`STAGES` (built from the effect registry, :mod:`rtlift.core.registry`) can rebuild it with
+``from_params(params, fs_hz)``.
 
 Catalog (``name``: equation; k = 0 is the first sample after ``reset()``, t_k = k / fs):
 
@@ -47,6 +48,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 from scipy import signal
+
+from rtlift.core.registry import EFFECTS, code_in
 
 
 class InputStage:
@@ -617,8 +620,10 @@ class DeliveredMomentum(InputStage):
         self._m[0] = s[0]
 
 
-STAGES: dict[str, Any] = {c.name: c for c in (Delay, ActuatorFade, SensorResonance, ZeroDrift,
-                                               PeriodicDisturbance, DeliveredMomentum)}
+STAGES: dict[str, Any] = {**{name: globals()[cls] for name, cls in code_in(EFFECTS, "stages", __name__).items()},
+                          DeliveredMomentum.name: DeliveredMomentum}
+"""Every stage by name: the effects' stages the registry (:mod:`rtlift.core.registry`) names in this
+module, and the interaction structure's ``delivered_momentum``, which is not an effect."""
 
 
 def stage_from_spec(name: str, params: dict[str, Any], fs_hz: float) -> InputStage:

@@ -1,4 +1,5 @@
-"""The effect catalog: one :class:`Effect` record per INTERFACES.md effect name.
+"""The effect catalog: one :class:`Effect` record per lift effect of the registry
+(:mod:`rtlift.core.registry`, which names each effect's fit and evidence here).
 
 An effect's record holds its fit, the evidence that points at it (a statistic of the residual
 compared with the model's own residual at identification, :mod:`rtlift.residual.fingerprint`), its number of
@@ -47,7 +48,9 @@ from rtlift.blocks.stages import (
     resonance_ba,
 )
 from rtlift.blocks.wiener import HysteresisGain, InputGain, OutputHysteresis, OutputNonlinearity
-from rtlift.core.effects import SCHEMAS, EffectSchema
+from rtlift.core.effects import EffectSchema
+from rtlift.core.registry import EFFECTS as REGISTERED
+from rtlift.core.registry import SCHEMAS, Entry, in_signal_order, resolve
 from rtlift.core.records import Record
 from rtlift.model.hybrid import HybridModel, HybridOutput
 from rtlift.model.modelfile import model_from_dict, model_to_dict
@@ -606,20 +609,25 @@ class Effect:
         return SCHEMAS[self.name]
 
 
-def _count(n: int) -> Callable[[dict[str, Any]], int]:
-    return lambda params: n
+def n_params_drift(params: dict[str, Any]) -> int:
+    """offset and rate, or offset, amplitude and time constant."""
+    return 2 if "rate_per_s" in params else 3
 
 
-CATALOG: tuple[Effect, ...] = (      # in the order a combination is built: time, gain, filter, additive
-    Effect("delay", fit_delay, evidence_delay, _count(1)),
-    Effect("actuator_fade", fit_actuator_fade, evidence_fade, _count(2)),
-    Effect("hysteresis", fit_hysteresis, evidence_hysteresis, _count(4), ("output_nonlinearity",), True),
-    Effect("output_nonlinearity", fit_output_nonlinearity, evidence_output_nonlinearity, _count(10),
-           ("hysteresis",), True),
-    Effect("sensor_resonance", fit_sensor_resonance, evidence_resonance, _count(2)),
-    Effect("zero_drift", fit_zero_drift, evidence_drift, lambda p: 2 if "rate_per_s" in p else 3),
-    Effect("periodic_disturbance", fit_periodic_disturbance, evidence_pickup,
-           lambda p: 3 + 2 * len(p.get("harmonics", ()))),
-)
+def n_params_pickup(params: dict[str, Any]) -> int:
+    """frequency, amplitude and phase of the fundamental, amplitude and phase per harmonic."""
+    return 3 + 2 * len(params.get("harmonics", ()))
+
+
+def _effect(entry: Entry) -> Effect:
+    d = entry.diagnosis
+    count = d.n_params
+    n_params = resolve(count) if isinstance(count, str) else (lambda params: count)
+    return Effect(entry.name, resolve(d.fit), resolve(d.evidence), n_params, d.excludes, d.fits_change)
+
+
+CATALOG: tuple[Effect, ...] = tuple(_effect(e) for e in in_signal_order(REGISTERED))
+"""The registry's lift effects (:mod:`rtlift.core.registry`) in the order a combination is built:
+the signal path's (time and gain at the input, the nonlinearity, filter, additive)."""
 EFFECTS: dict[str, Effect] = {e.name: e for e in CATALOG}
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
