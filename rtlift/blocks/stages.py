@@ -49,7 +49,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import signal
 
-from rtlift.core.registry import EFFECTS, code_in
+from rtlift.core.registry import EFFECTS, resolve
 
 
 class InputStage:
@@ -620,10 +620,11 @@ class DeliveredMomentum(InputStage):
         self._m[0] = s[0]
 
 
-STAGES: dict[str, Any] = {**{name: globals()[cls] for name, cls in code_in(EFFECTS, "stages", __name__).items()},
+STAGES: dict[str, Any] = {**{e.name: resolve(e.stages[0]) for e in EFFECTS if e.path != "nonlinearity"},
                           DeliveredMomentum.name: DeliveredMomentum}
-"""Every stage by name: the effects' stages the registry (:mod:`rtlift.core.registry`) names in this
-module, and the interaction structure's ``delivered_momentum``, which is not an effect."""
+"""Every stage by name: the effects' stages as the registry (:mod:`rtlift.core.registry`) names them
+(the static-gain effects' are Wiener nonlinearities instead), and the interaction structure's
+``delivered_momentum``, which is not an effect."""
 
 
 def stage_from_spec(name: str, params: dict[str, Any], fs_hz: float) -> InputStage:

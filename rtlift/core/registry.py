@@ -205,19 +205,6 @@ def in_signal_order(entries: tuple[Entry, ...] = EFFECTS) -> tuple[Entry, ...]:
     return tuple(sorted(entries, key=lambda e: PATHS.index(e.path)))
 
 
-def code_in(entries: tuple[Entry, ...], part: str, module: str) -> dict[str, str]:
-    """``{name: attribute}`` of the entries whose ``part`` (``stages``, ``observer``) is code
-    in ``module``: what that module builds its own table from."""
-    out = {}
-    for e in entries:
-        value = getattr(e, part)
-        for path in (value,) if isinstance(value, str) else value or ():
-            mod, _, attr = path.partition(":")
-            if mod == module:
-                out[e.name] = attr
-    return out
-
-
 def resolve(path: str) -> Any:
     """The object ``"module:attribute"`` names (imports the module: call it from the layer the
     module belongs to or above)."""

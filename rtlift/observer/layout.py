@@ -19,7 +19,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
 from rtlift.blocks.stages import PeriodicDisturbance
-from rtlift.core.registry import EFFECTS, code_in
+from rtlift.core.registry import EFFECTS, resolve
 from rtlift.model.hybrid import HybridModel
 from rtlift.observer.config import ObserverConfig, ObserverError
 
@@ -56,7 +56,7 @@ def absorbed_by_bias(params: dict[str, Any], fs_hz: float) -> None:
 
 
 OBSERVER_FORMS: dict[str, Callable[[dict[str, float], float], StateBlock | None]] = {
-    name: globals()[form] for name, form in code_in(EFFECTS, "observer", __name__).items()}
+    e.name: resolve(e.observer) for e in EFFECTS if e.observer}
 """Output stages the observer represents by states, as the registry (:mod:`rtlift.core.registry`)
 names them: a factory returning a :class:`StateBlock`, or ``None`` when the bias state already
 covers the effect. Other output stages are applied as known corrections (module docstring)."""
