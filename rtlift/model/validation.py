@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rtlift.core.metrics import scores
-from rtlift.core.registry import ENTRIES
 from rtlift.core.records import Record, SisoRecord
+from rtlift.core.registry import ENTRIES
 from rtlift.model.hybrid import HybridModel, HybridOutput
 
 VALIDATE_VERSION = 1
