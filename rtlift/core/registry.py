@@ -4,8 +4,11 @@ Each record holds, under the name of INTERFACES.md's effects table:
 
 - ``kind``: ``effect`` (a lift-model effect: it departs from what the model's identification data
   showed) or ``structure`` (a generic ``t,u,y`` model's form is too simple);
-- ``doc``: the one line of INTERFACES.md's table ("physical meaning");
-- the parameter schema (:class:`~rtlift.core.effects.EffectSchema`: defaults, units, ranges);
+- ``doc``: its one line of meaning (the diagnosis report quotes it; INTERFACES.md's table says
+  the same, at times in fewer words);
+- the parameter schema (:class:`~rtlift.core.effects.EffectSchema`: defaults, units, ranges; a
+  structure's parameters are fitted without documented ranges, so its schema holds its meaning
+  only);
 - where it acts and what streams it: ``path`` (``input``, ``nonlinearity``, ``filter``,
   ``additive``: the signal path's order, which is also the order the diagnosis combines them
   in) and ``stages`` (the streaming stage, or the Wiener nonlinearity forms);
@@ -13,7 +16,9 @@ Each record holds, under the name of INTERFACES.md's effects table:
 - its observer form (a factory returning a ``StateBlock`` or ``None``: the bias state covers it;
   no form: applied as a known correction);
 - its bench injection (:class:`Bench`: the bench stage, the intervals the bench accepts, its
-  bench-only parameters).
+  bench-only parameters);
+- the parameters that belong to a record rather than to the effect (a pickup's phases);
+- for a structure: how the generic diagnosis fits it and the model structures it is tried in.
 
 Code is named here by ``"module:attribute"`` and resolved by the layer it belongs to
 (:func:`resolve`), never by the core at load time: ``rtlift.blocks.stages`` builds ``STAGES``
@@ -87,7 +92,7 @@ class Entry:
 
     @property
     def doc(self) -> str:
-        """The one line: INTERFACES.md's "physical meaning"."""
+        """The one line of meaning (module docstring)."""
         return self.schema.meaning
 
 
