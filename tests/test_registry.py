@@ -168,6 +168,20 @@ def test_the_generic_diagnosis_tries_every_structure():
     assert sysid.SATURATED_FORMS == ENTRIES["saturation"].forms
 
 
+@pytest.mark.parametrize("structure", MODEL_STRUCTURE_NAMES)
+@pytest.mark.parametrize("where", ["output", "state"])
+def test_identification_takes_a_limit_exactly_where_saturation_is_tried(structure, where):
+    """identify_siso's own check of where a limit can sit agrees with the registry's forms (a
+    record too short to identify: the check of the form comes first)."""
+    from rtlift.core.records import SisoRecord
+    from rtlift.sysid.identify import identify_siso
+
+    short = SisoRecord(np.arange(10) / 10.0, np.zeros(10), np.zeros(10))
+    with pytest.raises(ValueError) as info:
+        identify_siso(short, structure, limits=(0.0, 1.0), where=where)
+    assert ("too short" in str(info.value)) == ((structure, where) in ENTRIES["saturation"].forms), info.value
+
+
 def test_the_model_structures_are_built_by_their_classes():
     from rtlift.model.siso import SISO_MODELS, STRUCTURES
 
