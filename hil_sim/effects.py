@@ -16,9 +16,10 @@ name                      stage      what it does (SI units; ΔCL-valued amplitu
                                      sampled, e.g. 420 Hz mains aliased to 20 Hz)
 ========================  =========  =====================================================
 
-``EFFECTS[name]`` holds the bench stage and the shared schema of :mod:`rtlift.core.effects` (defaults,
-documented ranges ``ranges[param] = (lo, hi)``, ``draw(rng)``); ``parse_effect(spec)`` raises
-:class:`~rtlift.core.errors.UserError` on a bad spec.
+``EFFECTS[name]`` holds the bench stage and the shared schema of the effect registry
+(:mod:`rtlift.core.registry`: defaults, documented ranges ``ranges[param] = (lo, hi)``,
+``draw(rng)``, the intervals the bench accepts, the bench-only parameters);
+``parse_effect(spec)`` raises :class:`~rtlift.core.errors.UserError` on a bad spec.
 """
 
 from __future__ import annotations
@@ -31,19 +32,23 @@ from types import MappingProxyType
 import numpy as np
 from scipy import signal
 
-from rtlift.core.effects import SCHEMAS, EffectSchema
+from rtlift.core.effects import EffectSchema
 from rtlift.core.errors import UserError
+from rtlift.core.registry import EFFECTS as REGISTERED
+from rtlift.core.registry import Bench
 
 
 @dataclass(frozen=True)
 class EffectInfo:
-    """One effect kind on the bench: where it acts here, and its shared parameter schema
-    (:data:`rtlift.core.effects.SCHEMAS`: meaning, defaults, documented ranges)."""
+    """One effect kind on the bench: how it is injected here (:class:`rtlift.core.registry.Bench`:
+    the stage, the intervals its parameters must lie in, the bench-only parameters) and its shared
+    parameter schema (meaning, defaults, documented ranges)."""
 
-    stage: str
+    bench: Bench
     schema: EffectSchema
 
     name = property(lambda self: self.schema.name)
+    stage = property(lambda self: self.bench.stage)
     defaults = property(lambda self: self.schema.defaults)
     ranges = property(lambda self: self.schema.ranges)
     meaning = property(lambda self: self.schema.meaning)
@@ -54,15 +59,15 @@ class EffectInfo:
         return Effect(self.name, self.schema.draw(rng))
 
 
-BENCH_ONLY: Mapping[str, Mapping[str, float]] = MappingProxyType({"actuator_fade": {"onset_s": 0.0}})
+EFFECTS: Mapping[str, EffectInfo] = MappingProxyType({e.name: EffectInfo(e.bench, e.schema)
+                                                      for e in REGISTERED if e.bench is not None})
+"""The registry's effects the bench injects, in its order."""
+STAGE_ON_BENCH: Mapping[str, str] = MappingProxyType({n: i.stage for n, i in EFFECTS.items()})
+BENCH_ONLY: Mapping[str, Mapping[str, float]] = MappingProxyType(
+    {n: i.bench.only for n, i in EFFECTS.items() if i.bench.only})
 """Parameters the bench takes beyond the shared schema (what the plant does, not what a model
 fits): ``actuator_fade:onset_s`` — the actuators start heating (on-time counted) from this
 device time on, so a fade can set in during a run."""
-
-STAGE_ON_BENCH = {"delay": "force", "sensor_resonance": "force", "actuator_fade": "actuator",
-                  "zero_drift": "offset", "periodic_disturbance": "offset", "hysteresis": "plant"}
-EFFECTS: Mapping[str, EffectInfo] = MappingProxyType({name: EffectInfo(stage, SCHEMAS[name])
-                                                      for name, stage in STAGE_ON_BENCH.items()})
 
 
 @dataclass(frozen=True)
@@ -87,28 +92,15 @@ class Effect:
 
 def _check(name: str, params: dict[str, float], spec: str) -> None:
     info = EFFECTS[name]
-    if name == "zero_drift":
-        sets = [set(info.defaults), *map(set, info.alternatives)]
-        if set(params) not in sets:
-            raise UserError(f"effect {spec!r}: zero_drift takes rate_per_s, or amplitude and "
-                            "time_constant_s")
+    sets = info.schema.parameter_sets
+    if set(params) - set(info.bench.only) not in map(set, sets):
+        raise UserError(f"effect {spec!r}: {name} takes " + ", or ".join(" and ".join(s) for s in sets))
     for key, value in params.items():
         if not math.isfinite(value):
             raise UserError(f"effect {spec!r}: {key} must be a finite number")
-    if params.get("onset_s", 0.0) < 0:
-        raise UserError(f"effect {spec!r}: onset_s must be at least 0, got {params['onset_s']:g}")
-    positive = {"seconds", "frequency_hz", "damping_ratio", "time_constant_s"}
-    for key in positive & set(params):
-        if params[key] <= 0:
-            raise UserError(f"effect {spec!r}: {key} must be positive, got {params[key]:g}")
-    if name == "actuator_fade" and not 0.0 <= params["final_fraction"] <= 1.0:
-        raise UserError(f"effect {spec!r}: final_fraction must be in [0, 1]")
-    if name == "hysteresis" and not -0.9 < params["magnitude"] < 5.0:
-        raise UserError(f"effect {spec!r}: magnitude must be in (-0.9, 5)")
-    if name == "sensor_resonance" and params["frequency_hz"] >= 190.0:
-        raise UserError(f"effect {spec!r}: frequency_hz must be below 190 Hz (fs = 400 Hz)")
-    if name == "delay" and params["seconds"] > 10.0:
-        raise UserError(f"effect {spec!r}: seconds must be at most 10")
+    for key, interval in info.bench.accepts.items():
+        if key in params and params[key] not in interval:
+            raise UserError(f"effect {spec!r}: {key} must be in {interval}, got {params[key]:g}")
 
 
 def parse_effect(spec: str) -> Effect:
@@ -119,7 +111,7 @@ def parse_effect(spec: str) -> Effect:
     if name not in EFFECTS:
         raise UserError(f"unknown effect {name!r} in {spec!r} (known: {', '.join(EFFECTS)})")
     info = EFFECTS[name]
-    known = set(info.ranges) | set(BENCH_ONLY.get(name, {}))
+    known = set(info.ranges) | set(info.bench.only)
     given: dict[str, float] = {}
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, eq, value = item.partition("=")
@@ -135,10 +127,8 @@ def parse_effect(spec: str) -> Effect:
             given[key] = float(value)
         except ValueError:
             raise UserError(f"effect {spec!r}: {key} is not a number: {value.strip()!r}") from None
-    params = dict(info.defaults)
-    params.update({k: v for k, v in BENCH_ONLY.get(name, {}).items() if k in given})
-    if name == "zero_drift" and given and "rate_per_s" not in given:
-        params = {"amplitude": 0.02, "time_constant_s": 20.0}
+    params = dict(info.schema.defaults_for(set(given) - set(info.bench.only)))
+    params.update({k: v for k, v in info.bench.only.items() if k in given})
     params.update(given)
     _check(name, params, spec)
     return Effect(name, params)
@@ -153,6 +143,8 @@ def as_effect(effect: Effect | str) -> Effect:
 class ActuatorFade:
     """``actuator_fade``: Cμ · (f + (1 − f) exp(−E/τ)), E = burst on-time so far (s),
     counted from device time ``onset_s`` on (0: from the start)."""
+
+    name = "actuator_fade"
 
     def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
         self.f = params["final_fraction"]
@@ -176,6 +168,8 @@ class ActuatorFade:
 class Delay:
     """``delay``: rows lag by round(seconds · fs) samples (the first rows repeat the start)."""
 
+    name = "delay"
+
     def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
         self.n = int(round(params["seconds"] * fs_hz))
         self.buffer: np.ndarray | None = None
@@ -192,6 +186,8 @@ class Delay:
 
 class SensorResonance:
     """``sensor_resonance``: unit-DC-gain second-order mode on every column."""
+
+    name = "sensor_resonance"
 
     def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
         f = params["frequency_hz"]
@@ -211,6 +207,8 @@ class SensorResonance:
 class ZeroDrift:
     """``zero_drift``: additive lift zero, rate · t or A (1 − exp(−t/τ)), t from power-up."""
 
+    name = "zero_drift"
+
     def __init__(self, params: Mapping[str, float], fs_hz: float) -> None:
         self.params = params
 
@@ -224,6 +222,9 @@ class ZeroDrift:
 class PeriodicDisturbance:
     """``periodic_disturbance``: A sin(2π f t + φ₀) as sampled, φ₀ from the seed."""
 
+    name = "periodic_disturbance"
+    seeded = True
+
     def __init__(self, params: Mapping[str, float], fs_hz: float,
                  rng: np.random.Generator) -> None:
         self.f = params["frequency_hz"]
@@ -234,10 +235,12 @@ class PeriodicDisturbance:
         return self.amplitude * np.sin(2.0 * math.pi * self.f * t + self.phase)
 
 
+PROCESSORS = {c.name: c for c in (ActuatorFade, Delay, SensorResonance, ZeroDrift, PeriodicDisturbance)}
+"""The bench's own physics of each effect it injects at an ``actuator``, ``force`` or ``offset``
+stage (tests/test_registry.py checks these against the registry)."""
+
+
 def processor(effect: Effect, fs_hz: float, rng: np.random.Generator):
     """A fresh streaming processor for an actuator, force or offset effect."""
-    kinds = {"actuator_fade": ActuatorFade, "delay": Delay, "sensor_resonance": SensorResonance,
-             "zero_drift": ZeroDrift}
-    if effect.name == "periodic_disturbance":
-        return PeriodicDisturbance(effect.params, fs_hz, rng)
-    return kinds[effect.name](effect.params, fs_hz)
+    cls = PROCESSORS[effect.name]
+    return cls(effect.params, fs_hz, rng) if getattr(cls, "seeded", False) else cls(effect.params, fs_hz)

@@ -22,10 +22,11 @@ from pathlib import Path
 from typing import Any
 
 from rtlift.core.errors import UserError, require_finite
+from rtlift.core.registry import MODEL_STRUCTURE_NAMES
 
 PathLike = str | os.PathLike
 LIFT_STRUCTURES = ("paper", "interaction")
-GENERIC_STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback", "store_chain")
+GENERIC_STRUCTURES = MODEL_STRUCTURE_NAMES
 
 
 def _lift(record: Any, min_samples: int = 2):

@@ -5,7 +5,8 @@ An *input stage* maps the actuation record before the model sees it,
 model's ΔCL to what the balance reports, ``ΔCL → ΔCL′`` (a sensor mode, a drift, a pickup).
 Every stage is a streaming block (``step``, batch twin ``simulate``, explicit state) and is
 named and parametrised as in INTERFACES.md, so a model file can list it and
-:data:`STAGES` can rebuild it with ``from_params(params, fs_hz)``.
+:data:`STAGES` (built from the effect registry, :mod:`rtlift.core.registry`) can rebuild it with
+``from_params(params, fs_hz)``.
 
 Catalog (``name``: equation; k = 0 is the first sample after ``reset()``, t_k = k / fs):
 
@@ -50,6 +51,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 from scipy import signal
+
+from rtlift.core.registry import EFFECTS, resolve
 
 
 class InputStage:
@@ -693,9 +696,11 @@ def optimal_rate_floor(lam: float, burst_samples: int, period_samples: int) -> f
     return (1.0 - lam ** on) * lam ** (period - on) / (1.0 - lam ** period)
 
 
-STAGES: dict[str, Any] = {c.name: c for c in (Delay, ActuatorFade, SensorResonance, ZeroDrift,
-                                               PeriodicDisturbance, DeliveredMomentum,
-                                               DeliveredEnvelope)}
+STAGES: dict[str, Any] = {**{e.name: resolve(e.stages[0]) for e in EFFECTS if e.path != "nonlinearity"},
+                          DeliveredMomentum.name: DeliveredMomentum, DeliveredEnvelope.name: DeliveredEnvelope}
+"""Every stage by name: the effects' stages as the registry (:mod:`rtlift.core.registry`) names them
+(the static-gain effects' are Wiener nonlinearities instead), and the interaction structure's
+``delivered_envelope`` (and ``delivered_momentum``, as first merged), which are not effects."""
 
 
 def stage_from_spec(name: str, params: dict[str, Any], fs_hz: float) -> InputStage:

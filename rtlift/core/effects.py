@@ -1,15 +1,16 @@
-"""One home per effect: the parameter schema every part of rtlift shares.
+"""An effect's parameter schema: defaults, units, documented ranges, alternative sets, and the
+intervals a parameter may take.
 
-An effect is named and parametrised as in INTERFACES.md. :data:`SCHEMAS` holds, per name, what
-the effect means, its parameters with their documented ranges and defaults, and the parameter
-sets that may be given instead of the defaults' (a drift is linear or exponential). The
-simulated bench draws and checks its injected effects against these ranges (it keeps its own
-truth physics), the model's stages take these parameter names, and the diagnosis's catalog
-(:data:`rtlift.diagnose.catalog.CATALOG`) adds to each the fit and the evidence that point at it.
+The schemas themselves are part of each effect's record in :mod:`rtlift.core.registry`
+(:data:`rtlift.core.registry.SCHEMAS` by name); this module holds only their form. The simulated
+bench draws and checks its injected effects against these ranges (it keeps its own truth
+physics), the model's stages take these parameter names, and the diagnosis's catalog adds to
+each the fit and the evidence that point at it.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -19,18 +20,28 @@ import numpy as np
 
 @dataclass(frozen=True)
 class EffectSchema:
-    """One effect's name, meaning, parameters (defaults and documented ranges, SI units)."""
+    """One effect's name, meaning, parameters (defaults, units and documented ranges, SI units)."""
 
     name: str
     meaning: str
     defaults: Mapping[str, float] = field(default_factory=dict)
     ranges: Mapping[str, tuple[float, float]] = field(default_factory=dict)
-    alternatives: tuple[tuple[str, ...], ...] = ()
-    """Parameter sets that may be given instead of the defaults' set (zero_drift)."""
+    alternatives: tuple[Mapping[str, float], ...] = ()
+    """Parameter sets, with their defaults, that may be given instead of the defaults' set
+    (zero_drift: an exponential approach instead of a rate)."""
+    units: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def parameter_sets(self) -> tuple[tuple[str, ...], ...]:
-        return (tuple(self.defaults), *self.alternatives)
+        return (tuple(self.defaults), *(tuple(a) for a in self.alternatives))
+
+    def defaults_for(self, given: set[str]) -> Mapping[str, float]:
+        """The defaults of the first parameter set that holds every given name (the
+        defaults' own set when none does, or nothing is given)."""
+        for d in (self.defaults, *self.alternatives):
+            if given <= set(d):
+                return d
+        return self.defaults
 
     def draw(self, rng: np.random.Generator) -> dict[str, float]:
         """Parameters drawn uniformly from ``ranges`` (one of the parameter sets)."""
@@ -39,30 +50,34 @@ class EffectSchema:
         return {k: float(rng.uniform(*self.ranges[k])) for k in chosen}
 
 
-def _schema(name: str, meaning: str, defaults: dict[str, float] | None = None,
-            ranges: dict[str, tuple[float, float]] | None = None,
-            alternatives: tuple[tuple[str, ...], ...] = ()) -> EffectSchema:
-    return EffectSchema(name, meaning, MappingProxyType(defaults or {}), MappingProxyType(ranges or {}),
-                        alternatives)
+def schema(name: str, meaning: str, params: dict[str, tuple[float, float, float, str]] | None = None,
+           alternatives: dict[str, tuple[float, float, float, str]] | None = None) -> EffectSchema:
+    """A schema from ``{param: (default, lo, hi, unit)}`` (and one alternative set alike)."""
+    params, alt = params or {}, alternatives or {}
+    both = {**params, **alt}
+    frozen = MappingProxyType
+    return EffectSchema(name, meaning, frozen({k: v[0] for k, v in params.items()}),
+                        frozen({k: (v[1], v[2]) for k, v in both.items()}),
+                        (frozen({k: v[0] for k, v in alt.items()}),) if alt else (),
+                        frozen({k: v[3] for k, v in both.items()}))
 
 
-SCHEMAS: Mapping[str, EffectSchema] = MappingProxyType({s.name: s for s in (
-    _schema("delay", "measured lift lags the actuation record (DAQ or convective latency)",
-            {"seconds": 0.025}, {"seconds": (0.005, 0.1)}),
-    _schema("sensor_resonance", "force balance / wing structural mode filtering the measured lift",
-            {"frequency_hz": 30.0, "damping_ratio": 0.05},
-            {"frequency_hz": (12.0, 80.0), "damping_ratio": (0.02, 0.3)}),
-    _schema("actuator_fade", "actuators deliver less Cμ as they heat up over accumulated burst on-time",
-            {"final_fraction": 0.6, "time_constant_s": 3.0},
-            {"final_fraction": (0.4, 0.9), "time_constant_s": (1.0, 10.0)}),
-    _schema("zero_drift", "thermal drift of the sensor zero (ΔCL units)",
-            {"rate_per_s": 4.0e-4},
-            {"rate_per_s": (2.0e-4, 1.5e-3), "amplitude": (0.01, 0.05), "time_constant_s": (5.0, 60.0)},
-            alternatives=(("amplitude", "time_constant_s"),)),
-    _schema("periodic_disturbance", "narrow-band pickup (mains, fan blade passing) as sampled (ΔCL units)",
-            {"frequency_hz": 20.0, "amplitude": 0.006},
-            {"frequency_hz": (1.0, 190.0), "amplitude": (0.002, 0.02)}),
-    _schema("hysteresis", "static gain differs between rising and falling Cμ",
-            {"magnitude": 0.15}, {"magnitude": (0.05, 0.3)}),
-    _schema("output_nonlinearity", "the static nonlinearity acts on y (textbook Wiener) rather than on Cμ"),
-)})
+@dataclass(frozen=True)
+class Interval:
+    """Where a parameter may lie, written as in mathematics: ``"(0, 10]"``, ``"[0, inf)"``."""
+
+    text: str
+
+    def __post_init__(self) -> None:
+        lo, hi = self.text[1:-1].split(",")
+        if self.text[0] not in "([" or self.text[-1] not in ")]" or not float(lo) < float(hi):
+            raise ValueError(f"not an interval: {self.text!r}")
+
+    def __contains__(self, value: float) -> bool:
+        lo, hi = (float(v) for v in self.text[1:-1].split(","))
+        above = value >= lo if self.text[0] == "[" else value > lo
+        below = value <= hi if self.text[-1] == "]" else value < hi
+        return above and below and math.isfinite(value)
+
+    def __str__(self) -> str:
+        return self.text

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.core.effects import SCHEMAS
+from rtlift.core.registry import SCHEMAS
 from rtlift.diagnose.selection import Diagnosis
 from rtlift.model.modelfile import save_model
 from rtlift.residual.stats import welch_psd

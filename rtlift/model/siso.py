@@ -27,10 +27,12 @@ from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.errors import ModelFileError
 from rtlift.core.jit import njit_cached
 from rtlift.core.jsonfile import write_json_atomic
+from rtlift.core.registry import MODEL_STRUCTURE_NAMES
 
 FORMAT = "rtlift-siso-model"
 VERSION = 1
-STRUCTURES = ("wiener", "wiener_hammerstein", "nonlinear_feedback", "store_chain")
+STRUCTURES = MODEL_STRUCTURE_NAMES
+"""The structures a generic record is identified in (:data:`rtlift.core.registry.MODEL_STRUCTURES`)."""
 
 
 @dataclass(eq=False)

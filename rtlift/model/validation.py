@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rtlift.blocks.stages import PeriodicDisturbance
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record, SisoRecord
+from rtlift.core.registry import ENTRIES
 from rtlift.model.hybrid import HybridModel, HybridOutput
 
 VALIDATE_VERSION = 1
@@ -42,12 +42,18 @@ def simulate_record(model: HybridModel, record: Record) -> HybridOutput:
     return out
 
 
+def per_record_stages(model: HybridModel) -> list:
+    """The output stages whose effect has parameters of the record's own (the registry's
+    ``per_record``: a pickup's line phases)."""
+    return [s for s in model.output_stages if s.name in ENTRIES and ENTRIES[s.name].per_record == ("phase_rad",)]
+
+
 def pickup_phases(model: HybridModel, record: Record, total: np.ndarray) -> list[np.ndarray]:
     """Per ``periodic_disturbance`` stage, the phases φ_i of its lines on this record: with
     r = ΔCL − (ŷ − d), d the pickup the model adds, the least-squares fit
     r ≈ Σ_i a_i sin ω_i k + b_i cos ω_i k over the whole record (all lines of all stages at
     once) gives φ_i = atan2(b_i, a_i); amplitudes and frequencies stay the model's."""
-    stages = [s for s in model.output_stages if isinstance(s, PeriodicDisturbance)]
+    stages = per_record_stages(model)
     if not stages:
         return []
     n = total.size
@@ -72,7 +78,7 @@ def predict_record(model: HybridModel, record: Record) -> HybridOutput:
     line phases set to the record's own (:func:`pickup_phases`; nothing else is taken from
     the measured ΔCL)."""
     out = simulate_record(model, record)
-    stages = [s for s in model.output_stages if isinstance(s, PeriodicDisturbance)]
+    stages = per_record_stages(model)
     if not stages:
         return out
     total = out.total.copy()

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
 from rtlift.blocks.stages import PeriodicDisturbance
+from rtlift.core.registry import EFFECTS, resolve
 from rtlift.model.hybrid import HybridModel
 from rtlift.observer.config import ObserverConfig, ObserverError
 
@@ -40,7 +41,7 @@ class StateBlock:
         return int(self.h.size)
 
 
-def _oscillator(params: dict[str, Any], fs_hz: float) -> StateBlock:
+def oscillator(params: dict[str, Any], fs_hz: float) -> StateBlock:
     """A periodic disturbance Σ A_i sin(ω_i k + φ_i) as rotating 2-state oscillators, one per
     line (the stage's own state space); the phases are the observer's to track."""
     stage = PeriodicDisturbance.from_params(params, fs_hz)
@@ -49,15 +50,16 @@ def _oscillator(params: dict[str, Any], fs_hz: float) -> StateBlock:
     return StateBlock("periodic_disturbance", F, np.diag((1e-3 * amp) ** 2), h, np.diag(amp**2))
 
 
+def absorbed_by_bias(params: dict[str, Any], fs_hz: float) -> None:
+    """No states of its own: the random-walk bias state covers the effect (a drift)."""
+    return None
+
+
 OBSERVER_FORMS: dict[str, Callable[[dict[str, float], float], StateBlock | None]] = {
-    "periodic_disturbance": _oscillator,
-    "zero_drift": lambda params, fs_hz: None,   # absorbed by the random-walk bias state
-}
-"""Output stages the observer represents by states (a factory returning a
-:class:`StateBlock`, or ``None`` when the bias state already covers the effect). Other
-output stages are applied as known corrections (module docstring)."""
-
-
+    e.name: resolve(e.observer) for e in EFFECTS if e.observer}
+"""Output stages the observer represents by states, as the registry (:mod:`rtlift.core.registry`)
+names them: a factory returning a :class:`StateBlock`, or ``None`` when the bias state already
+covers the effect. Other output stages are applied as known corrections (module docstring)."""
 
 
 class BurstPhase:

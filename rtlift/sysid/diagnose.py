@@ -46,23 +46,20 @@ import numpy as np
 
 from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
+from rtlift.core.registry import STRUCTURES
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import higher_order, input_crosscorr, whiteness
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
 
-HOW = {"output_dynamics": "Wiener-Hammerstein re-identified jointly from the best linear approximation's "
-                          "pole/zero splits",
-       "nonlinear_feedback": "the output fed back through k2 y^2 + k3 y^3 into a strictly proper linear "
-                             "block, all refined jointly from the ARX fit",
-       "saturation": "the output (or a feedback form's state: one store, or two in cascade) clipped at the "
-                     "level the measurement piles up at, the model re-identified jointly with the limit in "
-                     "place (censored samples for an output limit) in each form"}
+HOW = {e.name: e.how for e in STRUCTURES}
+"""How each structure of the registry (:mod:`rtlift.core.registry`) is fitted, for the report."""
+SATURATION = next(e for e in STRUCTURES if any(where for _, where in e.forms))
+"""The structure that limits (``saturation``): tried only where the output piles up at a level."""
+FORMS = tuple((e.name, e.forms[0][0]) for e in STRUCTURES if e is not SATURATION)
+SATURATED_FORMS = SATURATION.forms
 CLIP_MIN_FRACTION = 0.005
 CLIP_MIN_SAMPLES = 5
-FORMS = (("output_dynamics", "wiener_hammerstein"), ("nonlinear_feedback", "nonlinear_feedback"))
-SATURATED_FORMS = (("wiener", "output"), ("wiener_hammerstein", "output"), ("nonlinear_feedback", "output"),
-                   ("nonlinear_feedback", "state"), ("store_chain", "state"))
 
 
 def clip_levels(y: np.ndarray, e: np.ndarray | None = None) -> tuple[Limits, str]:
@@ -144,7 +141,7 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
         candidates = [(name, lambda structure=structure: identify_siso(train, structure, options=options))
                       for name, structure in FORMS]
         if limits != NO_LIMITS:
-            candidates.append(("saturation", lambda: _best_saturated(train, validate, vskip, options, limits)))
+            candidates.append((SATURATION.name, lambda: _best_saturated(train, validate, vskip, options, limits)))
         tried = []
         for name, fit in candidates:
             candidate = fit()
@@ -156,7 +153,7 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
                             "params": _structure_params(candidate),
                             "evidence": (f"{clip_evidence}; {HOW[name]} (best form: {candidate.structure}, "
                                          f"limit on the {candidate.limits()['where']}); {why}"
-                                         if name == "saturation" else f"{evidence}; {HOW[name]}; {why}"),
+                                         if name == SATURATION.name else f"{evidence}; {HOW[name]}; {why}"),
                             "validation_rmse_before": rb, "validation_rmse_after": ra})
         admissible = [i for i, (ok, _, _) in enumerate(tried) if ok]
         if admissible:                                    # the better of the admissible structures
@@ -164,7 +161,7 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
             effects[k]["accepted"] = True
             augmented = tried[k][2]
         if limits == NO_LIMITS:
-            effects.append({"name": "saturation", "kind": "structure", "accepted": False,
+            effects.append({"name": SATURATION.name, "kind": "structure", "accepted": False,
                             "params": {"lower": None, "upper": None, "where": "output"},
                             "evidence": f"not tried: no clipping level ({clip_evidence})",
                             "validation_rmse_before": rb, "validation_rmse_after": rb})

@@ -8,6 +8,7 @@ import time
 
 from rtlift.api import GENERIC_STRUCTURES, LIFT_STRUCTURES
 from rtlift.core.errors import UserError
+from rtlift.core.registry import MODEL_STRUCTURES
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -30,10 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--structure", choices=(*LIFT_STRUCTURES, *GENERIC_STRUCTURES),
                    help="lift campaign: paper (the paper's hybrid) or interaction (the slow part driven by "
                         "the delivered momentum, a gain per burst); default: interaction when --trains are "
-                        "given, else paper. With --record: wiener (an LTI then a static map, default), "
-                        "wiener_hammerstein (a second LTI after the map), nonlinear_feedback (the output fed "
-                        "back through a cubic map into the LTI's input) or store_chain (two stores in "
-                        "cascade, each draining through a power-law outflow, like two tanks)")
+                        "given, else paper. With --record: " + _generic_help())
     p.add_argument("--order", type=int, metavar="N",
                    help="Wiener LTI order (default: chosen from 1..4 by held-out error)")
     p.add_argument("--form", choices=("auto", "input_gain", "output_map"), default="auto",
@@ -53,6 +51,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "lowers the held-out error (default)")
     p.add_argument("-o", "--out", required=True, metavar="MODEL.json", help="model file to write")
     p.set_defaults(func=run)
+
+
+def _generic_help() -> str:
+    """``wiener (an LTI then a static map, default), …`` from the registry's model structures."""
+    parts = [f"{s.name} ({s.doc}{', default' if i == 0 else ''})" for i, s in enumerate(MODEL_STRUCTURES)]
+    return ", ".join(parts[:-1]) + " or " + parts[-1]
 
 
 def run(args: argparse.Namespace) -> int:
