@@ -221,7 +221,7 @@ class StoreChainModel:
                 or beta < 0 or not (l1 > 0 and l2 > 0) or fs <= 0 or substeps < 1):
             raise ValueError("store_chain needs finite inflow, transfer, offset, outflows and exponents > 0, "
                              "spill >= 0, brims > 0, fs_hz > 0 and substeps >= 1")
-        self.params = dict(zip(self.NAMES, v))
+        self.params = dict(zip(self.NAMES, v, strict=True))
         self.fs_hz, self.substeps = fs, substeps
         self.provenance, self.metrics = dict(provenance or {}), dict(metrics or {})
         self.vector = np.array([b, a1, p1, r, a2, p2, l1, l2, beta, c, ceiling, 1.0 / (fs * substeps),
