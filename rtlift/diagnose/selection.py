@@ -65,6 +65,7 @@ import numpy as np
 
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
+from rtlift.core.threads import one_blas_thread
 from rtlift.diagnose.catalog import CATALOG, EFFECT_NAMES, EFFECTS, Context, Fitted, predict, reestimate
 from rtlift.model.hybrid import HybridModel
 from rtlift.residual.fingerprint import (
@@ -327,6 +328,7 @@ def _compatible(names: tuple[str, ...]) -> bool:
     return not any(x in EFFECTS[n].excludes for n in names for x in names)
 
 
+@one_blas_thread
 def diagnose(model: HybridModel, train: Record, validate: list[Record],
              options: DiagnoseOptions | None = None, score_from: list[int] | None = None) -> Diagnosis:
     """Candidates, combinations, selection and classification (module docstring).

@@ -48,6 +48,7 @@ from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
 from rtlift.core.errors import require_finite
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
+from rtlift.core.threads import one_blas_thread
 from rtlift.identify.highpass import HighPassChoice, choose_highpass, wiener_fit_for_highpass
 from rtlift.identify.kernel import KernelRefinement, SingleBurstKernel, burst_onsets, fit_kernel, refine_kernel
 from rtlift.identify.pem import OrderChoice, PEMResult, choose_order, fit_wiener
@@ -246,6 +247,7 @@ def choose_structure(fits: list[_StructureFit], tolerance: float) -> _StructureF
     return min(near, key=lambda f: (WIENER_FORMS.index(f.form), f.dead_time))
 
 
+@one_blas_thread
 def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
                     options: IdentifyOptions | None = None) -> Identification:
     """Identify the hybrid model (module docstring). Raises ``ValueError`` on unusable data."""

@@ -108,6 +108,7 @@ from rtlift.blocks.stages import Delay, DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.wiener import WienerBlock
 from rtlift.core.metrics import rmse, scores
 from rtlift.core.records import Record
+from rtlift.core.threads import one_blas_thread
 from rtlift.identify.campaign import delayed, fit_metrics, nonlinearity_for, quiet_noise_std
 from rtlift.identify.kernel import KernelRefinement, SingleBurstKernel, fit_kernel, refine_kernel
 from rtlift.identify.pem import PEMResult, fit_wiener
@@ -261,6 +262,7 @@ def _refine_kernel(model: HybridModel, train: Record, skip: int, dead_time: int,
     return refine_kernel(burst.kernel, parts, resid, cmu, n_est, skip, opt.refine_tolerance)
 
 
+@one_blas_thread
 def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Record], train_rec: Record,
                          options: InteractionOptions | None = None) -> InteractionIdentification:
     """Identify the interaction structure (module docstring); ``ValueError`` on unusable data."""

@@ -47,6 +47,7 @@ import numpy as np
 from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
 from rtlift.core.registry import STRUCTURES
+from rtlift.core.threads import one_blas_thread
 from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import higher_order, input_crosscorr, whiteness
@@ -113,6 +114,7 @@ def record_scores(model: SisoModel, rec: SisoRecord, skip: int) -> dict[str, flo
     return scores(rec.y[skip:], predict(model, rec)[skip:])
 
 
+@one_blas_thread
 def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
                   skip: int = 0, options: SisoOptions | None = None,
                   validate_skip: list[int] | None = None) -> tuple[dict[str, Any], SisoModel]:
