@@ -135,7 +135,14 @@ class FeedbackModel:
         return y
 
     def simulate(self, u: np.ndarray) -> np.ndarray:
-        return np.array([self.step(float(x)) for x in np.asarray(u, dtype=float)])
+        """:meth:`step` over ``u``, compiled (:func:`_feedback_run`: the same arithmetic in the same
+        order), the state carried on."""
+        u = np.ascontiguousarray(u, dtype=float)
+        out = np.empty(u.size)
+        yh, vh = np.array(self._y), np.array(self._v)
+        _feedback_run(self.a, self.b, self._k2, self._k3, self._lo, self._hi, u, yh, vh, out)
+        self._y[:], self._v[:] = yh.tolist(), vh.tolist()
+        return out
 
     def reset(self) -> None:
         self._y[:] = [0.0] * self.n
@@ -162,6 +169,26 @@ class FeedbackModel:
 
     def copy(self) -> FeedbackModel:
         return model_from_dict(self.to_dict())
+
+
+@njit_cached
+def _feedback_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, lo: float, hi: float, u: np.ndarray,
+                  yh: np.ndarray, vh: np.ndarray, out: np.ndarray) -> None:   # pragma: no cover
+    """:meth:`FeedbackModel.step` over ``u`` (compiled; the same arithmetic in the same order),
+    advancing the histories ``yh``, ``vh`` (newest first) in place."""
+    n = a.size
+    for k in range(u.size):
+        y = 0.0
+        for i in range(n):
+            y += b[i] * vh[i] - a[i] * yh[i]
+        y = min(max(y, lo), hi)
+        v = u[k] - k2 * y * y - k3 * y * y * y
+        for i in range(n - 1, 0, -1):
+            yh[i] = yh[i - 1]
+            vh[i] = vh[i - 1]
+        yh[0] = y
+        vh[0] = v
+        out[k] = y
 
 
 @njit_cached
