@@ -9,6 +9,19 @@ import numpy as np
 import pytest
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """The suite runs in two pytest-xdist workers (``-n 2 --dist loadgroup``, pyproject.toml):
+    every test over real pseudo-terminals (marked ``pty``: a simulated device paced by the wall
+    clock, a host reading it at 400 Hz) in one group, run one after another by one worker, so
+    that no two real-time runs share the two cores; every other module whole in a group of its
+    own, so that its module fixtures are built once. The real-time group waits mostly on the
+    clock, the other worker computes meanwhile. (Before xdist's own hook, which reads the marks.)"""
+    for item in items:
+        group = "realtime" if item.get_closest_marker("pty") else item.nodeid.split("::")[0]
+        item.add_marker(pytest.mark.xdist_group(group))
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)

@@ -16,6 +16,8 @@ from hil_sim.devices.faults import FaultPlan, FaultSpecError, parse_faults
 from hil_sim.experiments import daq_stream
 from rtlift.core.rate import FS_HZ
 
+pytestmark = pytest.mark.pty   # the device tests below run over real pseudo-terminals
+
 FS = int(FS_HZ)
 WATCHDOG_DIV10 = 200
 """2 s: no command fault here should trip the watchdog."""
