@@ -51,6 +51,13 @@ rest (10.4 s) ≥ its 10 s least validation length."""
 SPLIT = 0.6
 RING_S = 240.0
 """Rows kept: the window plus up to ~3 minutes of diagnosis."""
+SWITCH_INTERVAL_S = 5e-5
+"""The interpreter's thread switch interval while the background thread works (Python's default
+is 5 ms). That thread writes the window, loads the new model, builds and compiles its observer and
+catches it up over tens of thousands of rows — in the loop's process, holding the GIL; the loop's
+thread, wanting it back for its next sample, would wait up to the switch interval, inside a
+400 Hz step. At 50 µs the loop waits at most that long (the diagnosis itself runs in another
+process and does not hold this one's GIL)."""
 
 
 class Ring:
@@ -128,6 +135,11 @@ class Adapter:
         self._last_cmu = 0.0
         self.count = 0
 
+    @property
+    def busy(self) -> bool:
+        """A window is being diagnosed (or its swap prepared or awaited)."""
+        return self._busy
+
     # -- from the monitor -------------------------------------------------------------
     def on_departure(self, departure: dict[str, Any]) -> None:
         """A departure (its ``sample`` is the monitor's count, the loop index + 1)."""
@@ -171,6 +183,14 @@ class Adapter:
 
     # -- the background thread ---------------------------------------------------------
     def _diagnose(self, job: dict[str, Any]) -> None:
+        previous = sys.getswitchinterval()
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        try:
+            self._diagnose_window(job)
+        finally:
+            sys.setswitchinterval(previous)
+
+    def _diagnose_window(self, job: dict[str, Any]) -> None:
         from rtlift.core.records import write_record
 
         n = job["n"]

@@ -82,6 +82,8 @@ class LoopStats:
     step_times: array = field(default_factory=lambda: array("d"))
     steps: LatencyRecorder = field(default_factory=LatencyRecorder)
     """Step durations in fixed memory (``step_stats``), for a run of any length."""
+    steps_busy: LatencyRecorder = field(default_factory=LatencyRecorder)
+    """The same, of the steps taken while ``--adapt``'s background diagnosis ran (:mod:`.adapt`)."""
 
     def latency_ms(self) -> tuple[float | None, float | None]:
         return self.latencies.percentile_ms(50), self.latencies.percentile_ms(99)
@@ -149,6 +151,8 @@ class ObserverLoop:
             est = obs.step(cmu, env, dcl)
             t1 = time.perf_counter()
             stats.steps.append(t1 - t0)
+            if self.adapter is not None and self.adapter.busy:
+                stats.steps_busy.append(t1 - t0)
             if self._raw_steps:
                 stats.step_times.append(t1 - t0)
         else:
@@ -241,9 +245,12 @@ def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,
 
 def _step_percentiles(stats: LoopStats) -> dict[str, float]:
     """Observer step duration p50/p99 (µs) when the loop timed its steps."""
-    if not len(stats.steps):
-        return {}
-    return {"step_p50_us": stats.steps.percentile(50) * 1e6, "step_p99_us": stats.steps.percentile(99) * 1e6}
+    out = {}
+    for key, rec in (("step", stats.steps), ("step_busy", stats.steps_busy)):
+        if len(rec):
+            out.update({f"{key}_p50_us": rec.percentile(50) * 1e6, f"{key}_p99_us": rec.percentile(99) * 1e6,
+                        f"{key}_max_us": rec.max_s * 1e6, f"{key}_n": len(rec)})
+    return out
 
 
 def write_summary(path: str | os.PathLike, data: dict[str, Any]) -> None:
