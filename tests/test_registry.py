@@ -14,7 +14,8 @@ import pytest
 from firmware_io.calibration import Calibration
 from hil_sim import effects as bench_effects
 from hil_sim.experiments import Bench as BenchRig
-from rtlift.blocks.stages import STAGES, InputStage, OutputStage
+from rtlift.blocks.stage import InputStage, OutputStage
+from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import NONLINEARITIES
 from rtlift.core.effects import Interval
 from rtlift.core.rate import FS_HZ as FS
@@ -211,7 +212,7 @@ def test_interfaces_md_names_exactly_the_model_structures():
 
 TOY = '''
 import numpy as np
-from rtlift.blocks.stages import InputStage
+from rtlift.blocks.stage import InputStage
 
 
 class ToyGain(InputStage):
