@@ -14,6 +14,7 @@ import pytest
 from firmware_io.calibration import Calibration
 from hil_sim import effects as bench_effects
 from hil_sim.experiments import Bench as BenchRig
+from hil_sim.plant import PlantParams
 from rtlift.blocks.stage import InputStage, OutputStage
 from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import NONLINEARITIES
@@ -134,11 +135,14 @@ def test_the_bench_injects_an_effect_with_its_defaults(entry):
             assert lo in entry.bench.accepts[key] and hi in entry.bench.accepts[key], key
     effect = bench_effects.parse_effect(entry.name)
     assert dict(effect.params) == dict(entry.schema.defaults)
-    if entry.bench.stage == "plant":
-        assert entry.name not in bench_effects.PROCESSORS
-    else:
-        assert bench_effects.PROCESSORS[entry.name].name == entry.name
     rig = BenchRig(0, [effect], Calibration())
+    if entry.bench.stage == "plant":
+        assert entry.name not in bench_effects.PROCESSORS and entry.bench.plant
+        assert set(entry.bench.plant) <= set(entry.schema.ranges)
+        for key, to in entry.bench.plant.items():      # the plant at rest has none of it
+            assert getattr(rig.plant.params, to) == getattr(PlantParams(), to) + effect.params[key] != 0.0
+    else:
+        assert bench_effects.PROCESSORS[entry.name].name == entry.name and not entry.bench.plant
     n = 400
     gate = np.arange(n) % 40 < 4
     run = rig.process(np.arange(n) / FS, np.full(n, 2.0), gate, {})

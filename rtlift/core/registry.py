@@ -62,12 +62,16 @@ class Diagnosis:
 @dataclass(frozen=True)
 class Bench:
     """How the simulated bench injects an effect: its stage there (``actuator``, ``plant``,
-    ``force``, ``offset``), the interval each parameter must lie in, and the parameters the bench
-    takes beyond the schema (what the plant does, not what a model fits), with defaults."""
+    ``force``, ``offset``), the interval each parameter must lie in, the parameters the bench
+    takes beyond the schema (what the plant does, not what a model fits), with defaults, and for
+    a ``plant`` effect the plant parameter each of its parameters adds to."""
 
     stage: str
     accepts: Mapping[str, Interval] = field(default_factory=dict)
     only: Mapping[str, float] = field(default_factory=dict)
+    plant: Mapping[str, str] = field(default_factory=dict)
+    """(``plant`` stage) ``{effect parameter: the plant parameter it adds to}``
+    (:class:`hil_sim.plant.PlantParams`; the bench's other stages have their own processors)."""
 
 
 @dataclass(frozen=True)
@@ -113,9 +117,10 @@ def _entry(name: str, kind: str, meaning: str, params: dict[str, tuple[float, fl
     return Entry(name, kind, schema(name, meaning, params, alternatives), **parts)
 
 
-def _bench(stage: str, only: dict[str, float] | None = None, **accepts: str) -> Bench:
+def _bench(stage: str, only: dict[str, float] | None = None, plant: dict[str, str] | None = None,
+           **accepts: str) -> Bench:
     return Bench(stage, MappingProxyType({k: Interval(v) for k, v in accepts.items()}),
-                 MappingProxyType(only or {}))
+                 MappingProxyType(only or {}), MappingProxyType(plant or {}))
 
 
 _BLOCKS, _WIENER = "rtlift.blocks", "rtlift.blocks.wiener"
@@ -159,7 +164,7 @@ REGISTRY: tuple[Entry, ...] = (     # in INTERFACES.md's order
            path="nonlinearity", stages=(f"{_WIENER}:HysteresisGain", f"{_WIENER}:OutputHysteresis"),
            diagnosis=Diagnosis(f"{_FITS}:fit_hysteresis", f"{_EVIDENCE}:evidence_hysteresis", 4,
                                ("output_nonlinearity",), True),
-           bench=_bench("plant", magnitude="(-0.9, 5)")),
+           bench=_bench("plant", plant={"magnitude": "hysteresis"}, magnitude="(-0.9, 5)")),
     _entry("output_nonlinearity", "effect", "the static nonlinearity acts on y (textbook Wiener) rather than on Cμ",
            path="nonlinearity", stages=(f"{_WIENER}:OutputNonlinearity",),
            diagnosis=Diagnosis(f"{_FITS}:fit_output_nonlinearity", f"{_EVIDENCE}:evidence_output_nonlinearity", 10,
