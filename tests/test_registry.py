@@ -189,13 +189,14 @@ def test_identification_takes_a_limit_exactly_where_saturation_is_tried(structur
 
 
 def test_the_model_structures_are_built_by_their_classes():
-    from rtlift.model.siso import SISO_MODELS, STRUCTURES
+    from rtlift.model.siso import MODEL_CLASSES, SISO_MODELS, STRUCTURES
 
-    assert STRUCTURES == MODEL_STRUCTURE_NAMES
+    assert STRUCTURES == MODEL_STRUCTURE_NAMES == tuple(MODEL_CLASSES)
     for s in MODEL_STRUCTURES:
         cls = resolve(s.model)
         own = cls.structure if isinstance(cls.structure, str) else None   # SisoModel's: by its g2
         assert cls in SISO_MODELS and own in (s.name, None)
+        assert MODEL_CLASSES[s.name] is cls and callable(cls.from_dict)    # what a model file is built with
 
 
 def _interfaces_table() -> list[str]:
