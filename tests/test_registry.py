@@ -108,6 +108,17 @@ def test_an_effects_fit_and_evidence_are_the_catalogs(entry):
     assert eff.schema is SCHEMAS[entry.name]
 
 
+@pytest.mark.parametrize("entry", EFFECTS, ids=lambda e: e.name)
+def test_an_effects_explained_bands_are_the_catalogs(entry):
+    eff = DIAGNOSED[entry.name]
+    if entry.diagnosis.bands is None:
+        assert eff.bands is None
+        return
+    assert eff.bands is resolve(entry.diagnosis.bands)
+    bands = eff.bands(dict(entry.schema.defaults), 0.1)
+    assert bands and all(0 < lo < hi for lo, hi in bands)
+
+
 def test_the_catalog_holds_every_effect_in_the_signal_paths_order():
     assert [e.name for e in CATALOG] == [e.name for e in in_signal_order()] == [
         "delay", "actuator_fade", "hysteresis", "output_nonlinearity", "sensor_resonance", "zero_drift",

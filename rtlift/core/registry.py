@@ -57,6 +57,10 @@ class Diagnosis:
     fits_change: bool = False
     """Replaces the model's static map: fitted to what changed since identification
     (:class:`rtlift.diagnose.catalog.Effect`)."""
+    bands: str | None = None
+    """``"module:function"`` of the frequency bands an accepted fit accounts for in the residual's
+    spectrum, ``(params, df) → [(lo_hz, hi_hz)]`` (:func:`rtlift.diagnose.selection.explained_bands`);
+    ``None``: no band of its own."""
 
 
 @dataclass(frozen=True)
@@ -137,7 +141,8 @@ REGISTRY: tuple[Entry, ...] = (     # in INTERFACES.md's order
     _entry("sensor_resonance", "effect", "force balance / wing structural mode filtering the measured lift",
            {"frequency_hz": (30.0, 12.0, 80.0, "Hz"), "damping_ratio": (0.05, 0.02, 0.3, "1")},
            path="filter", stages=(f"{_BLOCKS}.sensor_resonance:SensorResonance",),
-           diagnosis=Diagnosis(f"{_FITS}:fit_sensor_resonance", f"{_EVIDENCE}:evidence_resonance", 2),
+           diagnosis=Diagnosis(f"{_FITS}:fit_sensor_resonance", f"{_EVIDENCE}:evidence_resonance", 2,
+                               bands=f"{_EVIDENCE}:bands_resonance"),
            bench=_bench("force", frequency_hz="(0, 190)", damping_ratio=POSITIVE)),
     _entry("actuator_fade", "effect", "actuators deliver less Cμ as they heat up over accumulated burst on-time",
            {"final_fraction": (0.6, 0.4, 0.9, "1"), "time_constant_s": (3.0, 1.0, 10.0, "s")},
@@ -156,7 +161,7 @@ REGISTRY: tuple[Entry, ...] = (     # in INTERFACES.md's order
            {"frequency_hz": (20.0, 1.0, 190.0, "Hz"), "amplitude": (0.006, 0.002, 0.02, "ΔCL")},
            path="additive", stages=(f"{_BLOCKS}.periodic_disturbance:PeriodicDisturbance",),
            diagnosis=Diagnosis(f"{_FITS}:fit_periodic_disturbance", f"{_EVIDENCE}:evidence_pickup",
-                               f"{_EVIDENCE}:n_params_pickup"),
+                               f"{_EVIDENCE}:n_params_pickup", bands=f"{_EVIDENCE}:bands_pickup"),
            observer=f"{_LAYOUT}:oscillator", bench=_bench("offset", frequency_hz=POSITIVE),
            per_record=("phase_rad",)),
     _entry("hysteresis", "effect", "static gain differs between rising and falling Cμ",
