@@ -114,9 +114,8 @@ class Bench:
         self.sensor_rng = np.random.Generator(np.random.PCG64(streams[0]))
         aero_rng = np.random.Generator(np.random.PCG64(streams[1]))
         params = plant or PlantParams()
-        for e in effects:
-            if e.name == "hysteresis":
-                params = params.with_hysteresis(params.hysteresis + e.params["magnitude"])
+        for e in effects:      # a plant effect adds to the plant's parameters (its registry record says which)
+            params = params.plus({to: e.params[key] for key, to in e.info.bench.plant.items()})
         self.plant = TruthPlant(params, self.fs_hz)
         self.sensor = sensor or SensorParams()
         self.aero_noise = AeroNoise(self.sensor, aero_rng, self.fs_hz)

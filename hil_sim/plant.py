@@ -55,6 +55,7 @@ tests/test_bench_plant.py.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -97,8 +98,10 @@ class PlantParams:
     def tau_s(self) -> float:
         return self.tau_s_tplus * T_CONV_S
 
-    def with_hysteresis(self, magnitude: float) -> PlantParams:
-        return replace(self, hysteresis=float(magnitude))
+    def plus(self, amounts: Mapping[str, float]) -> PlantParams:
+        """These parameters with ``amounts[name]`` added to each one named (a ``plant`` effect's,
+        as its registry record maps them: :attr:`rtlift.core.registry.Bench.plant`)."""
+        return replace(self, **{k: float(getattr(self, k) + v) for k, v in amounts.items()})
 
 
 def vortex_filter(params: PlantParams, fs_hz: float = FS_HZ) -> tuple[np.ndarray, np.ndarray]:

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from rtlift.blocks import HighPassFilter, InputGain, OutputNonlinearity, RingConvolution, WienerBlock
+from rtlift.blocks.delay import Delay
+from rtlift.blocks.delivered import DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.stages import Delay, DeliveredEnvelope, DeliveredMomentum
 from rtlift.core.rate import FS_HZ
 from rtlift.model.hybrid import HybridModel
 

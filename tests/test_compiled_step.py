@@ -12,8 +12,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtlift.blocks.stages import ActuatorFade, Delay, PeriodicDisturbance, SensorResonance, ZeroDrift
+from rtlift.blocks.actuator_fade import ActuatorFade
+from rtlift.blocks.delay import Delay
+from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
+from rtlift.blocks.sensor_resonance import SensorResonance
 from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
+from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import load_model
 from testkit.synthetic import burst_input, make_model

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from scipy import signal
 
 from rtlift.blocks import HighPassFilter, LTIBlock, RingConvolution, to_statespace
-from rtlift.blocks.stages import Delay
+from rtlift.blocks.delay import Delay
 from testkit.synthetic import burst_input, make_model, model_steps, random_stable_A, run_in_chunks
 
 TOL = 1e-12

@@ -8,8 +8,8 @@ from importlib.resources import files
 import numpy as np
 import pytest
 
+from rtlift.blocks.delay import Delay
 from rtlift.blocks.lti import LTIBlock, spectral_radius
-from rtlift.blocks.stages import Delay
 from rtlift.core.errors import ModelFileError
 from rtlift.model.modelfile import load_model, model_to_dict, save_model
 from testkit.synthetic import burst_input, make_model

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from rtlift.blocks.stages import resonance_ba
+from rtlift.blocks.sensor_resonance import resonance_ba
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.core.records import Record
 from rtlift.diagnose.catalog import Context

@@ -10,8 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rtlift.blocks import HighPassFilter
+from rtlift.blocks.delivered import DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.interaction import InteractionConvolution
-from rtlift.blocks.stages import DeliveredEnvelope, DeliveredMomentum, ZeroDrift
+from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig

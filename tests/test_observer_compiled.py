@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtlift.blocks.stages import Delay, PeriodicDisturbance
+from rtlift.blocks.delay import Delay
+from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer, ObserverConfig
 from testkit.synthetic import burst_input, make_model

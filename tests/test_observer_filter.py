@@ -11,7 +11,10 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from rtlift.blocks.stages import STAGES, Delay, OutputStage, PeriodicDisturbance
+from rtlift.blocks.delay import Delay
+from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
+from rtlift.blocks.stage import OutputStage
+from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import OutputHysteresis
 from rtlift.diagnose.catalog import augment
 from rtlift.observer import (

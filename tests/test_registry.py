@@ -14,7 +14,9 @@ import pytest
 from firmware_io.calibration import Calibration
 from hil_sim import effects as bench_effects
 from hil_sim.experiments import Bench as BenchRig
-from rtlift.blocks.stages import STAGES, InputStage, OutputStage
+from hil_sim.plant import PlantParams
+from rtlift.blocks.stage import InputStage, OutputStage
+from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import NONLINEARITIES
 from rtlift.core.effects import Interval
 from rtlift.core.rate import FS_HZ as FS
@@ -106,6 +108,17 @@ def test_an_effects_fit_and_evidence_are_the_catalogs(entry):
     assert eff.schema is SCHEMAS[entry.name]
 
 
+@pytest.mark.parametrize("entry", EFFECTS, ids=lambda e: e.name)
+def test_an_effects_explained_bands_are_the_catalogs(entry):
+    eff = DIAGNOSED[entry.name]
+    if entry.diagnosis.bands is None:
+        assert eff.bands is None
+        return
+    assert eff.bands is resolve(entry.diagnosis.bands)
+    bands = eff.bands(dict(entry.schema.defaults), 0.1)
+    assert bands and all(0 < lo < hi for lo, hi in bands)
+
+
 def test_the_catalog_holds_every_effect_in_the_signal_paths_order():
     assert [e.name for e in CATALOG] == [e.name for e in in_signal_order()] == [
         "delay", "actuator_fade", "hysteresis", "output_nonlinearity", "sensor_resonance", "zero_drift",
@@ -133,11 +146,14 @@ def test_the_bench_injects_an_effect_with_its_defaults(entry):
             assert lo in entry.bench.accepts[key] and hi in entry.bench.accepts[key], key
     effect = bench_effects.parse_effect(entry.name)
     assert dict(effect.params) == dict(entry.schema.defaults)
-    if entry.bench.stage == "plant":
-        assert entry.name not in bench_effects.PROCESSORS
-    else:
-        assert bench_effects.PROCESSORS[entry.name].name == entry.name
     rig = BenchRig(0, [effect], Calibration())
+    if entry.bench.stage == "plant":
+        assert entry.name not in bench_effects.PROCESSORS and entry.bench.plant
+        assert set(entry.bench.plant) <= set(entry.schema.ranges)
+        for key, to in entry.bench.plant.items():      # the plant at rest has none of it
+            assert getattr(rig.plant.params, to) == getattr(PlantParams(), to) + effect.params[key] != 0.0
+    else:
+        assert bench_effects.PROCESSORS[entry.name].name == entry.name and not entry.bench.plant
     n = 400
     gate = np.arange(n) % 40 < 4
     run = rig.process(np.arange(n) / FS, np.full(n, 2.0), gate, {})
@@ -184,13 +200,14 @@ def test_identification_takes_a_limit_exactly_where_saturation_is_tried(structur
 
 
 def test_the_model_structures_are_built_by_their_classes():
-    from rtlift.model.siso import SISO_MODELS, STRUCTURES
+    from rtlift.model.siso import MODEL_CLASSES, SISO_MODELS, STRUCTURES
 
-    assert STRUCTURES == MODEL_STRUCTURE_NAMES
+    assert STRUCTURES == MODEL_STRUCTURE_NAMES == tuple(MODEL_CLASSES)
     for s in MODEL_STRUCTURES:
         cls = resolve(s.model)
         own = cls.structure if isinstance(cls.structure, str) else None   # SisoModel's: by its g2
         assert cls in SISO_MODELS and own in (s.name, None)
+        assert MODEL_CLASSES[s.name] is cls and callable(cls.from_dict)    # what a model file is built with
 
 
 def _interfaces_table() -> list[str]:
@@ -211,7 +228,7 @@ def test_interfaces_md_names_exactly_the_model_structures():
 
 TOY = '''
 import numpy as np
-from rtlift.blocks.stages import InputStage
+from rtlift.blocks.stage import InputStage
 
 
 class ToyGain(InputStage):

@@ -13,16 +13,13 @@ from scipy import signal
 
 from hil_sim.effects import ActuatorFade as BenchFade
 from hil_sim.effects import SensorResonance as BenchResonance
-from rtlift.blocks.stages import (
-    STAGES,
-    ActuatorFade,
-    Delay,
-    PeriodicDisturbance,
-    SensorResonance,
-    ZeroDrift,
-    alias_hz,
-)
+from rtlift.blocks.actuator_fade import ActuatorFade
+from rtlift.blocks.delay import Delay
+from rtlift.blocks.periodic_disturbance import PeriodicDisturbance, alias_hz
+from rtlift.blocks.sensor_resonance import SensorResonance
+from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import NONLINEARITIES, HysteresisGain, OutputHysteresis
+from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from testkit.synthetic import burst_input, make_model

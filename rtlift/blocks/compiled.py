@@ -328,13 +328,13 @@ def _gain_tables(par, o):
 
 @njit_cached(inline="always")
 def _momentum(lam, b, inv_d, m, cmu):
-    """``m(k) = (1 − λ) Cμ(k)/d + λ m(k−1)`` (:class:`~rtlift.blocks.stages.DeliveredMomentum`'s order)."""
+    """``m(k) = (1 − λ) Cμ(k)/d + λ m(k−1)`` (:class:`~rtlift.blocks.delivered.DeliveredMomentum`'s order)."""
     return b * (cmu * inv_d) + lam * m
 
 
 @njit_cached(inline="always")
 def _burst_memory(lam, b, q, cmu):
-    """``q(k) = (1 − λ) [Cμ(k) > 0] + λ q(k−1)`` (:class:`~rtlift.blocks.stages.DeliveredEnvelope`'s order)."""
+    """``q(k) = (1 − λ) [Cμ(k) > 0] + λ q(k−1)`` (:class:`~rtlift.blocks.delivered.DeliveredEnvelope`'s order)."""
     return b * (1.0 if cmu > 0.0 else 0.0) + lam * q
 
 

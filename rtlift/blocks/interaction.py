@@ -19,7 +19,7 @@ those of an isolated burst at m ≈ 0, smaller when recent bursts have already m
 (the interaction the convolution alone over-predicts).
 
 The Wiener part and the static term S(u)·u (S piecewise linear on the same knots) are driven by
-the delivered envelope u (:class:`~rtlift.blocks.stages.DeliveredEnvelope`, q a memory of the
+the delivered envelope u (:class:`~rtlift.blocks.delivered.DeliveredEnvelope`, q a memory of the
 samples with a burst on, q₀ its floor at the lift-optimal rate): where bursts fire at that rate
 u is the envelope itself, as in the paper's hybrid, with no lag (m lags an amplitude-modulated
 envelope by about τ, issue 31); where they fire sparsely u falls with q. A model whose Wiener
@@ -28,7 +28,7 @@ input is m (the ``delivered_momentum`` stage, the structure as first merged) run
 Blocks, so that a :class:`~rtlift.model.hybrid.HybridModel` — and the Kalman observer, which steps
 the model's blocks one by one — runs the structure unchanged:
 
-- :class:`~rtlift.blocks.stages.DeliveredEnvelope`, an input stage ``(Cμ, Cμ_env) → (Cμ, u)``: the Wiener
+- :class:`~rtlift.blocks.delivered.DeliveredEnvelope`, an input stage ``(Cμ, Cμ_env) → (Cμ, u)``: the Wiener
   part and its gain see u instead of the envelope;
 - :class:`InteractionConvolution`, in the model's ``convolution`` slot: ΔCL_H above (its own
   HF and m inside), stepped with (Cμ′, u) — the input stages' outputs — and the model's
@@ -44,8 +44,8 @@ import numpy as np
 
 from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.convolution import RingConvolution
+from rtlift.blocks.delivered import DeliveredMomentum
 from rtlift.blocks.highpass import HighPassFilter
-from rtlift.blocks.stages import DeliveredMomentum
 from rtlift.blocks.wiener import _check_table, _Table
 
 IDENTITY_SOS = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])

@@ -22,9 +22,10 @@ Each record holds, under the name of INTERFACES.md's effects table:
 
 Code is named here by ``"module:attribute"`` and resolved by the layer it belongs to
 (:func:`resolve`), never by the core at load time: ``rtlift.blocks.stages`` builds ``STAGES``
-from the stages named here, ``rtlift.diagnose.catalog`` its ``CATALOG``,
-``rtlift.observer.layout`` its ``OBSERVER_FORMS``, ``hil_sim.effects`` its ``EFFECTS``,
-``rtlift.sysid.diagnose`` its forms and ``rtlift.model.siso`` its ``STRUCTURES``.
+from the stages named here (each in a module of its own under ``rtlift.blocks``),
+``rtlift.diagnose.catalog`` its ``CATALOG``, ``rtlift.observer.layout`` its ``OBSERVER_FORMS``,
+``hil_sim.effects`` its ``EFFECTS``, ``rtlift.sysid.diagnose`` its forms and ``rtlift.model.siso``
+its ``STRUCTURES``.
 ``tests/test_registry.py`` checks every part of every record against those tables and the docs.
 """
 
@@ -56,17 +57,25 @@ class Diagnosis:
     fits_change: bool = False
     """Replaces the model's static map: fitted to what changed since identification
     (:class:`rtlift.diagnose.catalog.Effect`)."""
+    bands: str | None = None
+    """``"module:function"`` of the frequency bands an accepted fit accounts for in the residual's
+    spectrum, ``(params, df) → [(lo_hz, hi_hz)]`` (:func:`rtlift.diagnose.selection.explained_bands`);
+    ``None``: no band of its own."""
 
 
 @dataclass(frozen=True)
 class Bench:
     """How the simulated bench injects an effect: its stage there (``actuator``, ``plant``,
-    ``force``, ``offset``), the interval each parameter must lie in, and the parameters the bench
-    takes beyond the schema (what the plant does, not what a model fits), with defaults."""
+    ``force``, ``offset``), the interval each parameter must lie in, the parameters the bench
+    takes beyond the schema (what the plant does, not what a model fits), with defaults, and for
+    a ``plant`` effect the plant parameter each of its parameters adds to."""
 
     stage: str
     accepts: Mapping[str, Interval] = field(default_factory=dict)
     only: Mapping[str, float] = field(default_factory=dict)
+    plant: Mapping[str, str] = field(default_factory=dict)
+    """(``plant`` stage) ``{effect parameter: the plant parameter it adds to}``
+    (:class:`hil_sim.plant.PlantParams`; the bench's other stages have their own processors)."""
 
 
 @dataclass(frozen=True)
@@ -112,12 +121,13 @@ def _entry(name: str, kind: str, meaning: str, params: dict[str, tuple[float, fl
     return Entry(name, kind, schema(name, meaning, params, alternatives), **parts)
 
 
-def _bench(stage: str, only: dict[str, float] | None = None, **accepts: str) -> Bench:
+def _bench(stage: str, only: dict[str, float] | None = None, plant: dict[str, str] | None = None,
+           **accepts: str) -> Bench:
     return Bench(stage, MappingProxyType({k: Interval(v) for k, v in accepts.items()}),
-                 MappingProxyType(only or {}))
+                 MappingProxyType(only or {}), MappingProxyType(plant or {}))
 
 
-_STAGES, _WIENER = "rtlift.blocks.stages", "rtlift.blocks.wiener"
+_BLOCKS, _WIENER = "rtlift.blocks", "rtlift.blocks.wiener"
 _FITS, _EVIDENCE, _LAYOUT = "rtlift.diagnose.fits", "rtlift.diagnose.catalog", "rtlift.observer.layout"
 _SISO, _HIGHER_ORDER = "rtlift.sysid.identify:identify_siso", "rtlift.residual.stats:higher_order"
 POSITIVE = "(0, inf)"
@@ -125,32 +135,33 @@ POSITIVE = "(0, inf)"
 REGISTRY: tuple[Entry, ...] = (     # in INTERFACES.md's order
     _entry("delay", "effect", "measured lift lags the actuation record (DAQ or convective latency)",
            {"seconds": (0.025, 0.005, 0.1, "s")},
-           path="input", stages=(f"{_STAGES}:Delay",),
+           path="input", stages=(f"{_BLOCKS}.delay:Delay",),
            diagnosis=Diagnosis(f"{_FITS}:fit_delay", f"{_EVIDENCE}:evidence_delay", 1),
            bench=_bench("force", seconds="(0, 10]")),
     _entry("sensor_resonance", "effect", "force balance / wing structural mode filtering the measured lift",
            {"frequency_hz": (30.0, 12.0, 80.0, "Hz"), "damping_ratio": (0.05, 0.02, 0.3, "1")},
-           path="filter", stages=(f"{_STAGES}:SensorResonance",),
-           diagnosis=Diagnosis(f"{_FITS}:fit_sensor_resonance", f"{_EVIDENCE}:evidence_resonance", 2),
+           path="filter", stages=(f"{_BLOCKS}.sensor_resonance:SensorResonance",),
+           diagnosis=Diagnosis(f"{_FITS}:fit_sensor_resonance", f"{_EVIDENCE}:evidence_resonance", 2,
+                               bands=f"{_EVIDENCE}:bands_resonance"),
            bench=_bench("force", frequency_hz="(0, 190)", damping_ratio=POSITIVE)),
     _entry("actuator_fade", "effect", "actuators deliver less Cμ as they heat up over accumulated burst on-time",
            {"final_fraction": (0.6, 0.4, 0.9, "1"), "time_constant_s": (3.0, 1.0, 10.0, "s")},
-           path="input", stages=(f"{_STAGES}:ActuatorFade",),
+           path="input", stages=(f"{_BLOCKS}.actuator_fade:ActuatorFade",),
            diagnosis=Diagnosis(f"{_FITS}:fit_actuator_fade", f"{_EVIDENCE}:evidence_fade", 2),
            bench=_bench("actuator", {"onset_s": 0.0}, final_fraction="[0, 1]", time_constant_s=POSITIVE,
                         onset_s="[0, inf)")),
     _entry("zero_drift", "effect", "thermal drift of the sensor zero (ΔCL units)",
            {"rate_per_s": (4.0e-4, 2.0e-4, 1.5e-3, "ΔCL/s")},
            {"amplitude": (0.02, 0.01, 0.05, "ΔCL"), "time_constant_s": (20.0, 5.0, 60.0, "s")},
-           path="additive", stages=(f"{_STAGES}:ZeroDrift",),
+           path="additive", stages=(f"{_BLOCKS}.zero_drift:ZeroDrift",),
            diagnosis=Diagnosis(f"{_FITS}:fit_zero_drift", f"{_EVIDENCE}:evidence_drift", f"{_EVIDENCE}:n_params_drift"),
            observer=f"{_LAYOUT}:absorbed_by_bias", bench=_bench("offset", time_constant_s=POSITIVE)),
     _entry("periodic_disturbance", "effect",
            "narrow-band pickup (mains, fan blade passing) as sampled (ΔCL units)",
            {"frequency_hz": (20.0, 1.0, 190.0, "Hz"), "amplitude": (0.006, 0.002, 0.02, "ΔCL")},
-           path="additive", stages=(f"{_STAGES}:PeriodicDisturbance",),
+           path="additive", stages=(f"{_BLOCKS}.periodic_disturbance:PeriodicDisturbance",),
            diagnosis=Diagnosis(f"{_FITS}:fit_periodic_disturbance", f"{_EVIDENCE}:evidence_pickup",
-                               f"{_EVIDENCE}:n_params_pickup"),
+                               f"{_EVIDENCE}:n_params_pickup", bands=f"{_EVIDENCE}:bands_pickup"),
            observer=f"{_LAYOUT}:oscillator", bench=_bench("offset", frequency_hz=POSITIVE),
            per_record=("phase_rad",)),
     _entry("hysteresis", "effect", "static gain differs between rising and falling Cμ",
@@ -158,7 +169,7 @@ REGISTRY: tuple[Entry, ...] = (     # in INTERFACES.md's order
            path="nonlinearity", stages=(f"{_WIENER}:HysteresisGain", f"{_WIENER}:OutputHysteresis"),
            diagnosis=Diagnosis(f"{_FITS}:fit_hysteresis", f"{_EVIDENCE}:evidence_hysteresis", 4,
                                ("output_nonlinearity",), True),
-           bench=_bench("plant", magnitude="(-0.9, 5)")),
+           bench=_bench("plant", plant={"magnitude": "hysteresis"}, magnitude="(-0.9, 5)")),
     _entry("output_nonlinearity", "effect", "the static nonlinearity acts on y (textbook Wiener) rather than on Cμ",
            path="nonlinearity", stages=(f"{_WIENER}:OutputNonlinearity",),
            diagnosis=Diagnosis(f"{_FITS}:fit_output_nonlinearity", f"{_EVIDENCE}:evidence_output_nonlinearity", 10,

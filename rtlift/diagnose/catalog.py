@@ -87,6 +87,9 @@ class Effect:
     model's own misfit on the training input is known (:func:`.fingerprint.change_misfit`: the
     identification run it repeats, or the misfit predicted for its input), since that misfit is a
     misfit of the map too and a fit to the raw residual takes it for part of the effect."""
+    bands: Callable[[dict[str, Any], float], list[tuple[float, float]]] | None = None
+    """The frequency bands (Hz) an accepted fit accounts for, given its parameters and half a
+    spectrum bin's width (:func:`rtlift.diagnose.selection.explained_bands`); ``None``: none."""
 
     @property
     def schema(self) -> EffectSchema:
@@ -103,11 +106,25 @@ def n_params_pickup(params: dict[str, Any]) -> int:
     return 3 + 2 * len(params.get("harmonics", ()))
 
 
+def bands_resonance(params: dict[str, Any], df: float) -> list[tuple[float, float]]:
+    """A sensor mode's half-power band f(1 ± ζ), widened by half a spectrum bin ``df``."""
+    f0, zeta = float(params["frequency_hz"]), float(params["damping_ratio"])
+    return [(f0 * (1 - zeta) - 0.5 * df, f0 * (1 + zeta) + 0.5 * df)]
+
+
+def bands_pickup(params: dict[str, Any], df: float) -> list[tuple[float, float]]:
+    """A pickup's lines (the fundamental and its harmonics as sampled) ± 1.5 bins (the window its
+    fit searches), widened by half a bin ``df``."""
+    lines = [params["frequency_hz"], *(h["frequency_hz"] for h in params.get("harmonics", ()))]
+    return [(float(x) - 2.0 * df, float(x) + 2.0 * df) for x in lines]
+
+
 def _effect(entry: Entry) -> Effect:
     d = entry.diagnosis
     count = d.n_params
     n_params = resolve(count) if isinstance(count, str) else (lambda params: count)
-    return Effect(entry.name, resolve(d.fit), resolve(d.evidence), n_params, d.excludes, d.fits_change)
+    return Effect(entry.name, resolve(d.fit), resolve(d.evidence), n_params, d.excludes, d.fits_change,
+                  resolve(d.bands) if d.bands else None)
 
 
 CATALOG: tuple[Effect, ...] = tuple(_effect(e) for e in in_signal_order(REGISTERED))

@@ -30,16 +30,12 @@ from typing import Any
 import numpy as np
 from scipy import ndimage, optimize, signal
 
-from rtlift.blocks.stages import (
-    ActuatorFade,
-    Delay,
-    PeriodicDisturbance,
-    SensorResonance,
-    ZeroDrift,
-    alias_hz,
-    resonance_ba,
-)
+from rtlift.blocks.actuator_fade import ActuatorFade
+from rtlift.blocks.delay import Delay
+from rtlift.blocks.periodic_disturbance import PeriodicDisturbance, alias_hz
+from rtlift.blocks.sensor_resonance import SensorResonance, resonance_ba
 from rtlift.blocks.wiener import HysteresisGain, InputGain, OutputHysteresis, OutputNonlinearity
+from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.records import Record
 from rtlift.diagnose.surgery import Context, Fitted, at_bound, augment, filter_chain, output_sse, predict, wiener_parts
 from rtlift.model.hybrid import HybridModel

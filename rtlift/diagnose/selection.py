@@ -522,17 +522,13 @@ def explained_bands(trials: list[Trial], df: float) -> list[tuple[float, float]]
     """Frequency bands (Hz) an accepted entry accounts for: a ``sensor_resonance``'s half-power
     band f(1 ± ζ), a ``periodic_disturbance``'s lines (the fundamental and its harmonics as
     sampled) ± 1.5 bins (the window its fit searches); each widened by half a spectrum bin
-    ``df``, the width of the bin a line is reported at."""
+    ``df``, the width of the bin a line is reported at. Each effect's own, as its registry record
+    names them (:attr:`rtlift.core.registry.Diagnosis.bands`)."""
     bands = []
     for t in trials:
-        if not t.accepted:
-            continue
-        if t.name == "sensor_resonance":
-            f0, zeta = float(t.params["frequency_hz"]), float(t.params["damping_ratio"])
-            bands.append((f0 * (1 - zeta) - 0.5 * df, f0 * (1 + zeta) + 0.5 * df))
-        elif t.name == "periodic_disturbance":
-            lines = [t.params["frequency_hz"], *(h["frequency_hz"] for h in t.params.get("harmonics", ()))]
-            bands += [(float(x) - 2.0 * df, float(x) + 2.0 * df) for x in lines]
+        of = EFFECTS[t.name].bands if t.accepted and t.name in EFFECTS else None    # the registry's
+        if of is not None:
+            bands += of(t.params, df)
     return bands
 
 

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.blocks.stages import InputStage, OutputStage
+from rtlift.blocks.stage import InputStage, OutputStage
 from rtlift.core.records import Record
 from rtlift.model.hybrid import HybridModel, HybridOutput
 from rtlift.model.modelfile import model_from_dict, model_to_dict

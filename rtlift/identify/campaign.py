@@ -42,8 +42,8 @@ import numpy as np
 from scipy import signal
 
 from rtlift.blocks.convolution import RingConvolution
+from rtlift.blocks.delay import Delay
 from rtlift.blocks.highpass import HighPassFilter
-from rtlift.blocks.stages import Delay
 from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
 from rtlift.core.errors import require_finite
 from rtlift.core.metrics import scores

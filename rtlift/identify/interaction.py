@@ -102,9 +102,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import signal
 
+from rtlift.blocks.delay import Delay
+from rtlift.blocks.delivered import DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.stages import Delay, DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.wiener import WienerBlock
 from rtlift.core.metrics import rmse, scores
 from rtlift.core.records import Record

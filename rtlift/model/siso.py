@@ -27,12 +27,20 @@ from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.errors import ModelFileError
 from rtlift.core.jit import njit_cached
 from rtlift.core.jsonfile import write_json_atomic
-from rtlift.core.registry import MODEL_STRUCTURE_NAMES
+from rtlift.core.registry import ENTRIES, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES, resolve
 
 FORMAT = "rtlift-siso-model"
 VERSION = 1
 STRUCTURES = MODEL_STRUCTURE_NAMES
 """The structures a generic record is identified in (:data:`rtlift.core.registry.MODEL_STRUCTURES`)."""
+LIMITED: dict[str, tuple[str, ...]] = {where: tuple(s for s, at in ENTRIES["saturation"].forms if at == where)
+                                       for where in ("output", "state")}
+"""Where a limit is built, and in which structures: the registry's ``saturation`` forms."""
+
+
+def listed(names: tuple[str, ...]) -> str:
+    """``a, b and c``."""
+    return " and ".join(filter(None, (", ".join(names[:-1]), names[-1])))
 
 
 @dataclass(eq=False)
@@ -70,6 +78,17 @@ class SisoModel(BlockChain):
 
     def copy(self) -> SisoModel:
         return model_from_dict(self.to_dict())
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SisoModel:
+        """From its file form (:func:`model_from_dict`; KeyError, TypeError or ValueError if wrong)."""
+        g1 = HighPassFilter(np.asarray(d["g1_sos"], dtype=float))
+        f = OutputNonlinearity(d["f"]["x"], d["f"]["y"])
+        g2 = None if d.get("g2_sos") is None else HighPassFilter(np.asarray(d["g2_sos"], dtype=float))
+        fs = float(d["fs_hz"])
+        if not np.isfinite(fs) or fs <= 0:
+            raise ValueError("fs_hz must be a positive number")
+        return cls(g1, f, g2, fs, dict(d.get("provenance") or {}), dict(d.get("metrics") or {}))
 
 
 class FeedbackModel:
@@ -169,6 +188,14 @@ class FeedbackModel:
 
     def copy(self) -> FeedbackModel:
         return model_from_dict(self.to_dict())
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> FeedbackModel:
+        """From its file form, a state limit its own (:func:`model_from_dict`; KeyError, TypeError or
+        ValueError if wrong)."""
+        sat = d.get("saturation")
+        return cls(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"), d.get("metrics"),
+                   _limit_pair(sat) if sat is not None else (-np.inf, np.inf))
 
 
 @njit_cached
@@ -308,6 +335,12 @@ class StoreChainModel:
     def copy(self) -> StoreChainModel:
         return model_from_dict(self.to_dict())
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> StoreChainModel:
+        """From its file form, the brims its own parameters (:func:`model_from_dict`; KeyError,
+        TypeError or ValueError if wrong)."""
+        return cls(d["params"], float(d["fs_hz"]), int(d.get("substeps", 2)), d.get("provenance"), d.get("metrics"))
+
 
 class SaturatedModel:
     """A hard limit on a model's output (``saturation``, where ``output``): a sensor or a stage
@@ -367,6 +400,9 @@ def _finite(v: float) -> float | None:
 
 SISO_MODELS = (SisoModel, FeedbackModel, StoreChainModel, SaturatedModel)
 """The single-input model classes (``isinstance(model, SISO_MODELS)``: a generic model)."""
+MODEL_CLASSES: dict[str, Any] = {s.name: resolve(s.model) for s in MODEL_STRUCTURES}
+"""Each structure's model class, as the registry names it (:data:`rtlift.core.registry.MODEL_STRUCTURES`):
+what :func:`model_from_dict` builds a file of that ``structure`` with (its ``from_dict``)."""
 
 
 def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | FeedbackModel | SaturatedModel:
@@ -380,41 +416,20 @@ def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | Fee
         try:
             if where != "output":
                 raise ValueError(f"saturation where {where!r} is not built (output, or state of "
-                                 "nonlinear_feedback and store_chain)")
+                                 f"{listed(LIMITED['state'])})")
             return SaturatedModel(inner, *_limit_pair(sat))
         except (AttributeError, TypeError, ValueError) as exc:
             raise ModelFileError(f"{source}: {exc}") from None
-    if where == "state" and d.get("structure") not in ("nonlinear_feedback", "store_chain"):
-        raise ModelFileError(f"{source}: saturation where 'state' is built for nonlinear_feedback and "
-                             "store_chain only")
-    if d.get("structure") == "store_chain":       # the brims are its own parameters
-        try:
-            return StoreChainModel(d["params"], float(d["fs_hz"]), int(d.get("substeps", 2)), d.get("provenance"),
-                                   d.get("metrics"))
-        except KeyError as exc:
-            raise ModelFileError(f"{source}: missing key {exc}") from None
-        except (TypeError, ValueError) as exc:
-            raise ModelFileError(f"{source}: {exc}") from None
-    if d.get("structure") == "nonlinear_feedback":
-        try:
-            return FeedbackModel(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"),
-                                 d.get("metrics"), _limit_pair(sat) if sat is not None else (-np.inf, np.inf))
-        except KeyError as exc:
-            raise ModelFileError(f"{source}: missing key {exc}") from None
-        except (TypeError, ValueError) as exc:
-            raise ModelFileError(f"{source}: {exc}") from None
+    structure = d.get("structure")
+    if where == "state" and structure not in LIMITED["state"]:
+        raise ModelFileError(f"{source}: saturation where 'state' is built for {listed(LIMITED['state'])} only")
+    cls = MODEL_CLASSES.get(structure, SisoModel) if isinstance(structure, str) else SisoModel
     try:
-        g1 = HighPassFilter(np.asarray(d["g1_sos"], dtype=float))
-        f = OutputNonlinearity(d["f"]["x"], d["f"]["y"])
-        g2 = None if d.get("g2_sos") is None else HighPassFilter(np.asarray(d["g2_sos"], dtype=float))
-        fs = float(d["fs_hz"])
+        return cls.from_dict(d)
     except KeyError as exc:
         raise ModelFileError(f"{source}: missing key {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"{source}: {exc}") from None
-    if not np.isfinite(fs) or fs <= 0:
-        raise ModelFileError(f"{source}: fs_hz must be a positive number")
-    return SisoModel(g1, f, g2, fs, dict(d.get("provenance") or {}), dict(d.get("metrics") or {}))
 
 
 def _limit_pair(sat: dict[str, Any]) -> tuple[float, float]:

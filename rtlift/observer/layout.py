@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
-from rtlift.blocks.stages import PeriodicDisturbance
+from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
 from rtlift.core.registry import EFFECTS, resolve
 from rtlift.model.hybrid import HybridModel
 from rtlift.observer.config import ObserverConfig, ObserverError

@@ -56,7 +56,15 @@ from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.records import SisoRecord
 from rtlift.core.threads import one_blas_thread
 from rtlift.identify.pem import denominator_from_theta, theta_from_poles
-from rtlift.model.siso import STRUCTURES, FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
+from rtlift.model.siso import (
+    LIMITED,
+    STRUCTURES,
+    FeedbackModel,
+    SaturatedModel,
+    SisoModel,
+    StoreChainModel,
+    listed,
+)
 
 
 @dataclass(frozen=True)
@@ -264,10 +272,9 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
     opt = options or SisoOptions()
     if structure not in STRUCTURES:
         raise ValueError(f"unknown structure {structure!r}; expected one of {', '.join(STRUCTURES)}")
-    if not (where == "output" and (structure != "store_chain" or limits == NO_LIMITS)
-            or where == "state" and structure in ("nonlinear_feedback", "store_chain")):
-        raise ValueError(f"a limit where {where!r} is built for the output of wiener, wiener_hammerstein and "
-                         "nonlinear_feedback and for the state of nonlinear_feedback and store_chain")
+    if not (structure in LIMITED.get(where, ()) or where == "output" and limits == NO_LIMITS):
+        raise ValueError(f"a limit where {where!r} is built for the output of {listed(LIMITED['output'])} and "
+                         f"for the state of {listed(LIMITED['state'])}")
     u, y, fs = rec.u, rec.y, rec.fs_hz
     n_est = int(round((1.0 - opt.holdout) * u.size))
     skip = min(opt.skip, n_est // 10)

@@ -1,0 +1,79 @@
+"""The ``actuator_fade`` effect's stage: actuators deliver less Cμ as they heat up."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from rtlift.blocks.stage import InputStage, _finite, _positive
+
+
+class ActuatorFade(InputStage):
+    """Actuators deliver less Cμ as they heat up:
+
+        g(k) = f + (1 − f) exp(−E(k)/τ),   Cμ′(k) = g(k) Cμ(k),   Cμ_env′(k) = g(k) Cμ_env(k),
+        E(k + 1) = E(k) + 1/fs if Cμ(k) > 0 else E(k)        (``clock`` "on_time", E(0) = 0)
+        E(k + 1) = E(k) + 1/fs                                (``clock`` "time")
+
+    with ``clock`` "on_time" the fade follows the burst on-time accumulated *before* sample k
+    (heating by actuation), with "time" the wall time since the record started.
+    ``final_fraction`` = f ∈ [0, 1], ``time_constant_s`` = τ > 0 (seconds of the clock).
+    State: [E], the clock before the next sample.
+    """
+
+    name = "actuator_fade"
+    state_size = 1
+    CLOCKS = ("on_time", "time")
+
+    def __init__(self, final_fraction: float, time_constant_s: float, fs_hz: float,
+                 clock: str = "on_time") -> None:
+        f = _finite(final_fraction, "actuator_fade final_fraction")
+        if not 0.0 <= f <= 1.0:
+            raise ValueError(f"actuator_fade final_fraction must be in [0, 1], got {f}")
+        if clock not in self.CLOCKS:
+            raise ValueError(f"actuator_fade clock must be one of {', '.join(self.CLOCKS)}, got {clock!r}")
+        self.final_fraction = f
+        self.time_constant_s = _positive(time_constant_s, "actuator_fade time_constant_s")
+        self.fs_hz = _positive(fs_hz, "fs_hz")
+        self.clock = clock
+        self._always = clock == "time"
+        self.dt = 1.0 / self.fs_hz
+        self.on_time = 0.0
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> ActuatorFade:
+        return cls(float(params["final_fraction"]), float(params["time_constant_s"]), fs_hz,
+                   str(params.get("clock", "on_time")))
+
+    def params(self) -> dict[str, Any]:
+        return {"final_fraction": self.final_fraction, "time_constant_s": self.time_constant_s,
+                "clock": self.clock}
+
+    def step(self, cmu: float, env: float) -> tuple[float, float]:
+        f = self.final_fraction
+        g = f + (1.0 - f) * math.exp(-self.on_time / self.time_constant_s)
+        if cmu > 0.0 or self._always:
+            self.on_time += self.dt
+        return cmu * g, env * g
+
+    def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cmu = np.asarray(cmu, dtype=float)
+        env = np.asarray(env, dtype=float)
+        inc = np.full(cmu.size, self.dt) if self._always else np.where(cmu > 0.0, self.dt, 0.0)
+        elapsed = np.cumsum(np.concatenate([[self.on_time], inc]))   # sequential sums, as step
+        before = elapsed[:-1]
+        self.on_time = float(elapsed[-1])
+        f = self.final_fraction
+        g = f + (1.0 - f) * np.exp(-before / self.time_constant_s)
+        return cmu * g, env * g
+
+    def get_state(self) -> np.ndarray:
+        return np.array([self.on_time])
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (1,):
+            raise ValueError(f"actuator_fade state must have shape (1,), got {s.shape}")
+        self.on_time = float(s[0])

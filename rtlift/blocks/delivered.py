@@ -1,0 +1,155 @@
+"""The ``interaction`` structure's input stages (not effects): what the actuators deliver.
+
+- ``delivered_momentum`` (as first merged): Cμ_env′(k) = m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d,
+  λ = exp(−1/(τ fs)); Cμ′ = Cμ.
+- ``delivered_envelope`` (the structure's Wiener input): Cμ_env′(k) = Cμ_env(k) · min(1, q(k)/q₀),
+  q(k) = λ q(k−1) + (1 − λ) [Cμ(k) > 0], q₀ the minimum of q at the lift-optimal burst rate
+  (:func:`optimal_rate_floor`); Cμ′ = Cμ.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from rtlift.blocks.stage import InputStage, _positive
+
+
+class DeliveredMomentum(InputStage):
+    """``m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d``, ``λ = exp(−1/(τ fs))``; maps (Cμ, Cμ_env) to
+    (Cμ, m). ``time_constant_s`` = τ > 0, ``duty`` = d ∈ (0, 1]. State: [m(k)]."""
+
+    name = "delivered_momentum"
+    state_size = 1
+
+    def __init__(self, time_constant_s: float, duty: float, fs_hz: float) -> None:
+        tau, d, fs = float(time_constant_s), float(duty), float(fs_hz)
+        if not (math.isfinite(tau) and tau > 0):
+            raise ValueError(f"delivered_momentum time_constant_s must be positive, got {time_constant_s}")
+        if not (math.isfinite(d) and 0 < d <= 1):
+            raise ValueError(f"delivered_momentum duty must be in (0, 1], got {duty}")
+        if not (math.isfinite(fs) and fs > 0):
+            raise ValueError(f"fs_hz must be positive, got {fs_hz}")
+        self.time_constant_s, self.duty, self.fs_hz = tau, d, fs
+        self._lam = math.exp(-1.0 / (tau * fs))
+        self._b = 1.0 - self._lam
+        self._inv_d = 1.0 / d
+        self._m = np.zeros(1)           # numpy, so the compiled step advances it too
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> DeliveredMomentum:
+        return cls(float(params["time_constant_s"]), float(params["duty"]), fs_hz)
+
+    def params(self) -> dict[str, float]:
+        return {"time_constant_s": self.time_constant_s, "duty": self.duty}
+
+    def momentum(self, cmu: float) -> float:
+        """One sample of m (what :meth:`step` returns as the envelope)."""
+        m = self._b * (cmu * self._inv_d) + self._lam * self._m.item()
+        self._m[0] = m
+        return m
+
+    def kernel_arrays(self) -> tuple[tuple[float, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: parameters (λ, 1 − λ, 1/d) and state (m,), not a copy."""
+        return (self._lam, self._b, self._inv_d), (self._m,)
+
+    def step(self, cmu: float, env: float) -> tuple[float, float]:
+        return cmu, self.momentum(cmu)
+
+    def momentum_batch(self, cmu: np.ndarray) -> np.ndarray:
+        """Batch twin of :meth:`momentum` (``lfilter`` with the state as ``zi``)."""
+        cmu = np.asarray(cmu, dtype=float)
+        if cmu.size == 0:
+            return cmu.copy()
+        m, _ = signal.lfilter([self._b], [1.0, -self._lam], cmu * self._inv_d, zi=[self._lam * self._m.item()])
+        self._m[0] = m[-1]
+        return m
+
+    def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cmu = np.asarray(cmu, dtype=float)
+        return cmu.copy(), self.momentum_batch(cmu)
+
+    def get_state(self) -> np.ndarray:
+        return self._m.copy()
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (1,):
+            raise ValueError(f"delivered_momentum state must have shape (1,), got {s.shape}")
+        self._m[0] = s[0]
+
+
+class DeliveredEnvelope(InputStage):
+    """The envelope where bursts fire at least at the lift-optimal rate, less where they fire
+    more sparsely (the Wiener input of the ``interaction`` structure, issue 31)::
+
+        q(k) = λ q(k−1) + (1 − λ) [Cμ(k) > 0],   λ = exp(−1/(τ fs))
+        u(k) = Cμ_env(k) · min(1, q(k)/q₀)
+
+    maps (Cμ, Cμ_env) to (Cμ, u). q is the recent fraction of samples with a burst on, q₀ its
+    minimum under bursting at the lift-optimal period (``burst_samples`` on in every
+    ``period_samples``, :func:`optimal_rate_floor`): at that rate or denser u is the envelope
+    itself, the paper's hybrid's Wiener input, with no lag; after an isolated burst or between
+    the bursts of a sparse train u falls with the memory q. ``time_constant_s`` = τ > 0.
+    State: [q(k)]."""
+
+    name = "delivered_envelope"
+    state_size = 1
+
+    def __init__(self, time_constant_s: float, burst_samples: int, period_samples: int, fs_hz: float) -> None:
+        tau, fs = _positive(time_constant_s, "delivered_envelope time_constant_s"), _positive(fs_hz, "fs_hz")
+        on, period = int(burst_samples), int(period_samples)
+        if not 0 < on <= period:
+            raise ValueError(f"delivered_envelope needs 0 < burst_samples <= period_samples, got {on}, {period}")
+        self.time_constant_s, self.burst_samples, self.period_samples, self.fs_hz = tau, on, period, fs
+        self._lam = math.exp(-1.0 / (tau * fs))
+        self._b = 1.0 - self._lam
+        self._scale = 1.0 / optimal_rate_floor(self._lam, on, period)
+        self._q = np.zeros(1)           # numpy, so the compiled step advances it too
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> DeliveredEnvelope:
+        return cls(float(params["time_constant_s"]), int(params["burst_samples"]), int(params["period_samples"]),
+                   fs_hz)
+
+    def params(self) -> dict[str, float]:
+        return {"time_constant_s": self.time_constant_s, "burst_samples": self.burst_samples,
+                "period_samples": self.period_samples}
+
+    def step(self, cmu: float, env: float) -> tuple[float, float]:
+        q = self._b * (1.0 if cmu > 0.0 else 0.0) + self._lam * self._q.item()
+        self._q[0] = q
+        return cmu, env * min(1.0, self._scale * q)
+
+    def kernel_arrays(self) -> tuple[tuple[float, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: parameters (λ, 1 − λ, 1/q₀) and state (q,), not a copy."""
+        return (self._lam, self._b, self._scale), (self._q,)
+
+    def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cmu = np.asarray(cmu, dtype=float)
+        env = np.asarray(env, dtype=float)
+        if cmu.size == 0:
+            return cmu.copy(), env.copy()
+        q, _ = signal.lfilter([self._b], [1.0, -self._lam], (cmu > 0).astype(float), zi=[self._lam * self._q.item()])
+        self._q[0] = q[-1]
+        return cmu.copy(), env * np.minimum(1.0, self._scale * q)
+
+    def get_state(self) -> np.ndarray:
+        return self._q.copy()
+
+    def set_state(self, state: np.ndarray) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.shape != (1,):
+            raise ValueError(f"delivered_envelope state must have shape (1,), got {s.shape}")
+        self._q[0] = s[0]
+
+
+def optimal_rate_floor(lam: float, burst_samples: int, period_samples: int) -> float:
+    """The minimum over a period of q(k) = λ q(k−1) + (1 − λ) x(k) in the periodic steady state of
+    x = ``burst_samples`` ones then zeros, every ``period_samples``: q just before a burst,
+    (1 − λ^on) λ^(T − on) / (1 − λ^T)."""
+    on, period = int(burst_samples), int(period_samples)
+    return (1.0 - lam ** on) * lam ** (period - on) / (1.0 - lam ** period)
