@@ -54,7 +54,10 @@ DEVICES = pytest.mark.parametrize("device", [SerialDaq, SlcanAdapter], ids=["ser
 
 def _run(device, plan: FaultPlan, commands: int, every: int):
     """Send ``commands`` commands, one every ``every`` samples, then read until the device's
-    ``cmd_errors`` event has come (once a second) and every late command has landed."""
+    ``cmd_errors`` event has come (once a second) and every late command has landed. The sends are
+    also paced by the clock (at least ``every`` sample periods apart): a host that fell behind
+    reads ``every`` buffered samples at once, and two commands sent back to back can reach the
+    device within one sample, the first then superseded — on a loaded machine, not a fault."""
     dev = device(daq_stream("static", seed=1), faults=plan, seed=3)
     echoed = set()
     config = ({"kind": "serial", "port": dev.path} if device is SerialDaq else
@@ -62,7 +65,10 @@ def _run(device, plan: FaultPlan, commands: int, every: int):
     with dev, open_link(config) as link:
         dev.start()
         _samples(link, 20)
+        sent = -1.0
         for k in range(commands):
+            time.sleep(max(0.0, sent + every / FS - time.perf_counter()))
+            sent = time.perf_counter()
             link.send_command(1000 + 10 * k, watchdog_ms_div10=WATCHDOG_DIV10)
             echoed.update(s.cmd_seq for s in _samples(link, every))
         echoed.update(s.cmd_seq for s in _samples(link, FS + 40))
