@@ -201,9 +201,9 @@ def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike |
     """What ``model`` misses (``rtlift diagnose --train --validate``): candidate effects (a lift
     model) or structures (a generic model) fitted on ``train`` and judged on ``validate``.
     Returns ``(report, augmented_model)``; the report has INTERFACES.md's keys (``baseline``,
-    ``augmented``, ``effects``, ``unexplained`` …). With ``out``: ``report.json``, ``report.md``
-    and ``model_augmented.json`` written there (a lift model's report also has figures and
-    ``residual_tests.json``). ``skip``: generic records' unscored first samples; ``score_from``:
+    ``augmented``, ``effects``, ``unexplained`` …; the same keys for both kinds). With ``out``:
+    ``report.json``, ``report.md`` with figures, ``residual_tests.json`` and
+    ``model_augmented.json`` written there. ``skip``: generic records' unscored first samples; ``score_from``:
     per validation record, the first scored sample, and ``split`` how one long run was split in
     two (``rtlift diagnose --run``; recorded in the report)."""
     model = load(model)
@@ -213,24 +213,22 @@ def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike |
             os.makedirs(out, exist_ok=True)
         except OSError as exc:
             raise UserError(f"{out}: cannot create output directory ({exc.strerror})") from None
+    from rtlift.diagnose.report import write
+
+    score_from = None if score_from is None else list(score_from)
     if generic:
-        from rtlift.sysid.diagnose import diagnose_siso, write_report
+        from rtlift.sysid.diagnose import diagnose_generic
 
         train = _generic(train, skip + 50)
         validate = [_generic(r, skip + 50) for r in validate]
-        report, augmented = diagnose_siso(model, train, validate, skip,
-                                          validate_skip=None if score_from is None else list(score_from))
-        _note_split(report, split)
-        if out is not None:
-            write_report(report, augmented, out)
-        return report, augmented
-    from rtlift.diagnose import DiagnoseOptions
-    from rtlift.diagnose import diagnose as diagnose_lift
-    from rtlift.diagnose.report import write
+        diag = diagnose_generic(model, train, validate, skip, validate_skip=score_from)
+    else:
+        from rtlift.diagnose import DiagnoseOptions
+        from rtlift.diagnose import diagnose as diagnose_lift
 
-    train = _lift(train)
-    validate = [_lift(r) for r in validate]
-    diag = diagnose_lift(model, train, validate, DiagnoseOptions(), None if score_from is None else list(score_from))
+        train = _lift(train)
+        validate = [_lift(r) for r in validate]
+        diag = diagnose_lift(model, train, validate, DiagnoseOptions(), score_from)
     _note_split(diag.report, split)
     if out is not None:
         write(diag, str(out), sources)
