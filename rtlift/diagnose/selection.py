@@ -121,8 +121,8 @@ class Diagnosis:
     (from its first scored sample; tested from ``start`` on), the combinations compared."""
 
     report: dict[str, Any]
-    baseline: HybridModel
-    augmented: HybridModel
+    baseline: HybridModel | Any          # a lift model, or a generic one (``kind``)
+    augmented: HybridModel | Any
     trials: list[Trial]
     tests_before: dict[str, dict[str, TestResult]]
     tests_after: dict[str, dict[str, TestResult]]

@@ -29,7 +29,12 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
   ``params.where``. A limit on the input is not a separate structure: a Wiener model's static
   map f already saturates where the input's effect does.
 
-Of the candidates that pass, the one with the lower validation error is added.
+Of the candidates that pass, the one with the lower validation error is added: each tried
+structure is a one-member combination of the lift diagnosis's selection
+(:func:`rtlift.diagnose.selection.combination`), the admissible one with the lowest pooled
+validation RMSE chosen (:func:`~rtlift.diagnose.selection.lowest_admissible`), and the
+diagnosis is a :class:`~rtlift.diagnose.selection.Diagnosis` that
+:func:`rtlift.diagnose.report.write` writes as it writes a lift model's.
 
 It is accepted only if it lowers the pooled error on the validation records significantly
 (:func:`rtlift.diagnose.selection.significant_gain`, the rule the lift diagnosis uses: ≥ 1.5 %
