@@ -11,7 +11,8 @@ input raises :class:`~rtlift.core.errors.UserError` with the one line the comman
 - :func:`identify_record` — a single-input model of one generic ``t,u,y`` record;
 - :func:`validate` — ρ, NRMSE and RMSE of a model on records, free run from rest (figures optional);
 - :func:`diagnose` — what the model misses: the report and the augmented model (written to
-  ``out`` as ``report.json``, ``report.md`` and ``model_augmented.json`` when given).
+  ``out`` as ``report.json``, ``report.md`` and ``model_augmented.json`` when given);
+- :func:`diagnose_run` — the same on one long record, fitted on its first part, judged on the rest.
 """
 
 from __future__ import annotations
@@ -196,48 +197,59 @@ def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: Path
 
 
 def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike | None = None, skip: int = 0,
-             score_from: Sequence[int] | None = None, sources: dict[str, Any] | None = None,
-             split: dict[str, Any] | None = None) -> tuple[dict[str, Any], Any]:
+             score_from: Sequence[int] | None = None) -> tuple[dict[str, Any], Any]:
     """What ``model`` misses (``rtlift diagnose --train --validate``): candidate effects (a lift
     model) or structures (a generic model) fitted on ``train`` and judged on ``validate``.
     Returns ``(report, augmented_model)``; the report has INTERFACES.md's keys (``baseline``,
-    ``augmented``, ``effects``, ``unexplained`` …). With ``out``: ``report.json``, ``report.md``
-    and ``model_augmented.json`` written there (a lift model's report also has figures and
-    ``residual_tests.json``). ``skip``: generic records' unscored first samples; ``score_from``:
-    per validation record, the first scored sample, and ``split`` how one long run was split in
-    two (``rtlift diagnose --run``; recorded in the report)."""
+    ``augmented``, ``effects``, ``unexplained`` …; the same keys for both kinds). With ``out``:
+    ``report.json``, ``report.md`` with figures, ``residual_tests.json`` and
+    ``model_augmented.json`` written there. ``skip``: generic records' unscored first samples;
+    ``score_from``: per validation record, the first scored sample. The records are checked as
+    the command checks them (:mod:`rtlift.diagnose.sources`: their kind, rate, length, stems)."""
+    from rtlift.diagnose.sources import records
+
+    name = str(model) if isinstance(model, (str, os.PathLike)) else None
     model = load(model)
-    generic = is_generic(model)
+    src = records(train, list(validate), model, is_generic(model), skip, name)
+    if score_from is not None:
+        src.score_from = list(score_from)
+    return _diagnose(model, src, out, skip)
+
+
+def diagnose_run(model: Any, record: Any, *, split: float | None = None, out: PathLike | None = None,
+                 skip: int = 0) -> tuple[dict[str, Any], Any]:
+    """:func:`diagnose` of one long record (``rtlift diagnose --run [--split]``): fitted on its
+    first ``split`` (default 0.6), judged on the rest — every model run over the whole record
+    from rest and scored from the split on. The report's records are ``<stem>_train`` and
+    ``<stem>_validate``, and its ``split`` says where the run was cut."""
+    from rtlift.diagnose.sources import run
+
+    name = str(model) if isinstance(model, (str, os.PathLike)) else None
+    model = load(model)
+    return _diagnose(model, run(record, model, is_generic(model), split, skip, name), out, skip)
+
+
+def _diagnose(model: Any, src: Any, out: PathLike | None, skip: int) -> tuple[dict[str, Any], Any]:
+    """The diagnosis of either kind on the records of ``src`` (:class:`rtlift.diagnose.sources.Sources`)."""
+    from rtlift.diagnose.report import write
+
     if out is not None:
         try:
             os.makedirs(out, exist_ok=True)
         except OSError as exc:
             raise UserError(f"{out}: cannot create output directory ({exc.strerror})") from None
-    if generic:
-        from rtlift.sysid.diagnose import diagnose_siso, write_report
+    if is_generic(model):
+        from rtlift.sysid.diagnose import diagnose_generic
 
-        train = _generic(train, skip + 50)
-        validate = [_generic(r, skip + 50) for r in validate]
-        report, augmented = diagnose_siso(model, train, validate, skip,
-                                          validate_skip=None if score_from is None else list(score_from))
-        _note_split(report, split)
-        if out is not None:
-            write_report(report, augmented, out)
-        return report, augmented
-    from rtlift.diagnose import DiagnoseOptions
-    from rtlift.diagnose import diagnose as diagnose_lift
-    from rtlift.diagnose.report import write
+        diag = diagnose_generic(model, src.train, src.validate, skip, validate_skip=src.score_from)
+    else:
+        from rtlift.diagnose import DiagnoseOptions
+        from rtlift.diagnose import diagnose as diagnose_lift
 
-    train = _lift(train)
-    validate = [_lift(r) for r in validate]
-    diag = diagnose_lift(model, train, validate, DiagnoseOptions(), None if score_from is None else list(score_from))
-    _note_split(diag.report, split)
+        diag = diagnose_lift(model, src.train, src.validate, DiagnoseOptions(), src.score_from)
+    if src.split is not None:
+        diag.report["split"] = src.split
+        diag.report["scoring"] += f"; one run split at sample {src.split['train_samples'][1]}: {src.split['how']}"
     if out is not None:
-        write(diag, str(out), sources)
+        write(diag, str(out), src.provenance)
     return diag.report, diag.augmented
-
-
-def _note_split(report: dict[str, Any], split: dict[str, Any] | None) -> None:
-    if split is not None:
-        report["split"] = split
-        report["scoring"] += f"; one run split at sample {split['train_samples'][1]}: {split['how']}"

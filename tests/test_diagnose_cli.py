@@ -85,3 +85,53 @@ def test_bad_input_is_a_one_line_error_with_status_2(files, tmp_path, capsys):
     rc = main(["diagnose", "--model", str(files / "model.json"), "--train", str(files / "train.csv"),
                "--validate", str(files / "train.csv"), "--out", str(tmp_path / "o")])
     assert rc == 2
+
+
+def _generic_case(d):
+    """The Cascaded Tanks 1024-sample split of ``tests/test_sysid.py``: a Wiener model of its
+    first 820 samples, the rest to validate."""
+    import numpy as np
+
+    from rtlift.core.records import SisoRecord, write_siso_record
+    from tests.test_sysid import DATA
+
+    data = np.load(DATA / "cascaded_tanks.npz")
+    fs = 1.0 / float(data["Ts"])
+    u, y = data["u_est"], data["y_est"]
+    for name, lo, hi in (("est", 0, 820), ("val", 820, 1024)):
+        write_siso_record(d / f"{name}.csv",
+                          SisoRecord(np.arange(hi - lo) / fs, u[lo:hi], y[lo:hi], {"fs_hz": repr(fs)}, name))
+    assert main(["identify", "--record", str(d / "est.csv"), "-o", str(d / "m.json")]) == 0
+    return d / "m.json", d / "est.csv", d / "val.csv"
+
+
+def test_a_lift_and_a_generic_report_have_the_same_keys_written_by_one_writer(files, tmp_path):
+    """One report for both model kinds: report.json's top-level keys, its selection's and its
+    combinations' are the same; what a generic model cannot have is null; both reports have the
+    residual test table and the residual figures."""
+    lift, gen = tmp_path / "lift", tmp_path / "gen"
+    assert main(["diagnose", "--model", str(files / "model.json"), "--train", str(files / "train.csv"),
+                 "--validate", str(files / "val.csv"), "--out", str(lift)]) == 0
+    model, est, val = _generic_case(tmp_path)
+    assert main(["diagnose", "--model", str(model), "--train", str(est), "--validate", str(val), "--skip", "50",
+                 "--out", str(gen)]) == 0
+    a, b = (json.loads((d / "report.json").read_text()) for d in (lift, gen))
+    assert list(a) == list(b)
+    assert set(a["selection"]) == set(b["selection"]) == {"rule", "pool", "chosen", "combinations"}
+    rows = [*a["selection"]["combinations"], *b["selection"]["combinations"]]
+    assert rows and all(set(c) == {"members", "parameters", "validation_rmse", "admissible", "why"} for c in rows)
+    assert [c["members"] for c in b["selection"]["combinations"]] == [[n] for n in b["selection"]["pool"]]
+    assert b["selection"]["pool"] == ["output_dynamics", "nonlinear_feedback", "saturation"]
+    assert b["selection"]["chosen"] == [e["name"] for e in b["effects"] if e["accepted"]]
+    assert (b["references"], b["reestimation"], a["not_built"]) == (None, None, None)
+    assert b["not_built"] == [] and "no fingerprint" in b["fingerprint"] and b["fit_target"]
+    for rep in (a, b):
+        for scores in (*rep["baseline"]["records"].values(), *rep["augmented"]["records"].values()):
+            assert set(scores) == {"corr", "nrmse", "rmse"}
+    for d in (lift, gen):
+        md = (d / "report.md").read_text()
+        assert "## Residual tests on" in md and "## Competing explanations" in md
+        for fig in ("residual_time", "residual_spectrum", "residual_autocorr"):
+            assert (d / "figures" / f"{fig}.png").stat().st_size > 1000 and f"figures/{fig}.png" in md
+        assert set(json.loads((d / "residual_tests.json").read_text())) >= {"before", "after", "combinations"}
+    assert "## What each record is compared with" not in (gen / "report.md").read_text()

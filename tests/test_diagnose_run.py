@@ -135,3 +135,38 @@ def test_a_generic_run_too_short_to_split_is_one_line_and_exit_2(tmp_path, capsy
     err = _one_line_exit_2(["diagnose", "--model", str(tmp_path / "w.json"), "--run", str(tmp_path / "none.csv"),
                             "--out", str(tmp_path / "o")], capsys)
     assert "none.csv: no such file" in err
+
+
+def test_the_command_says_the_apis_split_default():
+    from rtlift.app.commands import diagnose as command
+    from rtlift.diagnose import sources
+
+    assert command.SPLIT_DEFAULT == sources.SPLIT_DEFAULT
+
+
+def test_the_api_splits_a_run_as_the_command_does(tmp_path):
+    """``api.diagnose_run``: the same split, report and files as ``rtlift diagnose --run``; the
+    checks of the records are the command's (one line each)."""
+    from rtlift import api
+    from rtlift.core.errors import UserError
+    from rtlift.model.siso import save_siso_model
+    from tests.test_sysid import random_model
+
+    model = random_model(np.random.default_rng(4), True)      # Wiener-Hammerstein: no structure to try
+    save_siso_model(model, tmp_path / "w.json")
+    u = np.sin(np.arange(600) * 0.05) + 0.3 * np.random.default_rng(5).normal(size=600)
+    y = model.simulate(u) + 0.01 * np.random.default_rng(6).normal(size=600)
+    write_siso_record(tmp_path / "g.csv", SisoRecord(np.arange(600) * 1e-3, u, y, {"fs_hz": "1000"}, "g"))
+    rep, augmented = api.diagnose_run(str(tmp_path / "w.json"), str(tmp_path / "g.csv"), split=0.5,
+                                      out=tmp_path / "api")
+    assert rep["split"]["train_samples"] == [0, 300] and rep["split"]["validate_samples"] == [300, 600]
+    assert rep["split"]["validate_seconds"] == pytest.approx(0.3)
+    assert set(rep["baseline"]["records"]) == {"g_train", "g_validate"} and api.is_generic(augmented)
+    assert main(["diagnose", "--model", str(tmp_path / "w.json"), "--run", str(tmp_path / "g.csv"), "--split", "0.5",
+                 "--out", str(tmp_path / "cli")]) == 0
+    for name in ("report.json", "report.md", "residual_tests.json", "model_augmented.json"):
+        assert (tmp_path / "api" / name).read_bytes() == (tmp_path / "cli" / name).read_bytes(), name
+    with pytest.raises(UserError, match="two records share the stem 'g'"):
+        api.diagnose(tmp_path / "w.json", tmp_path / "g.csv", [tmp_path / "g.csv"])
+    with pytest.raises(UserError, match="a generic \\(t,u,y\\) record, but the model is a lift model"):
+        api.diagnose_run(api.load(MODEL), tmp_path / "g.csv")

@@ -5,7 +5,9 @@
 
 - :mod:`.catalog` — one :class:`~.catalog.Effect` record per INTERFACES.md effect;
 - :mod:`.selection` — combinations compared on held-out records, every member earning its place;
-- :mod:`.report` — report.json, report.md, figures and the augmented model file.
+- :mod:`.report` — report.json, report.md, figures and the augmented model file, for a lift
+  model's diagnosis and a generic ``t,u,y`` model's (:mod:`rtlift.sysid.diagnose`) alike;
+- :mod:`.sources` — the records a diagnosis is given, or one long run split in two (``--run``).
 """
 
 from rtlift.diagnose.catalog import EFFECT_NAMES

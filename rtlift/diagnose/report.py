@@ -1,6 +1,10 @@
-"""Write a diagnosis: ``report.json`` (INTERFACES.md schema), ``residual_tests.json`` (every
-test's verdict and statistic, before and after), ``report.md`` with figures, and
-``model_augmented.json`` (loadable by ``rtlift validate``)."""
+"""Write a diagnosis of either kind — a lift model's (:func:`rtlift.diagnose.selection.diagnose`)
+or a generic ``t,u,y`` model's (:func:`rtlift.sysid.diagnose.diagnose_generic`), both a
+:class:`~rtlift.diagnose.selection.Diagnosis`: ``report.json`` (INTERFACES.md schema, the same
+keys for both kinds), ``residual_tests.json`` (every test's verdict and statistic, before and
+after), ``report.md`` with figures, and ``model_augmented.json`` (loadable by ``rtlift validate``).
+A section with nothing to say for a kind (a generic model has no fingerprint references) is left
+out of ``report.md``."""
 
 from __future__ import annotations
 
@@ -10,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.core.registry import SCHEMAS
+from rtlift.core.registry import ENTRIES
 from rtlift.diagnose.selection import Diagnosis
 from rtlift.model.modelfile import save_model
+from rtlift.model.siso import save_siso_model
 from rtlift.residual.stats import welch_psd
 
 
@@ -38,7 +43,7 @@ def plot(diag: Diagnosis, out_dir: str, fs: float) -> dict[str, str]:
         t = np.arange(e0.size) / fs
         ax.plot(t[s:], e0[s:], lw=0.5, label="before")
         ax.plot(t[s:], e1[s:], lw=0.5, label="after", alpha=0.8)
-        ax.set_ylabel("residual ΔCL")
+        ax.set_ylabel("residual ΔCL" if diag.kind == "lift" else "residual y")
         ax.set_title(name, fontsize=9)
     axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("t (s)")
@@ -49,10 +54,11 @@ def plot(diag: Diagnosis, out_dir: str, fs: float) -> dict[str, str]:
     fig, ax = plt.subplots(figsize=(9, 3.5))
     for name in names:
         for label, res in (("before", diag.residual_before), ("after", diag.residual_after)):
-            f, p = welch_psd(res[name][s:], fs)
+            e = res[name][s:]     # a generic record's segments: in samples (its time scale is its own)
+            f, p = welch_psd(e, fs) if diag.kind == "lift" else welch_psd(e, fs, e.size / fs)
             ax.semilogy(f, p, lw=0.7, label=f"{name} {label}")
     ax.set_xlabel("f (Hz)")
-    ax.set_ylabel("PSD (1/Hz)")
+    ax.set_ylabel("PSD (1/Hz)" if diag.kind == "lift" else "PSD (y²/Hz)")
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(os.path.join(out_dir, paths["residual_spectrum"]), dpi=90)
@@ -82,43 +88,59 @@ def tests_json(diag: Diagnosis) -> dict[str, Any]:
             "after": one(diag.tests_after), "combinations": diag.rounds}
 
 
+def _value(v: Any) -> str:
+    """A parameter as the report's table shows it: numbers to 4 digits, lists and mappings of
+    them too; a list of records (a pickup's harmonics) as Python writes it."""
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, (list, tuple)) and not any(isinstance(x, dict) for x in v):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k}: {_value(x)}" for k, x in v.items()) + "}"
+    return f"{v}"
+
+
 def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
     r = diag.report
+    lift = diag.kind == "lift"
+    num = ".5f" if lift else ".5g"       # a generic record's output has any scale
     lines = ["# Diagnosis report", "",
              f"Scores: {r['scoring']}. Residual tests from sample {diag.start} on.", "",
              f"Fingerprint: {r['fingerprint']}.", "",
-             f"Fits: {r['fit_target']}.", "",
-             "## What each record is compared with", "",
-             "Found from each record's input (burst period, on-time, envelope, levels), never its name.", "",
-             "| record | reference | identification record | nearest input | distance | why |",
-             "|---|---|---|---|---|---|"]
-    for name, ref in r.get("references", {}).items():
-        dist = "–" if ref["distance"] is None else f"{ref['distance']:.2f}"
-        lines.append(f"| {name} | {ref['source']} | {ref['entry'] or '–'} | {ref['nearest'] or '–'} | {dist} | "
-                     f"{ref['text']} |")
-    lines += ["",
-              "## Error before and after", "",
+             f"Fits: {r['fit_target']}.", ""]
+    if r["references"] is not None:
+        lines += ["## What each record is compared with", "",
+                  "Found from each record's input (burst period, on-time, envelope, levels), never its name.", "",
+                  "| record | reference | identification record | nearest input | distance | why |",
+                  "|---|---|---|---|---|---|"]
+        for name, ref in r["references"].items():
+            dist = "–" if ref["distance"] is None else f"{ref['distance']:.2f}"
+            lines.append(f"| {name} | {ref['source']} | {ref['entry'] or '–'} | {ref['nearest'] or '–'} | {dist} "
+                         f"| {ref['text']} |")
+        lines.append("")
+    lines += ["## Error before and after", "",
               "| record | ρ before | ρ after | NRMSE before | NRMSE after | RMSE before | RMSE after |",
               "|---|---|---|---|---|---|---|"]
     for name, b in r["baseline"]["records"].items():
         a = r["augmented"]["records"][name]
         lines.append(f"| {name} | {b['corr']:.4f} | {a['corr']:.4f} | {b['nrmse']:.4f} | {a['nrmse']:.4f} "
-                     f"| {b['rmse']:.5f} | {a['rmse']:.5f} |")
+                     f"| {b['rmse']:{num}} | {a['rmse']:{num}} |")
     lines += ["", "## Effects tried", "",
               "| effect | kind | accepted | parameters | validation RMSE before → after |",
               "|---|---|---|---|---|"]
     for e in r["effects"]:
-        params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in e["params"].items())
+        params = ", ".join(f"{k}={_value(v)}" for k, v in e["params"].items())
         lines.append(f"| {e['name']} | {e['kind']} | {'**yes**' if e['accepted'] else 'no'} | {params or '–'} | "
-                     f"{e['validation_rmse_before']:.5f} → {e['validation_rmse_after']:.5f} |")
+                     f"{e['validation_rmse_before']:{num}} → {e['validation_rmse_after']:{num}} |")
     sel = r["selection"]
     lines += ["", "## Competing explanations", "", f"Rule: {sel['rule']}. Pool: {', '.join(sel['pool']) or '–'}; "
               f"chosen: {', '.join(sel['chosen']) or 'nothing'}.", "",
               "| combination | parameters | validation RMSE | admissible | why |", "|---|---|---|---|---|"]
     for c in sorted(sel["combinations"], key=lambda c: c["validation_rmse"]):
-        lines.append(f"| {' + '.join(c['members'])} | {c['parameters']} | {c['validation_rmse']:.5f} | "
+        count = c["parameters"] if c["parameters"] is not None or lift else "–"   # a structure's: not counted
+        lines.append(f"| {' + '.join(c['members'])} | {count} | {c['validation_rmse']:{num}} | "
                      f"{'yes' if c['admissible'] else 'no'} | {c['why']} |")
-    lines += ["", "Evidence:", ""] + [f"- **{e['name']}** ({SCHEMAS[e['name']].meaning}): {e['evidence']}"
+    lines += ["", "Evidence:", ""] + [f"- **{e['name']}** ({ENTRIES[e['name']].schema.meaning}): {e['evidence']}"
                                       for e in r["effects"]]
     lines += ["", "## Unexplained", ""] + ([f"- {u}" for u in r["unexplained"]] or ["- nothing"])
     first = next(iter(diag.tests_before))
@@ -134,6 +156,8 @@ def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
 
 
 def write(diag: Diagnosis, out_dir: str, provenance: dict[str, Any] | None = None) -> None:
+    """The report files and ``model_augmented.json`` of ``diag`` in ``out_dir``; ``provenance``
+    (where the records came from) goes into a lift model file's ``provenance.diagnose``."""
     os.makedirs(out_dir, exist_ok=True)
     fs = diag.augmented.fs_hz
     figures = plot(diag, out_dir, fs)
@@ -145,6 +169,9 @@ def write(diag: Diagnosis, out_dir: str, provenance: dict[str, Any] | None = Non
         f.write("\n")
     with open(os.path.join(out_dir, "report.md"), "w", encoding="utf-8") as f:
         f.write(markdown(diag, figures))
+    if diag.kind != "lift":
+        save_siso_model(diag.augmented, os.path.join(out_dir, "model_augmented.json"))
+        return
     prov = dict(diag.augmented.provenance)
     prov["diagnose"] = {"accepted": [{"name": e["name"], "kind": e["kind"]} for e in diag.report["effects"]
                                      if e["accepted"]],

@@ -117,9 +117,13 @@ class Trial:
 
 @dataclass
 class Diagnosis:
+    """A diagnosis of either kind, as :mod:`rtlift.diagnose.report` writes it: the report (the same
+    keys for both), the models, the entries tried, the residual tests and residuals per record
+    (from its first scored sample; tested from ``start`` on), the combinations compared."""
+
     report: dict[str, Any]
-    baseline: HybridModel
-    augmented: HybridModel
+    baseline: HybridModel | Any          # a lift model, or a generic one (``kind``)
+    augmented: HybridModel | Any
     trials: list[Trial]
     tests_before: dict[str, dict[str, TestResult]]
     tests_after: dict[str, dict[str, TestResult]]
@@ -127,6 +131,9 @@ class Diagnosis:
     residual_after: dict[str, np.ndarray]
     start: int
     rounds: list[dict[str, Any]] = field(default_factory=list)
+    kind: str = "lift"
+    """``lift`` (a :class:`HybridModel`) or ``generic`` (a single-input ``t,u,y`` model of
+    :mod:`rtlift.model.siso`)."""
 
 
 def _plain(d: Any) -> Any:
@@ -205,6 +212,22 @@ def significant_gain(before: list[np.ndarray], after: list[np.ndarray], measured
     why = (f"validation RMSE {rb:.5g} -> {ra:.5g} ({100 * gain:+.1f} %), t = {t:.1f} over "
            f"{da.size} blocks of {block} samples, worst record x{worst:.3f}, rho {dcorr:+.4f}")
     return ok, why
+
+
+def combination(members: tuple[str, ...] | list[str], validation_rmse: float, parameters: int | None,
+                admissible: bool, why: str) -> dict[str, Any]:
+    """One row of the report's ``selection.combinations``: the members, their pooled validation
+    RMSE, the parameters they spend (``None``: not counted — a failed fit, a generic structure),
+    whether the row may be chosen and why."""
+    return {"members": list(members), "validation_rmse": validation_rmse, "parameters": parameters,
+            "admissible": admissible, "why": why}
+
+
+def lowest_admissible(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The admissible row of ``rows`` (:func:`combination`) with the lowest pooled validation
+    RMSE, the first of equals; ``None`` when none is admissible."""
+    ok = [r for r in rows if r["admissible"]]
+    return min(ok, key=lambda r: r["validation_rmse"]) if ok else None
 
 
 @dataclass
@@ -387,18 +410,17 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
             if not _compatible(combo):
                 continue
             node = search.node(combo)
-            row = {"members": list(combo), "validation_rmse": judge.pooled(node.errors),
-                   "parameters": node.n_params if not node.failed else None}
+            rmse, count = judge.pooled(node.errors), node.n_params if not node.failed else None
             if node.failed:
-                row.update(admissible=False, why=f"not fitted: {node.failed}")
+                row = combination(combo, rmse, count, False, f"not fitted: {node.failed}")
             elif node.on_bound:
-                row.update(admissible=False, why=f"on a bound: {node.on_bound}")
+                row = combination(combo, rmse, count, False, f"on a bound: {node.on_bound}")
             else:
                 weak = [(m, search.earns(node, m, opt)) for m in combo]
                 lacking = [f"{m} ({why})" for m, (ok, why) in weak if not ok]
-                row.update(admissible=not lacking,
-                           why="every member lowers the error significantly" if not lacking else
-                           "does not earn its place: " + "; ".join(lacking))
+                row = combination(combo, rmse, count, not lacking,
+                                  "every member lowers the error significantly" if not lacking else
+                                  "does not earn its place: " + "; ".join(lacking))
                 if not lacking:
                     admissible_nodes.append(node)
             table.append(row)
@@ -471,6 +493,7 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
                               "whose evidence departs from the fingerprint, then the fewest parameters"},
         "scoring": "whole records from rest (rtlift validate's numbers); a periodic_disturbance's "
                    "line phases are estimated on each record itself, as rtlift validate does",
+        "not_built": None,        # the generic diagnosis's list; every lift effect is in the catalog
     }
     return Diagnosis(report, model, augmented, trials, tests_before, tests_after, resid_before,
                      resid_after, start, table)

@@ -29,7 +29,12 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
   ``params.where``. A limit on the input is not a separate structure: a Wiener model's static
   map f already saturates where the input's effect does.
 
-Of the candidates that pass, the one with the lower validation error is added.
+Of the candidates that pass, the one with the lower validation error is added: each tried
+structure is a one-member combination of the lift diagnosis's selection
+(:func:`rtlift.diagnose.selection.combination`), the admissible one with the lowest pooled
+validation RMSE chosen (:func:`~rtlift.diagnose.selection.lowest_admissible`), and the
+diagnosis is a :class:`~rtlift.diagnose.selection.Diagnosis` that
+:func:`rtlift.diagnose.report.write` writes as it writes a lift model's.
 
 It is accepted only if it lowers the pooled error on the validation records significantly
 (:func:`rtlift.diagnose.selection.significant_gain`, the rule the lift diagnosis uses: ≥ 1.5 %
@@ -38,8 +43,6 @@ RMSE, Diebold–Mariano t ≥ 3 over blocks, no record worse by more than 1 %).
 
 from __future__ import annotations
 
-import json
-import os
 from typing import Any
 
 import numpy as np
@@ -48,9 +51,16 @@ from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
 from rtlift.core.registry import STRUCTURES
 from rtlift.core.threads import one_blas_thread
-from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
+from rtlift.diagnose.selection import (
+    DiagnoseOptions,
+    Diagnosis,
+    Trial,
+    combination,
+    lowest_admissible,
+    significant_gain,
+)
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
-from rtlift.residual.stats import higher_order, input_crosscorr, whiteness
+from rtlift.residual.stats import TestResult, higher_order, input_crosscorr, whiteness
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
 
 HOW = {e.name: e.how for e in STRUCTURES}
@@ -114,29 +124,59 @@ def record_scores(model: SisoModel, rec: SisoRecord, skip: int) -> dict[str, flo
     return scores(rec.y[skip:], predict(model, rec)[skip:])
 
 
-@one_blas_thread
+FINGERPRINT = ("none stored (a generic model file holds no fingerprint): the training residual's whiteness, its "
+               "correlation with past input and the Billings-Voon correlations with u^2 and yhat^2 are tested "
+               "against the 99 % bounds of a model that misses nothing")
+"""The report's ``fingerprint``: what the generic residual tests compare with instead of one."""
+FIT_TARGET = "each structure re-identified jointly on the training record's measured output"
+RULE = ("the structure lowers the validation error significantly (the lift diagnosis's test); of those, "
+        "the lowest pooled validation RMSE")
+
+
+def residual_tests(model: SisoModel, rec: SisoRecord, start: int,
+                   output: np.ndarray | None = None) -> dict[str, TestResult]:
+    """The residual tests of ``model`` on ``rec`` from sample ``start`` on (module docstring);
+    ``output``: its free run over the record, when already computed."""
+    yhat = predict(model, rec) if output is None else output
+    e, u, s = rec.y - yhat, rec.u, start
+    tests = {"whiteness": whiteness(e[s:]), "input_crosscorr": input_crosscorr(e[s:], u[s:], label="u")}
+    for t in higher_order(e[s:], u[s:], yhat[s:]):
+        tests[t.name] = t
+    return tests
+
+
 def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
                   skip: int = 0, options: SisoOptions | None = None,
                   validate_skip: list[int] | None = None) -> tuple[dict[str, Any], SisoModel]:
-    """The report (INTERFACES.md schema) and the augmented model (module docstring).
+    """The report (INTERFACES.md schema) and the augmented model of :func:`diagnose_generic`."""
+    diag = diagnose_generic(model, train, validate, skip, options, validate_skip)
+    return diag.report, diag.augmented
+
+
+@one_blas_thread
+def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
+                     skip: int = 0, options: SisoOptions | None = None,
+                     validate_skip: list[int] | None = None) -> Diagnosis:
+    """The diagnosis (module docstring) as :func:`rtlift.diagnose.report.write` writes it.
     ``validate_skip``: per validation record, the samples left unscored (default ``skip``; one
     long run's validation part is the whole run scored after its training part)."""
     vskip = list(validate_skip) if validate_skip is not None else [skip] * len(validate)
-    e = train.y - predict(model, train)
+    first = {r.name: k for r, k in zip(validate, vskip, strict=True)} if validate_skip is not None else {}
     s = max(skip, 1)
-    tests = {"whiteness": whiteness(e[s:]), "input_crosscorr": input_crosscorr(e[s:], train.u[s:], label="u")}
-    for t in higher_order(e[s:], train.u[s:], (train.y - e)[s:]):
-        tests[t.name] = t
+    outputs = {r.name: predict(model, r) for r in (train, *validate)}
+    e = train.y - outputs[train.name]
+    tests = residual_tests(model, train, s, outputs[train.name])
     evidence = "; ".join(f"{k} ({t.verdict}): {t.detail}" for k, t in tests.items()
                          if k in ("input_crosscorr", "bv_u2_e", "bv_y2_e"))
     # blocks for the significance test: about 40 over the validation data (the residual's
     # correlation time is the system's, unknown here; a lift record's 1 s blocks are 400 samples)
     block = max(50, sum(len(r) - k for r, k in zip(validate, vskip, strict=True)) // 40)
-    before = [(r.y - predict(model, r))[k:] for r, k in zip(validate, vskip, strict=True)]
+    before = [(r.y - outputs[r.name])[k:] for r, k in zip(validate, vskip, strict=True)]
     rb = float(np.sqrt(np.mean(np.concatenate(before) ** 2)))
-    effects = []
-    augmented = model
-    not_built = []
+    trials: list[Trial] = []
+    rows: list[dict[str, Any]] = []
+    models: dict[str, SisoModel] = {}
+    not_built: list[str] = []
     if model.structure == "wiener" and not isinstance(model, SaturatedModel):
         measured = np.concatenate([r.y[k:] for r, k in zip(validate, vskip, strict=True)])
         limits, clip_evidence = clip_levels(train.y, e)
@@ -144,42 +184,54 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
                       for name, structure in FORMS]
         if limits != NO_LIMITS:
             candidates.append((SATURATION.name, lambda: _best_saturated(train, validate, vskip, options, limits)))
-        tried = []
         for name, fit in candidates:
-            candidate = fit()
+            candidate = models[name] = fit()
             after = [(r.y - predict(candidate, r))[k:] for r, k in zip(validate, vskip, strict=True)]
             ok, why = significant_gain(before, after, measured, block, DiagnoseOptions())
             ra = float(np.sqrt(np.mean(np.concatenate(after) ** 2)))
-            tried.append((ok, ra, candidate))
-            effects.append({"name": name, "kind": "structure", "accepted": False,
-                            "params": _structure_params(candidate),
-                            "evidence": (f"{clip_evidence}; {HOW[name]} (best form: {candidate.structure}, "
-                                         f"limit on the {candidate.limits()['where']}); {why}"
-                                         if name == SATURATION.name else f"{evidence}; {HOW[name]}; {why}"),
-                            "validation_rmse_before": rb, "validation_rmse_after": ra})
-        admissible = [i for i, (ok, _, _) in enumerate(tried) if ok]
-        if admissible:                                    # the better of the admissible structures
-            k = min(admissible, key=lambda i: tried[i][1])
-            effects[k]["accepted"] = True
-            augmented = tried[k][2]
+            rows.append(combination((name,), ra, None, ok, why))
+            trials.append(Trial(name, False, _structure_params(candidate),
+                                f"{clip_evidence}; {HOW[name]} (best form: {candidate.structure}, "
+                                f"limit on the {candidate.limits()['where']}); {why}"
+                                if name == SATURATION.name else f"{evidence}; {HOW[name]}; {why}",
+                                rb, ra, "structure", why))
         if limits == NO_LIMITS:
-            effects.append({"name": SATURATION.name, "kind": "structure", "accepted": False,
-                            "params": {"lower": None, "upper": None, "where": "output"},
-                            "evidence": f"not tried: no clipping level ({clip_evidence})",
-                            "validation_rmse_before": rb, "validation_rmse_after": rb})
+            trials.append(Trial(SATURATION.name, False, {"lower": None, "upper": None, "where": "output"},
+                                f"not tried: no clipping level ({clip_evidence})", rb, rb, "structure"))
+    chosen = lowest_admissible(rows)                     # the better of the admissible structures
+    augmented = model if chosen is None else models[chosen["members"][0]]
+    for t in trials:
+        t.accepted = chosen is not None and t.name == chosen["members"][0]
     unexplained = [f"{k}: {t.detail}" for k, t in tests.items() if t.significant] if augmented is model else []
-    records = [(train, skip), *zip(validate, vskip, strict=True)]
+    records = [train, *validate]
+    after_out = outputs if augmented is model else {r.name: predict(augmented, r) for r in records}
+    scored = {train.name: skip, **{r.name: k for r, k in zip(validate, vskip, strict=True)}}
+
+    def scored_from(out: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:   # record_scores' numbers
+        return {r.name: scores(r.y[scored[r.name]:], out[r.name][scored[r.name]:]) for r in records}
     report = {
         "version": 1,
-        "baseline": {"records": {r.name: record_scores(model, r, k) for r, k in records}},
-        "augmented": {"records": {r.name: record_scores(augmented, r, k) for r, k in records}},
-        "effects": effects,
+        "baseline": {"records": scored_from(outputs)},
+        "augmented": {"records": scored_from(after_out)},
+        "effects": [t.to_dict() for t in trials],
         "unexplained": unexplained,
+        "fingerprint": FINGERPRINT,
+        "references": None,
+        "fit_target": FIT_TARGET,
+        "reestimation": None,
+        "selection": {"pool": [r["members"][0] for r in rows], "chosen": [] if chosen is None else chosen["members"],
+                      "combinations": rows, "rule": RULE},
         "scoring": f"free run from rest over whole records, the first {skip} samples unscored "
                    "(rtlift validate --skip)",
         "not_built": not_built,
     }
-    return report, augmented
+    return Diagnosis(
+        report, model, augmented, trials,
+        {r.name: residual_tests(model, r, max(s, first.get(r.name, 0)), outputs[r.name]) for r in records},
+        {r.name: residual_tests(augmented, r, max(s, first.get(r.name, 0)), after_out[r.name]) for r in records},
+        {r.name: (r.y - outputs[r.name])[first.get(r.name, 0):] for r in records},
+        {r.name: (r.y - after_out[r.name])[first.get(r.name, 0):] for r in records},
+        s, rows, "generic")
 
 
 def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[int], options: SisoOptions | None,
@@ -198,24 +250,3 @@ def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[in
         if best is None or err < best[0]:
             best = (err, m)
     return best[1]
-
-
-def write_report(report: dict[str, Any], augmented: SisoModel, out: str | os.PathLike) -> None:
-    """``report.json``, ``report.md`` and ``model_augmented.json`` of a generic diagnosis in ``out``."""
-    from rtlift.model.siso import save_siso_model
-
-    with open(os.path.join(out, "report.json"), "w", encoding="utf-8") as f:
-        json.dump(report, f, indent=1)
-        f.write("\n")
-    lines = ["# Diagnosis report", "", f"Scores: {report['scoring']}.", "",
-             "| record | ρ before | ρ after | RMSE before | RMSE after |", "|---|---|---|---|---|"]
-    for name, b in report["baseline"]["records"].items():
-        a = report["augmented"]["records"][name]
-        lines.append(f"| {name} | {b['corr']:.4f} | {a['corr']:.4f} | {b['rmse']:.5g} | {a['rmse']:.5g} |")
-    lines += ["", "## Tried", ""] + [
-        f"- **{e['name']}** ({e['kind']}, {'accepted' if e['accepted'] else 'not accepted'}): {e['evidence']}"
-        for e in report["effects"]]
-    lines += ["", "## Unexplained", ""] + ([f"- {u}" for u in report["unexplained"]] or ["- nothing"])
-    with open(os.path.join(out, "report.md"), "w", encoding="utf-8") as f:
-        f.write("\n".join(lines) + "\n")
-    save_siso_model(augmented, os.path.join(out, "model_augmented.json"))
