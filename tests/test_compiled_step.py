@@ -29,16 +29,24 @@ def _run(step, cmu, env):
     return np.array([step(c, e) for c, e in zip(cmu, env, strict=True)]).reshape(-1, 3).T
 
 
+def _stages(delay: int, fade: int) -> tuple:
+    """At most one ``delay`` of ``delay`` samples, then (``fade`` 1: on-time clock, 2: wall clock)
+    an ``actuator_fade`` whose time constant the test inputs reach: the compiled step's stages."""
+    stages = (Delay(delay / FS, FS),) if delay else ()
+    if fade:
+        stages += (ActuatorFade(0.6, 0.05, FS, "on_time" if fade == 1 else "time"),)
+    return stages
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), kernel_len=st.integers(1, 60),
        order=st.integers(1, 3), hp_order=st.integers(1, 4), output_form=st.booleans(),
-       delay=st.integers(0, 5), warm=st.integers(0, 50))
-def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_order, output_form, delay, warm):
+       delay=st.integers(0, 5), fade=st.integers(0, 2), warm=st.integers(0, 50))
+def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_order, output_form, delay, fade, warm):
     """(ΔCL, ΔCL_H, ΔCL_L) and the state after the steps agree to 1e-12, from any starting state."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
-    if delay:
-        m.input_stages = (Delay(delay / FS, FS),)
+    m.input_stages = _stages(delay, fade)
     assert m.compiled
     cmu, env = burst_input(rng, n + warm)
     _run(m.reference_step, cmu[:warm], env[:warm])         # a state that is not the rest state
@@ -53,12 +61,12 @@ def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_orde
 
 
 @settings(max_examples=20, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), cut=st.integers(0, 200), delay=st.integers(0, 3))
-def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay):
+@given(seed=st.integers(0, 2**32 - 1), cut=st.integers(0, 200), delay=st.integers(0, 3), fade=st.integers(0, 2))
+def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay, fade):
     """Stop anywhere, checkpoint, restore into a fresh model: the rest of the record is identical."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=25, order=2)
-    m.input_stages = (Delay(delay / FS, FS),)
+    m.input_stages = _stages(delay, fade)
     cmu, env = burst_input(rng, 200)
     whole = _run(m.step, cmu, env)
     m.reset()
@@ -89,7 +97,7 @@ def _fallback_models():
     yield "zero_drift", m.with_stages(output_stages=(ZeroDrift(FS, rate_per_s=0.01, offset=0.001),))
     yield "sensor_resonance", m.with_stages(output_stages=(SensorResonance(30.0, 0.1, FS),))
     yield "periodic_disturbance", m.with_stages(output_stages=(PeriodicDisturbance(20.0, 0.002, 0.3, FS),))
-    yield "actuator_fade", m.with_stages(input_stages=(ActuatorFade(0.7, 2.0, FS),))
+    yield "fade_then_delay", m.with_stages(input_stages=(ActuatorFade(0.7, 2.0, FS), Delay(1 / FS, FS)))
     yield "two_delays", m.with_stages(input_stages=(Delay(1 / FS, FS), Delay(2 / FS, FS)))
     for cls in (HysteresisGain, OutputHysteresis):
         h = make_model(rng, output_form=cls is OutputHysteresis)
@@ -148,14 +156,14 @@ def test_integer_and_numpy_scalar_inputs_give_the_float_result():
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), cuts=st.lists(st.integers(0, 400), min_size=2, max_size=2),
        kernel_len=st.integers(1, 60), order=st.integers(1, 3), hp_order=st.integers(1, 4),
-       output_form=st.booleans(), delay=st.integers(0, 5))
-def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, order, hp_order, output_form, delay):
+       output_form=st.booleans(), delay=st.integers(0, 5), fade=st.integers(0, 2))
+def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, order, hp_order, output_form, delay,
+                                                       fade):
     """Stream, batch (the fused compiled loop), stream again: (ΔCL, ΔCL_H, ΔCL_L) and the state
     after each part equal the steps alone to 1e-12, batches shorter and longer than the kernel."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
-    if delay:
-        m.input_stages = (Delay(delay / FS, FS),)
+    m.input_stages = _stages(delay, fade)
     cmu, env = burst_input(rng, 450)
     a, b = sorted(cuts)
     expect = _run(m.step, cmu, env)
@@ -172,13 +180,13 @@ def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, o
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 3000), warm=st.integers(0, 400),
-       output_form=st.booleans(), delay=st.integers(0, 3))
-def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay):
+       output_form=st.booleans(), delay=st.integers(0, 3), fade=st.integers(0, 2))
+def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay, fade):
     """The fused loop and the numpy/scipy chain (``reference_simulate``, scatter or FFT for long
     records) agree to 1e-12 from a mid-record state, and leave the same state."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=300, output_form=output_form)
-    m.input_stages = (Delay(delay / FS, FS),)
+    m.input_stages = _stages(delay, fade)
     cmu, env = burst_input(rng, warm + n)
     _run(m.step, cmu[:warm], env[:warm])
     start = m.get_state()

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.blocks.delay import Delay
 from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
 from rtlift.core.rate import FS_HZ as FS
@@ -43,15 +44,17 @@ def _run(step, cmu, env, z):
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 500), order=st.integers(1, 3),
-       output_form=st.booleans(), delay=st.integers(0, 4), config=st.sampled_from(sorted(CONFIGS)),
-       warm=st.integers(0, 100))
-def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay, config, warm):
+       output_form=st.booleans(), delay=st.integers(0, 4), fade=st.booleans(),
+       config=st.sampled_from(sorted(CONFIGS)), warm=st.integers(0, 100))
+def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay, fade, config, warm):
     """Estimates (ΔĈL, open loop, ν, NIS, flags), counters and the whole state agree to 1e-12,
     from a state that is not the rest state."""
     rng = np.random.default_rng(seed)
     model = make_model(rng, kernel_len=40, order=order, output_form=output_form)
-    if delay:
-        model.input_stages = (Delay(delay / FS, FS),)
+    stages = (Delay(delay / FS, FS),) if delay else ()
+    if fade:      # an actuator fade after it (what --adapt swaps in): compiled too
+        stages += (ActuatorFade(0.6, 0.05, FS),)
+    model.input_stages = stages
     obs = Observer(model, CONFIGS[config])
     assert obs.compiled
     cmu, env, z = _inputs(rng, n + warm)

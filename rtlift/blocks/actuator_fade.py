@@ -34,13 +34,27 @@ class ActuatorFade(InputStage):
             raise ValueError(f"actuator_fade final_fraction must be in [0, 1], got {f}")
         if clock not in self.CLOCKS:
             raise ValueError(f"actuator_fade clock must be one of {', '.join(self.CLOCKS)}, got {clock!r}")
-        self.final_fraction = f
-        self.time_constant_s = _positive(time_constant_s, "actuator_fade time_constant_s")
+        tau = _positive(time_constant_s, "actuator_fade time_constant_s")
         self.fs_hz = _positive(fs_hz, "fs_hz")
         self.clock = clock
         self._always = clock == "time"
         self.dt = 1.0 / self.fs_hz
-        self.on_time = 0.0
+        # the compiled step's view of this stage (rtlift.blocks.compiled._faded): its parameters
+        # [on, f, τ, 1/fs, clock is "time"] and its state [E], the arrays themselves, so that a fit
+        # that sets f or τ (rtlift.diagnose.fits) is seen by the compiled model at once
+        self._par = np.array([1.0, f, tau, self.dt, float(self._always)])
+        self._state = np.zeros(1)
+
+    final_fraction = property(lambda self: float(self._par[1]),
+                              lambda self, v: self._par.__setitem__(1, float(v)))
+    time_constant_s = property(lambda self: float(self._par[2]),
+                               lambda self, v: self._par.__setitem__(2, float(v)))
+    on_time = property(lambda self: float(self._state[0]), lambda self, v: self._state.__setitem__(0, float(v)))
+    """E, the clock before the next sample (s)."""
+
+    def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+        """For the compiled step: the parameters and the state, not copies."""
+        return (self._par,), (self._state,)
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> ActuatorFade:
@@ -52,10 +66,12 @@ class ActuatorFade(InputStage):
                 "clock": self.clock}
 
     def step(self, cmu: float, env: float) -> tuple[float, float]:
-        f = self.final_fraction
-        g = f + (1.0 - f) * math.exp(-self.on_time / self.time_constant_s)
+        par, state = self._par, self._state
+        f = float(par[1])
+        e = float(state[0])
+        g = f + (1.0 - f) * math.exp(-e / float(par[2]))
         if cmu > 0.0 or self._always:
-            self.on_time += self.dt
+            state[0] = e + self.dt
         return cmu * g, env * g
 
     def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

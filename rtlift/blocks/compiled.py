@@ -28,6 +28,8 @@ sample's recursions through memory) and 10–12 ms for the numpy/scipy chain.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import carray, types
 from numba.core import cgutils
@@ -104,6 +106,28 @@ def _delayed(cmu, env, d_cmu, d_env, d_pos):
 
 
 @njit_cached(inline="always")
+def _fade_gain(fpar, fstate):
+    """The ``actuator_fade`` stage's g(k) = f + (1 − f) exp(−E(k)/τ) (1 without the stage)."""
+    if fpar[0] == 0.0:
+        return 1.0
+    f = fpar[1]
+    return f + (1.0 - f) * math.exp(-fstate[0] / fpar[2])
+
+
+@njit_cached(inline="always")
+def _faded(cmu, env, fpar, fstate):
+    """The ``actuator_fade`` stage (:class:`rtlift.blocks.actuator_fade.ActuatorFade`):
+    (g Cμ, g Cμ_env), E advanced by 1/fs when Cμ > 0 (or always, clock "time"). ``fpar`` =
+    [on, f, τ, 1/fs, clock is "time"] (on = 0: no stage), ``fstate`` = [E]."""
+    if fpar[0] == 0.0:
+        return cmu, env
+    g = _fade_gain(fpar, fstate)
+    if cmu > 0.0 or fpar[4] != 0.0:
+        fstate[0] = fstate[0] + fpar[3]
+    return cmu * g, env * g
+
+
+@njit_cached(inline="always")
 def _push(buf, pos, u):
     """Cμ(k) into the convolution's mirrored buffer; returns the position p of the newest input
     (the last L inputs, newest first, are ``buf[p:p + L]``)."""
@@ -162,14 +186,16 @@ def _wiener(par, o, xs, fs, slopes, scratch, x, env):
 
 
 @njit_cached
-def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, buf, pos, z, x):
-    """One sample: (ΔCL, ΔCL_H, ΔCL_L); advances the delay rings, the convolution buffer and
-    position, the filter state z and the LTI state x in place (``par``: :func:`pack_parameters`).
-    ``d_cmu``/``d_env`` are the ``delay`` stage's rings (length D; empty: no delay).
+def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x):
+    """One sample: (ΔCL, ΔCL_H, ΔCL_L); advances the delay rings, the fade's clock, the
+    convolution buffer and position, the filter state z and the LTI state x in place (``par``:
+    :func:`pack_parameters`). ``d_cmu``/``d_env`` are the ``delay`` stage's rings (length D;
+    empty: no delay), ``fpar``/``fstate`` the ``actuator_fade`` stage's after it (:func:`_faded`).
     Form 0: ΔCL_L = N(Cμ_env) · y (paper, table held at its ends); 1: ΔCL_L = f(y) (textbook,
     table continued along its end segments).
     """
     cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
+    cmu, env = _faded(cmu, env, fpar, fstate)
     p = _push(buf, pos, cmu)
     n_taps = buf.shape[0] // 2
     v = 0.0
@@ -217,8 +243,8 @@ def state_slots(z: np.ndarray, x: np.ndarray) -> tuple[tuple[float, ...], ...]:
 
 
 @njit_cached
-def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, pos, z, x, z_slots, x_slots,
-                    p_slots):
+def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x, z_slots,
+                    x_slots, p_slots):
     """:func:`hybrid_step` over whole arrays in one loop, into ``total``, ``high`` and ``low``
     (same length as ``cmu``), from and advancing the same state, through the same helpers.
 
@@ -253,9 +279,10 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, buf, p
     o_wiener = o_hp + 5 * (n_z // 2)
     grid, values, slopes, _ = _wiener_table(par, n_taps + o_wiener, n_x)
     _scatter_past(buf, pos[0], taps, high, n)
-    if d_cmu.shape[0] > 0:                    # the delayed inputs, in place of the outputs
+    if d_cmu.shape[0] > 0 or fpar[0] != 0.0:  # the staged inputs, in place of the outputs
         for k in range(n):
-            total[k], low[k] = _delayed(cmu[k], env[k], d_cmu, d_env, d_pos)
+            c, e = _delayed(cmu[k], env[k], d_cmu, d_env, d_pos)
+            total[k], low[k] = _faded(c, e, fpar, fstate)
         cmu, env = total, low
     last = n - n_taps
     for k in range(n):

@@ -10,12 +10,13 @@ and the total after. :meth:`HybridModel.step` is the 400 Hz hot path; :meth:`sim
 its batch twin; both carry one explicit state.
 
 The hot path is compiled (:mod:`rtlift.blocks.compiled`, numba) for every model whose
-nonlinearity has a compiled form (``input_gain``, ``output``) and whose only augmentation
-stage is at most one input ``delay``: the paper's model and a model as ``rtlift identify``
-writes it; and for the ``interaction`` structure (:mod:`rtlift.blocks.interaction`: its burst
-part in the convolution slot, its ``delivered_envelope`` stage after at most one ``delay``).
-The other effect stages (``actuator_fade``, ``sensor_resonance``, ``zero_drift``,
-``periodic_disturbance``) and the hysteresis nonlinearities are not compiled yet: a model that
+nonlinearity has a compiled form (``input_gain``, ``output``) and whose augmentation stages
+are at most one input ``delay`` followed by at most one ``actuator_fade``: the paper's model, a
+model as ``rtlift identify`` writes it, and one that ``rtlift diagnose`` (or ``--adapt``) gave a
+fade; and for the ``interaction`` structure (:mod:`rtlift.blocks.interaction`: its burst part in
+the convolution slot, its ``delivered_envelope`` stage after at most one ``delay``). The other
+effect stages (``sensor_resonance``, ``zero_drift``, ``periodic_disturbance``, a fade in the
+interaction structure) and the hysteresis nonlinearities are not compiled yet: a model that
 carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain of the
 blocks' own ``step`` (``model.compiled`` says which). That chain is also the compiled
 step's test oracle; both advance the same state arrays. :meth:`simulate` follows the same
@@ -36,6 +37,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.delay import Delay
@@ -112,17 +114,25 @@ class HybridModel(BlockChain):
         object.__setattr__(self, "_kernel", kernel)
         return kernel
 
-    def _delay_state(self, stages: tuple[InputStage, ...]) -> tuple[np.ndarray, ...] | None:
-        """The ``delay`` stage's state arrays when ``stages`` is at most that one stage, else None."""
-        if not stages:
-            return (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
-        if len(stages) == 1 and type(stages[0]) is Delay:
-            return stages[0].kernel_arrays()[1]
-        return None
+    def _input_state(self, stages: tuple[InputStage, ...], fade: bool = True) -> tuple[np.ndarray, ...] | None:
+        """The compiled step's input-stage arrays when ``stages`` is at most one ``delay`` followed
+        (with ``fade``) by at most one ``actuator_fade``: the delay's rings and position, then (with
+        ``fade``) the fade's parameters and state (zeros, "no stage", without one); else None."""
+        rest = list(stages)
+        delay: tuple[np.ndarray, ...] = (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
+        if rest and type(rest[0]) is Delay:
+            delay = rest.pop(0).kernel_arrays()[1]
+        faded: tuple[np.ndarray, ...] = (np.zeros(5), np.zeros(1)) if fade else ()
+        if fade and rest and type(rest[0]) is ActuatorFade:
+            (fpar,), (fstate,) = rest.pop(0).kernel_arrays()
+            faded = (fpar, fstate)
+        if rest:
+            return None
+        return (*delay, *faded)
 
     def _bind_hybrid(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
-        """The paper's structure: at most one input ``delay``."""
-        delay = self._delay_state(self.input_stages)
+        """The paper's structure: at most one input ``delay``, then at most one ``actuator_fade``."""
+        delay = self._input_state(self.input_stages)
         if delay is None:
             return ()
         from rtlift.blocks.compiled import hybrid_simulate, hybrid_step, pack_parameters, state_slots
@@ -142,7 +152,7 @@ class HybridModel(BlockChain):
         identity = self.highpass.sos.shape == IDENTITY_SOS.shape and np.array_equal(self.highpass.sos, IDENTITY_SOS)
         if not stages or type(stages[-1]) is not DeliveredEnvelope or not identity:
             return ()
-        delay = self._delay_state(stages[:-1])
+        delay = self._input_state(stages[:-1], fade=False)
         if delay is None:
             return ()
         from rtlift.blocks.compiled import interaction_simulate, interaction_step, pack_interaction, pack_parameters

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from rtlift.blocks.compiled import _segment, _table, hybrid_step
+from rtlift.blocks.compiled import _fade_gain, _segment, _table, hybrid_step
 from rtlift.core.jit import njit_cached
 from rtlift.observer import config
 
@@ -54,7 +54,7 @@ def pack_layout(layout, R: float, gate: float, max_rejections: int) -> tuple[np.
 
 
 @njit_cached
-def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, buf, pos, z, xm,
+def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, fade_state, buf, pos, z, xm,
                   ipar, fpar, Q, xi, P, H, T, work, tab, s):
     """One sample (Cμ, Cμ_env, measured ΔCL or NaN): returns (ΔĈL, open-loop ΔCL, ν, NIS,
     flags, b̂). ``mpar … xm``: the model's compiled step and its state (``HybridModel``'s
@@ -73,7 +73,9 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, buf, pos, z, xm,
         c_in, e_in = d_cmu[d_pos[0]], d_env[d_pos[0]]
     else:
         c_in, e_in = cmu, env
-    total, high, _ = hybrid_step(cmu, env, mpar, d_cmu, d_env, d_pos, buf, pos, z, xm)
+    g = _fade_gain(fade_par, fade_state)     # and its fade after it, before the step advances E
+    c_in, e_in = c_in * g, e_in * g
+    total, high, _ = hybrid_step(cmu, env, mpar, d_cmu, d_env, d_pos, fade_par, fade_state, buf, pos, z, xm)
     cmu, env = c_in, e_in
     known = high
     s[SAMPLE] += 1
@@ -233,12 +235,14 @@ def _touch(a):
 
 
 @njit_cached
-def observer_touch(mpar, d_cmu, d_env, d_pos, buf, pos, z, xm, ipar, fpar, Q, xi, P, H, T, work, tab, s):
+def observer_touch(mpar, d_cmu, d_env, d_pos, fade_par, fade_state, buf, pos, z, xm, ipar, fpar, Q, xi, P, H, T,
+                   work, tab, s):
     """Read every cache line :func:`observer_step` will read or write (same arguments after
     Cμ, Cμ_env, ΔCL), changing nothing: called while a spinning loop waits for the next
     sample, it keeps the step's working set (three dim_x² matrices, 22 kB at 30 states) in the
     core's cache, so the step does not start by fetching it from memory."""
-    return (_touch(mpar) + _touch(d_cmu) + _touch(d_env) + _touch(d_pos) + _touch(buf) + _touch(pos)
+    return (_touch(mpar) + _touch(d_cmu) + _touch(d_env) + _touch(d_pos) + _touch(fade_par) + _touch(fade_state)
+            + _touch(buf) + _touch(pos)
             + _touch(z) + _touch(xm) + _touch(ipar) + _touch(fpar) + _touch(Q) + _touch(xi) + _touch(P)
             + _touch(H) + _touch(T) + _touch(work) + _touch(tab) + _touch(s))
 
