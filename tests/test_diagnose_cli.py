@@ -10,6 +10,7 @@ from hil_sim.experiments import run_experiment, write_bench_record
 from rtlift.app.cli import main
 from rtlift.model.modelfile import load_model, model_from_dict, save_model
 from tests.test_observer_bench import _identified
+from tests.test_sysid import tanks_case
 
 
 @pytest.fixture(scope="module")
@@ -87,24 +88,6 @@ def test_bad_input_is_a_one_line_error_with_status_2(files, tmp_path, capsys):
     assert rc == 2
 
 
-def _generic_case(d):
-    """The Cascaded Tanks 1024-sample split of ``tests/test_sysid.py``: a Wiener model of its
-    first 820 samples, the rest to validate."""
-    import numpy as np
-
-    from rtlift.core.records import SisoRecord, write_siso_record
-    from tests.test_sysid import DATA
-
-    data = np.load(DATA / "cascaded_tanks.npz")
-    fs = 1.0 / float(data["Ts"])
-    u, y = data["u_est"], data["y_est"]
-    for name, lo, hi in (("est", 0, 820), ("val", 820, 1024)):
-        write_siso_record(d / f"{name}.csv",
-                          SisoRecord(np.arange(hi - lo) / fs, u[lo:hi], y[lo:hi], {"fs_hz": repr(fs)}, name))
-    assert main(["identify", "--record", str(d / "est.csv"), "-o", str(d / "m.json")]) == 0
-    return d / "m.json", d / "est.csv", d / "val.csv"
-
-
 def test_a_lift_and_a_generic_report_have_the_same_keys_written_by_one_writer(files, tmp_path):
     """One report for both model kinds: report.json's top-level keys, its selection's and its
     combinations' are the same; what a generic model cannot have is null; both reports have the
@@ -112,7 +95,7 @@ def test_a_lift_and_a_generic_report_have_the_same_keys_written_by_one_writer(fi
     lift, gen = tmp_path / "lift", tmp_path / "gen"
     assert main(["diagnose", "--model", str(files / "model.json"), "--train", str(files / "train.csv"),
                  "--validate", str(files / "val.csv"), "--out", str(lift)]) == 0
-    model, est, val = _generic_case(tmp_path)
+    model, est, val = tanks_case(tmp_path)
     assert main(["diagnose", "--model", str(model), "--train", str(est), "--validate", str(val), "--skip", "50",
                  "--out", str(gen)]) == 0
     a, b = (json.loads((d / "report.json").read_text()) for d in (lift, gen))

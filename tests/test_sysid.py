@@ -349,15 +349,22 @@ def test_on_wh2009_the_residual_leads_from_a_wiener_model_to_the_output_block_it
     np.testing.assert_allclose(np.sum(augmented.g1.ba[0]) / np.sum(augmented.g1.ba[1]), 1.0, rtol=1e-9)
 
 
+def tanks_case(d: Path) -> tuple[Path, Path, Path]:
+    """The Cascaded Tanks 1024-sample estimation record split at 820 into ``d/est.csv`` and
+    ``d/val.csv``, and ``rtlift identify``'s Wiener model of the first part, ``d/m.json``."""
+    data = np.load(DATA / "cascaded_tanks.npz")
+    fs = 1.0 / float(data["Ts"])
+    u, y = data["u_est"], data["y_est"]
+    for name, lo, hi in (("est", 0, 820), ("val", 820, 1024)):
+        write_siso_record(d / f"{name}.csv",
+                          SisoRecord(np.arange(hi - lo) / fs, u[lo:hi], y[lo:hi], {"fs_hz": repr(fs)}, name))
+    assert main(["identify", "--record", str(d / "est.csv"), "-o", str(d / "m.json")]) == 0
+    return d / "m.json", d / "est.csv", d / "val.csv"
+
+
 def test_the_command_line_identifies_diagnoses_and_validates_a_generic_record(tmp_path, capsys):
     """Cascaded tanks (1024 samples): identify, then validate --skip reproduces the diagnosis's scores."""
-    d = np.load(DATA / "cascaded_tanks.npz")
-    fs = 1.0 / float(d["Ts"])
-    u, y = d["u_est"], d["y_est"]
-    for name, lo, hi in (("est", 0, 820), ("val", 820, 1024)):
-        write_siso_record(tmp_path / f"{name}.csv",
-                          SisoRecord(np.arange(hi - lo) / fs, u[lo:hi], y[lo:hi], {"fs_hz": repr(fs)}, name))
-    assert main(["identify", "--record", str(tmp_path / "est.csv"), "-o", str(tmp_path / "m.json")]) == 0
+    tanks_case(tmp_path)
     assert main(["diagnose", "--model", str(tmp_path / "m.json"), "--train", str(tmp_path / "est.csv"),
                  "--validate", str(tmp_path / "val.csv"), "--skip", "50", "--out", str(tmp_path / "d")]) == 0
     report = json.loads((tmp_path / "d" / "report.json").read_text())
