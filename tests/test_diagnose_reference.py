@@ -15,7 +15,8 @@ import pytest
 
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.core.records import Record
-from rtlift.diagnose.selection import Trial, slow_trend_line
+from rtlift.diagnose.diagnosis import Trial
+from rtlift.diagnose.unexplained import slow_trend_line
 from rtlift.model.validation import predict_record
 from rtlift.residual.fingerprint import Z_DEPART, change_misfit, fingerprint, reference
 from rtlift.residual.inputs import descriptor_distance, input_descriptor

@@ -9,14 +9,9 @@ from scipy import signal
 from rtlift.blocks.lti import LTIBlock
 from rtlift.blocks.wiener import InputGain, WienerBlock
 from rtlift.core.rate import FS_HZ as FS
-from rtlift.identify.pem import (
-    CanonicalLTI,
-    canonical_from_statespace,
-    choose_order,
-    denominator_from_theta,
-    fit_wiener,
-    theta_from_poles,
-)
+from rtlift.identify.order import choose_order
+from rtlift.identify.pem import fit_wiener
+from rtlift.identify.poles import CanonicalLTI, canonical_from_statespace, denominator_from_theta, theta_from_poles
 from rtlift.identify.static_map import fit_static_map
 
 POLES = np.array([0.995, 0.97])                  # τ = 0.50 s and 0.082 s at 400 Hz
@@ -166,7 +161,7 @@ def test_textbook_wiener_with_unknown_polynomial_recovers_the_lti(rng):
 
 def test_pole_sensitivity_is_the_derivative_of_the_roots():
     """∂pᵢ/∂a_k = −pᵢⁿ⁻ᵏ/A′(pᵢ) against central differences of np.roots, well-separated poles."""
-    from rtlift.identify.pem import pole_sensitivity
+    from rtlift.identify.uncertainty import pole_sensitivity
 
     a = np.poly([0.99, 0.9 + 0.1j, 0.9 - 0.1j])[1:].real
     poles = np.sort_complex(np.roots(np.concatenate([[1.0], a])))
@@ -186,7 +181,7 @@ def test_a_near_double_pole_is_reported_as_a_group_not_as_a_huge_number():
     the finite-difference delta method report 1.74e86 in one run and 0.136 in others. The two
     are not separable at the data's precision: their std is None, their mean's std is finite
     and matches its own delta method; the isolated pole keeps its std."""
-    from rtlift.identify.pem import _pole_uncertainty
+    from rtlift.identify.uncertainty import _pole_uncertainty
 
     poles = np.array([0.99226, 0.99228, 0.9987])
     a = np.poly(poles)[1:]
@@ -208,7 +203,7 @@ def test_a_near_double_pole_is_reported_as_a_group_not_as_a_huge_number():
 
 
 def test_the_covariance_from_the_scaled_svd_equals_the_normal_equations_when_well_posed(rng):
-    from rtlift.identify.pem import _covariance
+    from rtlift.identify.uncertainty import _covariance
 
     J = rng.normal(size=(500, 4)) * np.array([1e-3, 1.0, 1e3, 1e5])
     assert np.allclose(_covariance(J, 0.5), 0.5 * np.linalg.inv(J.T @ J), rtol=1e-9, atol=0)

@@ -59,7 +59,7 @@ class Diagnosis:
     (:class:`rtlift.diagnose.catalog.Effect`)."""
     bands: str | None = None
     """``"module:function"`` of the frequency bands an accepted fit accounts for in the residual's
-    spectrum, ``(params, df) → [(lo_hz, hi_hz)]`` (:func:`rtlift.diagnose.selection.explained_bands`);
+    spectrum, ``(params, df) → [(lo_hz, hi_hz)]`` (:func:`rtlift.diagnose.unexplained.explained_bands`);
     ``None``: no band of its own."""
 
 

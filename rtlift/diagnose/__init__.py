@@ -5,12 +5,16 @@
 
 - :mod:`.catalog` — one :class:`~.catalog.Effect` record per INTERFACES.md effect;
 - :mod:`.selection` — combinations compared on held-out records, every member earning its place;
+- :mod:`.significance` — the test a member passes on the held-out records, the table of combinations;
+- :mod:`.unexplained` — what the diagnosis leaves unexplained, the report's ``unexplained`` lines;
+- :mod:`.diagnosis` — the options, one entry's outcome and the diagnosis as the report writes it;
 - :mod:`.report` — report.json, report.md, figures and the augmented model file, for a lift
   model's diagnosis and a generic ``t,u,y`` model's (:mod:`rtlift.sysid.diagnose`) alike;
 - :mod:`.sources` — the records a diagnosis is given, or one long run split in two (``--run``).
 """
 
 from rtlift.diagnose.catalog import EFFECT_NAMES
-from rtlift.diagnose.selection import DiagnoseOptions, Diagnosis, diagnose
+from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis
+from rtlift.diagnose.selection import diagnose
 
 __all__ = ["EFFECT_NAMES", "DiagnoseOptions", "Diagnosis", "diagnose"]

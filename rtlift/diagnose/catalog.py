@@ -89,7 +89,7 @@ class Effect:
     misfit of the map too and a fit to the raw residual takes it for part of the effect."""
     bands: Callable[[dict[str, Any], float], list[tuple[float, float]]] | None = None
     """The frequency bands (Hz) an accepted fit accounts for, given its parameters and half a
-    spectrum bin's width (:func:`rtlift.diagnose.selection.explained_bands`); ``None``: none."""
+    spectrum bin's width (:func:`rtlift.diagnose.unexplained.explained_bands`); ``None``: none."""
 
     @property
     def schema(self) -> EffectSchema:

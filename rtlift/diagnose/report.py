@@ -1,6 +1,6 @@
 """Write a diagnosis of either kind — a lift model's (:func:`rtlift.diagnose.selection.diagnose`)
 or a generic ``t,u,y`` model's (:func:`rtlift.sysid.diagnose.diagnose_generic`), both a
-:class:`~rtlift.diagnose.selection.Diagnosis`: ``report.json`` (INTERFACES.md schema, the same
+:class:`~rtlift.diagnose.diagnosis.Diagnosis`: ``report.json`` (INTERFACES.md schema, the same
 keys for both kinds), ``residual_tests.json`` (every test's verdict and statistic, before and
 after), ``report.md`` with figures, and ``model_augmented.json`` (loadable by ``rtlift validate``).
 A section with nothing to say for a kind (a generic model has no fingerprint references) is left
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from rtlift.core.registry import ENTRIES
-from rtlift.diagnose.selection import Diagnosis
+from rtlift.diagnose.diagnosis import Diagnosis
 from rtlift.model.modelfile import save_model
 from rtlift.model.siso import save_siso_model
 from rtlift.residual.stats import welch_psd

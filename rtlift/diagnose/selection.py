@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from itertools import combinations
 from typing import Any
 
@@ -67,85 +67,21 @@ from rtlift.core.metrics import scores
 from rtlift.core.records import Record
 from rtlift.core.threads import one_blas_thread
 from rtlift.diagnose.catalog import CATALOG, EFFECT_NAMES, EFFECTS, Context, Fitted, predict, reestimate
+from rtlift.diagnose.diagnosis import REPORT_VERSION, DiagnoseOptions, Diagnosis, Trial
+from rtlift.diagnose.significance import combination, significant_gain
+from rtlift.diagnose.unexplained import unexplained
 from rtlift.model.hybrid import HybridModel
 from rtlift.residual.fingerprint import (
     FINGERPRINT_START_S,
     Z_DEPART,
     Departure,
     change_misfit,
-    coef_departure,
     error_departure,
     input_lines_hz,
-    level_departure,
-    psd_departure,
     record_tests,
     reference,
 )
 from rtlift.residual.stats import TestResult, cluster_ols
-
-REPORT_VERSION = 1
-
-
-@dataclass(frozen=True)
-class DiagnoseOptions:
-    min_gain: float = 0.015       # relative validation RMSE decrease a member must bring
-    min_t: float = 3.0            # significance of that decrease (1 s blocks)
-    min_t_confirm: float = 2.0    # the same for a member whose own evidence departs from the fingerprint
-    max_effects: int = 3          # largest combination compared
-    pool_size: int = 5            # candidates that enter the combinations
-    parsimony: float = 0.02       # combinations this close to the best compete on evidence, then size
-
-
-@dataclass
-class Trial:
-    """One catalog entry's outcome, as reported."""
-
-    name: str
-    accepted: bool
-    params: dict[str, Any]
-    evidence: str
-    rmse_before: float
-    rmse_after: float
-    kind: str = "effect"
-    detail: str = ""
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": self.kind, "accepted": self.accepted,
-                "params": _plain(self.params), "evidence": self.evidence,
-                "validation_rmse_before": self.rmse_before, "validation_rmse_after": self.rmse_after}
-
-
-@dataclass
-class Diagnosis:
-    """A diagnosis of either kind, as :mod:`rtlift.diagnose.report` writes it: the report (the same
-    keys for both), the models, the entries tried, the residual tests and residuals per record
-    (from its first scored sample; tested from ``start`` on), the combinations compared."""
-
-    report: dict[str, Any]
-    baseline: HybridModel | Any          # a lift model, or a generic one (``kind``)
-    augmented: HybridModel | Any
-    trials: list[Trial]
-    tests_before: dict[str, dict[str, TestResult]]
-    tests_after: dict[str, dict[str, TestResult]]
-    residual_before: dict[str, np.ndarray]
-    residual_after: dict[str, np.ndarray]
-    start: int
-    rounds: list[dict[str, Any]] = field(default_factory=list)
-    kind: str = "lift"
-    """``lift`` (a :class:`HybridModel`) or ``generic`` (a single-input ``t,u,y`` model of
-    :mod:`rtlift.model.siso`)."""
-
-
-def _plain(d: Any) -> Any:
-    if isinstance(d, dict):
-        return {k: _plain(v) for k, v in d.items()}
-    if isinstance(d, (list, tuple)):
-        return [_plain(v) for v in d]
-    if isinstance(d, (float, np.floating)):
-        return float(d)
-    if isinstance(d, np.integer):
-        return int(d)
-    return d
 
 
 class _Judge:
@@ -187,47 +123,6 @@ class _Judge:
     def verdict(self, before: list[np.ndarray], after: list[np.ndarray], opt: DiagnoseOptions) -> tuple[bool, str]:
         """Is ``after`` significantly better than ``before`` on every count (module doc, 4)?"""
         return significant_gain(before, after, self._meas, self.block, opt)
-
-
-def significant_gain(before: list[np.ndarray], after: list[np.ndarray], measured: np.ndarray, block: int,
-                     opt: DiagnoseOptions) -> tuple[bool, str]:
-    """Errors ``after`` against ``before`` per record (``measured`` the records' outputs, pooled):
-    relative RMSE gain ≥ ``opt.min_gain``, a Diebold–Mariano t ≥ ``opt.min_t`` over ``block``-sample
-    blocks of the squared-error differences, no record worse by more than 1 %, and ρ not lower by
-    more than 0.005 (a change that shrinks the signal can lower RMSE while the fit gets worse)."""
-    pooled = lambda errs: float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))   # noqa: E731
-    rb, ra = pooled(before), pooled(after)
-    gain = 1.0 - ra / rb if rb > 0 else 0.0
-    diffs = []
-    for b, a in zip(before, after, strict=True):
-        d = b**2 - a**2
-        nb = max(1, d.size // block)
-        diffs += [float(np.mean(x)) for x in np.array_split(d, nb)]
-    da = np.asarray(diffs)
-    t = float(da.mean() / (da.std(ddof=1) / np.sqrt(da.size))) if da.size > 1 and da.std() > 0 else 0.0
-    worst = max(float(np.sqrt(np.mean(a**2)) / np.sqrt(np.mean(b**2))) for b, a in zip(before, after, strict=True))
-    dcorr = (scores(measured, measured - np.concatenate(after))["corr"]
-             - scores(measured, measured - np.concatenate(before))["corr"])
-    ok = gain >= opt.min_gain and t >= opt.min_t and worst <= 1.01 and dcorr >= -0.005
-    why = (f"validation RMSE {rb:.5g} -> {ra:.5g} ({100 * gain:+.1f} %), t = {t:.1f} over "
-           f"{da.size} blocks of {block} samples, worst record x{worst:.3f}, rho {dcorr:+.4f}")
-    return ok, why
-
-
-def combination(members: tuple[str, ...] | list[str], validation_rmse: float, parameters: int | None,
-                admissible: bool, why: str) -> dict[str, Any]:
-    """One row of the report's ``selection.combinations``: the members, their pooled validation
-    RMSE, the parameters they spend (``None``: not counted — a failed fit, a generic structure),
-    whether the row may be chosen and why."""
-    return {"members": list(members), "validation_rmse": validation_rmse, "parameters": parameters,
-            "admissible": admissible, "why": why}
-
-
-def lowest_admissible(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The admissible row of ``rows`` (:func:`combination`) with the lowest pooled validation
-    RMSE, the first of equals; ``None`` when none is admissible."""
-    ok = [r for r in rows if r["admissible"]]
-    return min(ok, key=lambda r: r["validation_rmse"]) if ok else None
 
 
 @dataclass
@@ -506,81 +401,3 @@ def _holds_out(single: tuple, judge: _Judge, base: _Node, opt: DiagnoseOptions) 
     if dep is None or node.failed:
         return False
     return judge.verdict(base.errors, node.errors, dataclasses.replace(opt, min_t=opt.min_t_confirm))[0]
-
-
-def unexplained(tests: dict[str, TestResult], fp: dict[str, Any] | None, trials: list[Trial],
-                seconds: float = 0.0, drift_holds: bool = False) -> list[str]:
-    """One plain line per feature of the final training residual that still departs from the
-    fingerprint, per candidate whose evidence departs but whose fit the validation records
-    did not support, and for a slow trend the record is too short to separate
-    (:func:`slow_trend_line`). A residual line inside the band of an accepted resonance or
-    pickup (:func:`explained_bands`) is that entry's leftover, not listed."""
-    if fp is None:
-        return [f"{k}: {tests[k].detail}" for k in ("slow_trend", "gain_trend", "direction", "level")
-                if tests[k].significant]
-    deps = [coef_departure(tests[key], fp, what) for key, what in
-            (("slow_trend", "offset drift"), ("gain_trend", "gain drift"),
-             ("direction", "falling-Cmu gain difference"))]
-    deps.append(level_departure(tests["level"], fp))
-    lines = [f"{d.text}: no accepted entry explains it" for d in deps if d.departs]
-    slow = slow_trend_line(tests["slow_trend"], fp, seconds, trials, drift_holds)
-    lines += [slow] if slow else []
-    spec = tests["spectrum"].data
-    f = np.asarray(spec["f"])
-    df = float(f[1])
-    excess = np.log(np.maximum(spec["psd"], 1e-300)) - np.interp(f, fp["psd"]["f_hz"], fp["psd"]["log10"]) * np.log(10)
-    bands = explained_bands(trials, df)
-    for k in np.argsort(excess)[::-1][:3]:
-        if any(lo <= f[k] <= hi for lo, hi in bands):
-            continue
-        dep = psd_departure(tests["spectrum"], fp, [(f[k] - 0.5 * df, f[k] + 0.5 * df)], f"{f[k]:.1f} Hz")
-        if dep.departs:
-            lines.append(f"residual power at {dep.text}: stands above the model's own residual")
-    lines += [f"{t.name} is pointed at by the evidence but not accepted: {t.evidence}"
-              for t in trials if not t.accepted and t.params and t.kind == "effect"]
-    return lines
-
-
-def explained_bands(trials: list[Trial], df: float) -> list[tuple[float, float]]:
-    """Frequency bands (Hz) an accepted entry accounts for: a ``sensor_resonance``'s half-power
-    band f(1 ± ζ), a ``periodic_disturbance``'s lines (the fundamental and its harmonics as
-    sampled) ± 1.5 bins (the window its fit searches); each widened by half a spectrum bin
-    ``df``, the width of the bin a line is reported at. Each effect's own, as its registry record
-    names them (:attr:`rtlift.core.registry.Diagnosis.bands`)."""
-    bands = []
-    for t in trials:
-        of = EFFECTS[t.name].bands if t.accepted and t.name in EFFECTS else None    # the registry's
-        if of is not None:
-            bands += of(t.params, df)
-    return bands
-
-
-Z_NOTE = 2.0
-"""|z| of the offset drift against the print from which an unseparated slow trend is reported
-(a line in ``unexplained``, never an accepted entry): the two-sided 95 % point of the z-test's own
-null (N(0, 1)), checked on clean runs (``benchmarks.null_rate``)."""
-
-
-def slow_trend_line(test: TestResult, fp: dict[str, Any] | None, seconds: float, trials: list[Trial],
-                    drift_holds: bool = False) -> str:
-    """The line for a slow trend the training record cannot tell from the model's own slow
-    misfit: the residual's offset drift b (ΔCL/s, :func:`.residual.slow_trend`) does not depart
-    from the print's (|z| < ``Z_DEPART``) but either stands ``Z_NOTE`` ≤ |z| from it or a
-    ``zero_drift`` fitted alone lowers the held-out error at the confirmation bar
-    (``drift_holds``: the held-out records see it too), and no accepted ``zero_drift`` takes it.
-
-    How long a record would tell: both standard errors of a trend fitted over T seconds of a
-    stationary misfit fall as T^(−3/2) (OLS slope over 1 s blocks); a drift that approaches its
-    end value (the slow kind: thermal) adds a fixed change Δ = b T however long the record, its
-    slope falls as 1/T, so z grows as √T and reaches ``Z_DEPART`` at
-    N = T (Z_DEPART / |z|)² (a drift that kept its rate would tell sooner: T (Z_DEPART/|z|)^(2/3))."""
-    if fp is None or seconds <= 0 or any(t.accepted and t.name == "zero_drift" for t in trials):
-        return ""
-    dep = coef_departure(test, fp, "offset drift", "/s")
-    z = dep.z
-    if dep.departs or (abs(z) < Z_NOTE and not drift_holds) or z == 0.0:
-        return ""
-    change = float(test.data["coef"]) * seconds
-    need = seconds * (Z_DEPART / abs(z)) ** 2
-    return (f"slow trend {change:+.3f} dCL over the record ({seconds:.0f} s; {dep.text}), not separable from the "
-            f"model's own misfit on a record this short; a record of >= {math.ceil(need):.0f} s would tell")

@@ -51,7 +51,8 @@ from rtlift.core.records import Record
 from rtlift.core.threads import one_blas_thread
 from rtlift.identify.highpass import HighPassChoice, choose_highpass, wiener_fit_for_highpass
 from rtlift.identify.kernel import KernelRefinement, SingleBurstKernel, burst_onsets, fit_kernel, refine_kernel
-from rtlift.identify.pem import OrderChoice, PEMResult, choose_order, fit_wiener
+from rtlift.identify.order import OrderChoice, choose_order
+from rtlift.identify.pem import PEMResult, fit_wiener
 from rtlift.identify.static_map import StaticMap, fit_static_map
 from rtlift.model.domain import domain_of
 from rtlift.model.hybrid import HybridModel

@@ -31,13 +31,13 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
 
 Of the candidates that pass, the one with the lower validation error is added: each tried
 structure is a one-member combination of the lift diagnosis's selection
-(:func:`rtlift.diagnose.selection.combination`), the admissible one with the lowest pooled
-validation RMSE chosen (:func:`~rtlift.diagnose.selection.lowest_admissible`), and the
-diagnosis is a :class:`~rtlift.diagnose.selection.Diagnosis` that
+(:func:`rtlift.diagnose.significance.combination`), the admissible one with the lowest pooled
+validation RMSE chosen (:func:`~rtlift.diagnose.significance.lowest_admissible`), and the
+diagnosis is a :class:`~rtlift.diagnose.diagnosis.Diagnosis` that
 :func:`rtlift.diagnose.report.write` writes as it writes a lift model's.
 
 It is accepted only if it lowers the pooled error on the validation records significantly
-(:func:`rtlift.diagnose.selection.significant_gain`, the rule the lift diagnosis uses: ≥ 1.5 %
+(:func:`rtlift.diagnose.significance.significant_gain`, the rule the lift diagnosis uses: ≥ 1.5 %
 RMSE, Diebold–Mariano t ≥ 3 over blocks, no record worse by more than 1 %).
 """
 
@@ -51,14 +51,8 @@ from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
 from rtlift.core.registry import STRUCTURES
 from rtlift.core.threads import one_blas_thread
-from rtlift.diagnose.selection import (
-    DiagnoseOptions,
-    Diagnosis,
-    Trial,
-    combination,
-    lowest_admissible,
-    significant_gain,
-)
+from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial
+from rtlift.diagnose.significance import combination, lowest_admissible, significant_gain
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import TestResult, higher_order, input_crosscorr, whiteness
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso

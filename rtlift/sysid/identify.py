@@ -2,7 +2,7 @@
 
 1. **Best linear approximation** (BLA): an output-error model y ≈ B(q)/A(q) u of order n
    (Ljung eq. 7.12), started from ARX least squares, refined by Levenberg–Marquardt with the
-   stable second-order-section parametrisation of :mod:`rtlift.identify.pem`; n chosen from
+   stable second-order-section parametrisation of :mod:`rtlift.identify.poles`; n chosen from
    ``orders`` by the held-out RMSE of the record's last ``holdout`` fraction.
 2. **Wiener** (``structure="wiener"``): G₁ = the BLA at unit DC gain, f piecewise linear on
    ``knots`` quantile knots of x = G₁u; f's values enter linearly, so for every G₁ they are
@@ -55,7 +55,7 @@ from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.records import SisoRecord
 from rtlift.core.threads import one_blas_thread
-from rtlift.identify.pem import denominator_from_theta, theta_from_poles
+from rtlift.identify.poles import denominator_from_theta, theta_from_poles
 from rtlift.model.siso import (
     LIMITED,
     STRUCTURES,

@@ -1,0 +1,79 @@
+"""What a diagnosis is asked and what it gives: the options of the lift diagnosis
+(:func:`rtlift.diagnose.selection.diagnose`), one catalog entry's outcome as reported (:class:`Trial`)
+and a diagnosis of either kind as :mod:`rtlift.diagnose.report` writes it (:class:`Diagnosis`), the
+generic ``t,u,y`` one of :mod:`rtlift.sysid.diagnose` too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rtlift.model.hybrid import HybridModel
+from rtlift.residual.stats import TestResult
+
+REPORT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    min_gain: float = 0.015       # relative validation RMSE decrease a member must bring
+    min_t: float = 3.0            # significance of that decrease (1 s blocks)
+    min_t_confirm: float = 2.0    # the same for a member whose own evidence departs from the fingerprint
+    max_effects: int = 3          # largest combination compared
+    pool_size: int = 5            # candidates that enter the combinations
+    parsimony: float = 0.02       # combinations this close to the best compete on evidence, then size
+
+
+@dataclass
+class Trial:
+    """One catalog entry's outcome, as reported."""
+
+    name: str
+    accepted: bool
+    params: dict[str, Any]
+    evidence: str
+    rmse_before: float
+    rmse_after: float
+    kind: str = "effect"
+    detail: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "kind": self.kind, "accepted": self.accepted,
+                "params": _plain(self.params), "evidence": self.evidence,
+                "validation_rmse_before": self.rmse_before, "validation_rmse_after": self.rmse_after}
+
+
+@dataclass
+class Diagnosis:
+    """A diagnosis of either kind, as :mod:`rtlift.diagnose.report` writes it: the report (the same
+    keys for both), the models, the entries tried, the residual tests and residuals per record
+    (from its first scored sample; tested from ``start`` on), the combinations compared."""
+
+    report: dict[str, Any]
+    baseline: HybridModel | Any          # a lift model, or a generic one (``kind``)
+    augmented: HybridModel | Any
+    trials: list[Trial]
+    tests_before: dict[str, dict[str, TestResult]]
+    tests_after: dict[str, dict[str, TestResult]]
+    residual_before: dict[str, np.ndarray]
+    residual_after: dict[str, np.ndarray]
+    start: int
+    rounds: list[dict[str, Any]] = field(default_factory=list)
+    kind: str = "lift"
+    """``lift`` (a :class:`HybridModel`) or ``generic`` (a single-input ``t,u,y`` model of
+    :mod:`rtlift.model.siso`)."""
+
+
+def _plain(d: Any) -> Any:
+    if isinstance(d, dict):
+        return {k: _plain(v) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [_plain(v) for v in d]
+    if isinstance(d, (float, np.floating)):
+        return float(d)
+    if isinstance(d, np.integer):
+        return int(d)
+    return d

@@ -1,0 +1,57 @@
+"""Is a change significant on the held-out records? The test every member of a combination must
+pass (:func:`significant_gain`: the relative RMSE gain, a Diebold–Mariano t over 1 s blocks, no
+record worse, ρ not lower; :mod:`rtlift.diagnose.selection`'s module docstring, step 4), and the
+rows of the report's table of the combinations compared (:func:`combination`,
+:func:`lowest_admissible`); the lift diagnosis and the generic one (:mod:`rtlift.sysid.diagnose`)
+share both.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rtlift.core.metrics import scores
+from rtlift.diagnose.diagnosis import DiagnoseOptions
+
+
+def significant_gain(before: list[np.ndarray], after: list[np.ndarray], measured: np.ndarray, block: int,
+                     opt: DiagnoseOptions) -> tuple[bool, str]:
+    """Errors ``after`` against ``before`` per record (``measured`` the records' outputs, pooled):
+    relative RMSE gain ≥ ``opt.min_gain``, a Diebold–Mariano t ≥ ``opt.min_t`` over ``block``-sample
+    blocks of the squared-error differences, no record worse by more than 1 %, and ρ not lower by
+    more than 0.005 (a change that shrinks the signal can lower RMSE while the fit gets worse)."""
+    pooled = lambda errs: float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))   # noqa: E731
+    rb, ra = pooled(before), pooled(after)
+    gain = 1.0 - ra / rb if rb > 0 else 0.0
+    diffs = []
+    for b, a in zip(before, after, strict=True):
+        d = b**2 - a**2
+        nb = max(1, d.size // block)
+        diffs += [float(np.mean(x)) for x in np.array_split(d, nb)]
+    da = np.asarray(diffs)
+    t = float(da.mean() / (da.std(ddof=1) / np.sqrt(da.size))) if da.size > 1 and da.std() > 0 else 0.0
+    worst = max(float(np.sqrt(np.mean(a**2)) / np.sqrt(np.mean(b**2))) for b, a in zip(before, after, strict=True))
+    dcorr = (scores(measured, measured - np.concatenate(after))["corr"]
+             - scores(measured, measured - np.concatenate(before))["corr"])
+    ok = gain >= opt.min_gain and t >= opt.min_t and worst <= 1.01 and dcorr >= -0.005
+    why = (f"validation RMSE {rb:.5g} -> {ra:.5g} ({100 * gain:+.1f} %), t = {t:.1f} over "
+           f"{da.size} blocks of {block} samples, worst record x{worst:.3f}, rho {dcorr:+.4f}")
+    return ok, why
+
+
+def combination(members: tuple[str, ...] | list[str], validation_rmse: float, parameters: int | None,
+                admissible: bool, why: str) -> dict[str, Any]:
+    """One row of the report's ``selection.combinations``: the members, their pooled validation
+    RMSE, the parameters they spend (``None``: not counted — a failed fit, a generic structure),
+    whether the row may be chosen and why."""
+    return {"members": list(members), "validation_rmse": validation_rmse, "parameters": parameters,
+            "admissible": admissible, "why": why}
+
+
+def lowest_admissible(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The admissible row of ``rows`` (:func:`combination`) with the lowest pooled validation
+    RMSE, the first of equals; ``None`` when none is admissible."""
+    ok = [r for r in rows if r["admissible"]]
+    return min(ok, key=lambda r: r["validation_rmse"]) if ok else None
