@@ -76,12 +76,15 @@ def test_the_feedback_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
     g *= 0.5 / peak
     # odd seeds: a limit on the state (the recursion clipped inside the loop) at 0.05
     limits = (-np.inf, 0.05) if seed % 2 else (-np.inf, np.inf)
-    m1 = FeedbackModel(a, g, [rng.uniform(-0.5, 0.5), rng.uniform(0, 2)], 100.0, state_limits=limits)
+    # every other pair of seeds: an output offset (the operating point the map is centred on)
+    offset = rng.uniform(-0.05, 0.05) if seed % 4 >= 2 else 0.0
+    m1 = FeedbackModel(a, g, [rng.uniform(-0.5, 0.5), rng.uniform(0, 2)], 100.0, state_limits=limits,
+                       offset=offset)
     m2 = model_from_dict(json.loads(json.dumps(m1.to_dict())))
-    assert m2.state_limits == limits and m2.limited == bool(seed % 2)
+    assert m2.state_limits == limits and m2.limited == bool(seed % 2) and m2.offset == offset
     u = rng.normal(size=sum(cuts)) * 0.1
     stepped = np.array([m1.step(v) for v in u])
-    assert np.all(np.isfinite(stepped)) and np.max(stepped) <= limits[1]
+    assert np.all(np.isfinite(stepped)) and np.max(stepped) <= limits[1] + 1e-15
     parts, i = [], 0
     for c in cuts:
         state = m2.get_state()
@@ -90,6 +93,22 @@ def test_the_feedback_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
         i += c
     np.testing.assert_allclose(np.concatenate(parts), stepped, atol=1e-12, rtol=0)
     np.testing.assert_array_equal(m1.get_state(), m2.get_state())
+
+
+def test_a_feedback_model_file_without_an_offset_loads_as_before():
+    """Files written before the output offset existed have no ``offset``: they load with none and
+    simulate exactly as the model without it; a model with one writes it and is shifted by it."""
+    m = FeedbackModel([-1.5, 0.7], [0.1, 0.05], [0.2, 1.0], 100.0)
+    d = json.loads(json.dumps(m.to_dict()))
+    del d["offset"]
+    old = model_from_dict(d)
+    assert old.offset == 0.0
+    u = np.sin(np.arange(300) * 0.1) * 0.1
+    np.testing.assert_array_equal(old.simulate(u), m.simulate(u))
+    shifted = FeedbackModel(m.a, m.b, m.k, 100.0, offset=0.25)
+    assert model_from_dict(shifted.to_dict()).offset == 0.25
+    m.reset()
+    np.testing.assert_allclose(shifted.simulate(u), 0.25 + m.simulate(u), atol=1e-15, rtol=0)
 
 
 @settings(max_examples=30, deadline=None)
