@@ -336,7 +336,7 @@ class StoreChainModel:
         d = {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
              "fs_hz": self.fs_hz, "substeps": self.substeps,
              "params": {k: _finite(v) for k, v in self.params.items()},
-             "offset": self.offset, "provenance": self.provenance, "metrics": self.metrics}
+             "provenance": self.provenance, "metrics": self.metrics}
         return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> StoreChainModel:

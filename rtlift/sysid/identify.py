@@ -76,7 +76,7 @@ class SisoOptions:
     keep: int = 3
     cost_samples: int = 30000
     max_nfev: int = 400
-    feedback_orders: tuple[int, ...] = (2, 3, 4)
+    feedback_orders: tuple[int, ...] = (2, 3, 4, 5, 6)
     chain_starts: int = 12
 
 
