@@ -158,9 +158,11 @@ def read_records(records: Sequence[Any], model: Any, min_samples: int = 2) -> li
     return recs
 
 
-def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: PathLike | None = None) -> list:
+def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: PathLike | None = None,
+             init_state: bool = False) -> list:
     """ρ, NRMSE and RMSE of ``model`` on each record (``rtlift validate``): the model runs from
-    rest over the whole record, scored from sample ``skip``; one
+    rest over the whole record (a generic model with ``init_state``: from the state estimated on
+    the ``skip`` unscored samples, :mod:`rtlift.sysid.initial`), scored from sample ``skip``; one
     :class:`~rtlift.model.validation.RecordValidation` per record (``.name``, ``.scores``,
     ``.output``), and one figure per record into ``figures`` when given."""
     from rtlift.model.validation import (
@@ -174,11 +176,16 @@ def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: Path
     generic = is_generic(model)
     if skip < 0:
         raise UserError(f"--skip {skip}: must be 0 or more")
+    if init_state and not (generic and skip > 0):
+        raise UserError("--init-state needs a generic (t,u,y) model and --skip N > 0 (the samples it is "
+                        "estimated on)")
     recs = read_records(records, model, skip + 2)
     if generic:
         from rtlift.sysid.diagnose import predict, record_scores
 
-        results = [RecordValidation(r.name, record_scores(model, r, skip), predict(model, r)) for r in recs]
+        init = skip if init_state else 0
+        results = [RecordValidation(r.name, record_scores(model, r, skip, init_state), predict(model, r, init))
+                   for r in recs]
     else:
         results = [validate_record(model, r, skip) for r in recs]
     if figures is not None:
@@ -197,7 +204,7 @@ def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: Path
 
 def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike | None = None, skip: int = 0,
              score_from: Sequence[int] | None = None, sources: dict[str, Any] | None = None,
-             split: dict[str, Any] | None = None) -> tuple[dict[str, Any], Any]:
+             split: dict[str, Any] | None = None, init_state: bool = False) -> tuple[dict[str, Any], Any]:
     """What ``model`` misses (``rtlift diagnose --train --validate``): candidate effects (a lift
     model) or structures (a generic model) fitted on ``train`` and judged on ``validate``.
     Returns ``(report, augmented_model)``; the report has INTERFACES.md's keys (``baseline``,
@@ -205,7 +212,8 @@ def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike |
     and ``model_augmented.json`` written there (a lift model's report also has figures and
     ``residual_tests.json``). ``skip``: generic records' unscored first samples; ``score_from``:
     per validation record, the first scored sample, and ``split`` how one long run was split in
-    two (``rtlift diagnose --run``; recorded in the report)."""
+    two (``rtlift diagnose --run``; recorded in the report); ``init_state`` (generic models): every
+    model runs over a record from the state estimated on its unscored samples, not from rest."""
     model = load(model)
     generic = is_generic(model)
     if out is not None:
@@ -219,11 +227,14 @@ def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike |
         train = _generic(train, skip + 50)
         validate = [_generic(r, skip + 50) for r in validate]
         report, augmented = diagnose_siso(model, train, validate, skip,
-                                          validate_skip=None if score_from is None else list(score_from))
+                                          validate_skip=None if score_from is None else list(score_from),
+                                          init_state=init_state)
         _note_split(report, split)
         if out is not None:
             write_report(report, augmented, out)
         return report, augmented
+    if init_state:
+        raise UserError("--init-state is for generic (t,u,y) models")
     from rtlift.diagnose import DiagnoseOptions
     from rtlift.diagnose import diagnose as diagnose_lift
     from rtlift.diagnose.report import write

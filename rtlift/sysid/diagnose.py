@@ -52,6 +52,7 @@ from rtlift.diagnose.selection import DiagnoseOptions, significant_gain
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import higher_order, input_crosscorr, whiteness
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
+from rtlift.sysid.initial import initial_state
 
 HOW = {e.name: e.how for e in STRUCTURES}
 """How each structure of the registry (:mod:`rtlift.core.registry`) is fitted, for the report."""
@@ -102,28 +103,37 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
             "zeros": [[float(z.real), float(z.imag)] for z in np.roots(b2)], "order": int(a2.size - 1)}
 
 
-def predict(model: SisoModel, rec: SisoRecord) -> np.ndarray:
-    """Free-run output over the record from rest; the model is left reset."""
+def predict(model: SisoModel, rec: SisoRecord, init: int = 0) -> np.ndarray:
+    """Free-run output over the record from rest, or with ``init`` > 0 from the state estimated on
+    the record's first ``init`` samples (:func:`rtlift.sysid.initial.initial_state`); the model is
+    left reset."""
     model.reset()
+    if init > 0:
+        model.set_state(initial_state(model, rec.u, rec.y, init))
     out = model.simulate(rec.u)
     model.reset()
     return out
 
 
-def record_scores(model: SisoModel, rec: SisoRecord, skip: int) -> dict[str, float]:
-    """ρ, NRMSE, RMSE from sample ``skip`` on (``rtlift validate --skip``)."""
-    return scores(rec.y[skip:], predict(model, rec)[skip:])
+def record_scores(model: SisoModel, rec: SisoRecord, skip: int, init_state: bool = False) -> dict[str, float]:
+    """ρ, NRMSE, RMSE from sample ``skip`` on (``rtlift validate --skip``); with ``init_state`` the
+    state at the start estimated on the unscored samples (``--init-state``)."""
+    return scores(rec.y[skip:], predict(model, rec, skip if init_state else 0)[skip:])
 
 
 @one_blas_thread
 def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
                   skip: int = 0, options: SisoOptions | None = None,
-                  validate_skip: list[int] | None = None) -> tuple[dict[str, Any], SisoModel]:
+                  validate_skip: list[int] | None = None,
+                  init_state: bool = False) -> tuple[dict[str, Any], SisoModel]:
     """The report (INTERFACES.md schema) and the augmented model (module docstring).
     ``validate_skip``: per validation record, the samples left unscored (default ``skip``; one
-    long run's validation part is the whole run scored after its training part)."""
+    long run's validation part is the whole run scored after its training part). ``init_state``:
+    every model runs over a record from the state estimated on its unscored samples
+    (:func:`rtlift.sysid.initial.initial_state`) instead of from rest."""
     vskip = list(validate_skip) if validate_skip is not None else [skip] * len(validate)
-    e = train.y - predict(model, train)
+    init = (lambda k: k) if init_state else (lambda k: 0)   # noqa: E731
+    e = train.y - predict(model, train, init(skip))
     s = max(skip, 1)
     tests = {"whiteness": whiteness(e[s:]), "input_crosscorr": input_crosscorr(e[s:], train.u[s:], label="u")}
     for t in higher_order(e[s:], train.u[s:], (train.y - e)[s:]):
@@ -133,7 +143,7 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
     # blocks for the significance test: about 40 over the validation data (the residual's
     # correlation time is the system's, unknown here; a lift record's 1 s blocks are 400 samples)
     block = max(50, sum(len(r) - k for r, k in zip(validate, vskip, strict=True)) // 40)
-    before = [(r.y - predict(model, r))[k:] for r, k in zip(validate, vskip, strict=True)]
+    before = [(r.y - predict(model, r, init(k)))[k:] for r, k in zip(validate, vskip, strict=True)]
     rb = float(np.sqrt(np.mean(np.concatenate(before) ** 2)))
     effects = []
     augmented = model
@@ -144,11 +154,12 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
         candidates = [(name, lambda structure=structure: identify_siso(train, structure, options=options))
                       for name, structure in FORMS]
         if limits != NO_LIMITS:
-            candidates.append((SATURATION.name, lambda: _best_saturated(train, validate, vskip, options, limits)))
+            candidates.append((SATURATION.name,
+                               lambda: _best_saturated(train, validate, vskip, options, limits, init_state)))
         tried = []
         for name, fit in candidates:
             candidate = fit()
-            after = [(r.y - predict(candidate, r))[k:] for r, k in zip(validate, vskip, strict=True)]
+            after = [(r.y - predict(candidate, r, init(k)))[k:] for r, k in zip(validate, vskip, strict=True)]
             ok, why = significant_gain(before, after, measured, block, DiagnoseOptions())
             ra = float(np.sqrt(np.mean(np.concatenate(after) ** 2)))
             tried.append((ok, ra, candidate))
@@ -172,19 +183,21 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
     records = [(train, skip), *zip(validate, vskip, strict=True)]
     report = {
         "version": 1,
-        "baseline": {"records": {r.name: record_scores(model, r, k) for r, k in records}},
-        "augmented": {"records": {r.name: record_scores(augmented, r, k) for r, k in records}},
+        "baseline": {"records": {r.name: record_scores(model, r, k, init_state) for r, k in records}},
+        "augmented": {"records": {r.name: record_scores(augmented, r, k, init_state) for r, k in records}},
         "effects": effects,
         "unexplained": unexplained,
-        "scoring": f"free run from rest over whole records, the first {skip} samples unscored "
-                   "(rtlift validate --skip)",
+        "scoring": (f"free run over whole records from the state estimated on the first {skip} samples, "
+                    "which are unscored (rtlift validate --skip --init-state)" if init_state else
+                    f"free run from rest over whole records, the first {skip} samples unscored "
+                    "(rtlift validate --skip)"),
         "not_built": not_built,
     }
     return report, augmented
 
 
 def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[int], options: SisoOptions | None,
-                    limits: Limits) -> SaturatedModel | FeedbackModel | StoreChainModel:
+                    limits: Limits, init_state: bool = False) -> SaturatedModel | FeedbackModel | StoreChainModel:
     """The ``saturation`` candidate: each form re-identified with the limit in place; the one with
     the lowest pooled validation RMSE (a form the record cannot have, a store chain fed by an input
     of negative mean, is left out)."""
@@ -194,7 +207,7 @@ def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[in
             m = identify_siso(train, structure, options=options, limits=limits, where=where)
         except ValueError:
             continue
-        err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r))[k:]
+        err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r, k if init_state else 0))[k:]
                                                     for r, k in zip(validate, skip, strict=True)]) ** 2)))
         if best is None or err < best[0]:
             best = (err, m)

@@ -137,18 +137,16 @@ class _Dims:
         return np.concatenate(parts)
 
 
-def _simulate_basis(dims: _Dims, th: np.ndarray, u: np.ndarray, knots: np.ndarray | None = None):
+def _simulate_basis(dims: _Dims, th: np.ndarray, u: np.ndarray, count: int):
+    """Φ of ``count`` knots at x's quantiles, filtered by G₂ (if any), and the knots."""
     b1, a1, b2, a2 = dims.build(th)
     x = signal.lfilter(b1, a1, u)
-    if knots is None:
-        knots = np.unique(np.quantile(x, np.linspace(0.002, 0.998, KNOTS_DEFAULT)))
+    knots = np.unique(np.quantile(x, np.linspace(0.002, 0.998, count)))
     phi = _hats(x, knots)
     if b2 is not None:
         phi = signal.lfilter(b2, a2, phi, axis=0)
     return phi, knots
 
-
-KNOTS_DEFAULT = 16
 
 
 Limits = tuple[float, float]
@@ -235,16 +233,16 @@ def _splits(b: np.ndarray, a: np.ndarray):
 def _refine(dims: _Dims, th0: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int, max_nfev: int,
             knots: int, limits: Limits = NO_LIMITS) -> np.ndarray:
     def res(th: np.ndarray) -> np.ndarray:
-        phi, _ = _simulate_basis(dims, th, u)
+        phi, _ = _simulate_basis(dims, th, u, knots)
         r = (np.clip(phi @ _fit_values(phi, y, skip, limits), *limits) - y)[skip:]
         return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3)
 
     return optimize.least_squares(res, th0, x_scale="jac", max_nfev=max_nfev, ftol=1e-10, xtol=1e-10).x
 
 
-def _model(dims: _Dims, th: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int, fs: float,
+def _model(dims: _Dims, th: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int, fs: float, count: int,
            limits: Limits = NO_LIMITS) -> SisoModel | SaturatedModel:
-    phi, knots = _simulate_basis(dims, th, u)
+    phi, knots = _simulate_basis(dims, th, u, count)
     c = _fit_values(phi, y, skip, limits)
     b1, a1, b2, a2 = dims.build(th)
     g2 = None if b2 is None else HighPassFilter.from_ba(b2, a2)
@@ -309,14 +307,14 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
             if b1[0] == 0 or b2[0] == 0:
                 continue
             th = _Dims.theta(b1, a1, b2, a2)
-            phi, _ = _simulate_basis(dims, th, ue[cost])
+            phi, _ = _simulate_basis(dims, th, ue[cost], opt.knots)
             r = (np.clip(phi @ _fit_values(phi, ye[cost], skip, limits), *limits) - ye[cost])[skip:]
             starts.append((float(np.sum(r**2)), dims, (b1, a1, b2, a2)))
         starts = [(d, bb) for _, d, bb in sorted(starts, key=lambda s: s[0])[:opt.keep]]
     best = None
     for dims, (b1, a1, b2, a2) in starts:
         th = _refine(dims, _Dims.theta(b1, a1, b2, a2), ue[cost], ye[cost], skip, opt.max_nfev, opt.knots, limits)
-        model = _model(dims, th, ue, ye, skip, fs, limits)
+        model = _model(dims, th, ue, ye, skip, fs, opt.knots, limits)
         held = _rmse(model, u, y, n_est)
         if best is None or held < best[0]:
             best = (held, model)
@@ -392,17 +390,33 @@ def identify_store_chain(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all:
                 "outflow_2": math.exp(a2), "exponent_2": p2, "brim_1": l1,
                 "ceiling": upper if limited else np.inf, "spill": beta, "offset": c}
 
+    npar = 9 if limited else 7
+
+    def start(th: np.ndarray) -> np.ndarray:
+        """The stores' levels at the record's start: logarithms of the last two entries."""
+        return np.exp(th[npar:])
+
     def res(th: np.ndarray) -> np.ndarray:
         try:
             m = StoreChainModel(unpack(th), fs)
+            m.set_state(start(th))
         except (ValueError, OverflowError):
             return np.full(n - skip, 1e3 * level)
-        r = (m.simulate(u) - y)[skip:]
+        with np.errstate(all="ignore"):
+            r = (m.simulate(u) - y)[skip:]
         return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3 * level)
 
+    def held_out(model: StoreChainModel, x0: np.ndarray) -> float:
+        model.reset()
+        model.set_state(x0)
+        with np.errstate(all="ignore"):
+            out = model.simulate(u_all)
+        model.reset()
+        return float(np.sqrt(np.mean((out - y_all)[n_est:] ** 2)))
+
     c_hi = upper - 1e-6 * level if limited else np.inf
-    lo = np.array([-40, -40, 0.1, -40, -40, 0.1, -np.inf, -40, 0.0][:9 if limited else 7])
-    hi = np.array([40, 40, 2.0, 40, 40, 2.0, c_hi, 40, 100.0][:9 if limited else 7])
+    lo = np.array([-40, -40, 0.1, -40, -40, 0.1, -np.inf, -40, 0.0][:npar] + [-40.0, -40.0])
+    hi = np.array([40, 40, 2.0, 40, 40, 2.0, c_hi, 40, 100.0][:npar] + [40.0, 40.0])
     best = None
     for _ in range(opt.chain_starts):
         t1, t2 = np.exp(rng.uniform(np.log(2.0), np.log(max(3.0, n / 3.0)), 2)) / fs
@@ -411,16 +425,23 @@ def identify_store_chain(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all:
         b = a1 * x1**0.5 / u_mean
         r = a2 * x2**0.5 / (a1 * x1**0.5)
         brim = math.log(3.0 * x1) + rng.normal(0.0, 0.3)
-        th0 = np.array([math.log(b), math.log(a1), 0.5, math.log(r), math.log(a2), 0.5,
-                        min(c0, c_hi - 1e-6 * level), brim, 0.3][:lo.size])
+        c = min(c0, c_hi - 1e-6 * level)
+        # the record's start: the lower store at the first measured level, the upper one at the
+        # level that feeds it as much as it drains (in equilibrium)
+        x2 = min(max(float(y[0]) - c, 1e-3 * level), c_hi - c)
+        x1 = (a2 * x2**0.5 / (r * a1)) ** 2
+        th0 = np.array([math.log(b), math.log(a1), 0.5, math.log(r), math.log(a2), 0.5, c, brim, 0.3][:npar]
+                       + [math.log(x1), math.log(x2)])
+        th0 = np.clip(th0, lo + 1e-9, hi - 1e-9)
         sol = optimize.least_squares(res, th0, bounds=(lo, hi), x_scale="jac", max_nfev=opt.max_nfev)
         model = StoreChainModel(unpack(sol.x), fs)
-        held = _rmse(model, u_all, y_all, n_est)
+        held = held_out(model, start(sol.x))
         if np.isfinite(held) and (best is None or held < best[0]):
-            best = (held, model)
+            best = (held, model, start(sol.x))
     if best is None:
         raise ValueError("no store chain fits the record")
-    held, model = best
-    model.provenance = {"structure": "store_chain", "starts": opt.chain_starts}
+    held, model, x0 = best
+    model.provenance = {"structure": "store_chain", "starts": opt.chain_starts,
+                        "initial_state": [float(v) for v in x0]}
     model.metrics = {"holdout_rmse": held}
     return model

@@ -39,6 +39,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--skip", type=int, default=0, metavar="N",
                    help="generic records: leave each record's first N samples out of the scores")
+    p.add_argument("--init-state", action="store_true",
+                   help="generic records: every model runs from the state estimated on a record's unscored "
+                        "samples (--skip) instead of from rest")
     p.set_defaults(func=run)
 
 
@@ -114,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
             _same_rate(r, model)
         sources = {"model": str(args.model), "train": str(args.train),
                    "validate": [str(p) for p in args.validate]}
-    rep, _ = diagnose(model, train, validate, out=args.out, score_from=score_from, sources=sources, split=split)
+    rep, _ = diagnose(model, train, validate, out=args.out, score_from=score_from, sources=sources, split=split,
+                      init_state=args.init_state)
     acc = [e for e in rep["effects"] if e["accepted"]]
     effects = [e["name"] for e in acc if e["kind"] == "effect"]
     structure = [e["name"] for e in acc if e["kind"] == "structure"]
@@ -170,7 +174,7 @@ def run_generic(args: argparse.Namespace, model) -> int:
         if len(set(names)) != len(names):
             raise UserError("two records share a stem; the report is keyed by stem")
     report, _ = diagnose(model, train, validate, out=args.out, skip=args.skip, score_from=validate_skip,
-                         split=split)
+                         split=split, init_state=args.init_state)
     acc = [e["name"] for e in report["effects"] if e["accepted"]]
     print(f"diagnose {args.model}: structure added: {', '.join(acc) if acc else 'nothing'}")
     for name, b in report["baseline"]["records"].items():
