@@ -22,8 +22,11 @@
    the offset c at the record's 1 % level (the empty lower store), the stores' time constants
    drawn log-uniformly between 2 samples and a third of the record (a fixed seed), each store's
    outflow coefficient set so that, linearised about the mean level, it has that time constant,
-   and inflow and transfer so that the mean input holds both stores at that level. The start with
-   the lowest held-out RMSE is kept. Positive parameters are refined in logarithms. With a limit
+   and inflow and transfer so that the mean input holds both stores at that level. The stores'
+   levels at the record's start are refined with the rest (started with the lower store at the
+   first measured level, the upper one in equilibrium with it): a record need not start with
+   the stores empty (Cascaded Tanks' do not). The start with the lowest held-out RMSE (the run
+   from those levels) is kept. Positive parameters are refined in logarithms. With a limit
    (``where="state"``, the only place a store chain takes one) the lower store is full at the
    output's limit (``ceiling`` = upper); the upper store's brim and spill share are fitted.
 
