@@ -7,7 +7,10 @@
 2. **Wiener** (``structure="wiener"``): G₁ = the BLA at unit DC gain, f piecewise linear on
    ``knots`` quantile knots of x = G₁u; f's values enter linearly, so for every G₁ they are
    eliminated by least squares (variable projection, Golub & Pereyra 1973) and G₁'s poles and
-   zeros are refined jointly on the simulation error.
+   zeros are refined jointly on the simulation error. Then, for each count in ``more_knots``,
+   the best model's f is put on that many quantile knots and everything is refined jointly
+   again from there, kept only if the held-out RMSE falls (WH2009: 16 knots 0.54 mV held out,
+   48 then 96 knots 0.27 mV; refining on 32 knots from the start instead took 4× as long).
 3. **Wiener–Hammerstein** (``output_dynamics``): the BLA's poles and zeros (complex pairs kept
    together) are split every way between G₁ and G₂ (G_i at unit DC gain); for each split f is
    fitted by linear least squares (y ≈ Σ_j c_j G₂(φ_j(x)), φ_j the knots' hat functions);
@@ -74,6 +77,7 @@ from rtlift.model.siso import (
 class SisoOptions:
     orders: tuple[int, ...] = (2, 4, 6)
     knots: int = 16
+    more_knots: tuple[int, ...] = (48, 96)
     holdout: float = 0.2
     skip: int = 200
     keep: int = 3
@@ -147,7 +151,8 @@ def _simulate_basis(dims: _Dims, th: np.ndarray, u: np.ndarray, count: int):
     knots = np.unique(np.quantile(x, np.linspace(0.002, 0.998, count)))
     phi = _hats(x, knots)
     if b2 is not None:
-        phi = signal.lfilter(b2, a2, phi, axis=0)
+        # column by column in Fortran order: the same numbers as on the row-major array, in half the time
+        phi = signal.lfilter(b2, a2, np.asfortranarray(phi), axis=0)
     return phi, knots
 
 
@@ -320,11 +325,18 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
         model = _model(dims, th, ue, ye, skip, fs, opt.knots, limits)
         held = _rmse(model, u, y, n_est)
         if best is None or held < best[0]:
-            best = (held, model)
-    held, model = best
+            best = (held, model, dims, th, opt.knots)
+    for count in opt.more_knots:      # the best one's f on finer knots, refined jointly again from there
+        held0, _, dims, th0, _ = best
+        th = _refine(dims, th0, ue[cost], ye[cost], skip, opt.max_nfev, count, limits)
+        model = _model(dims, th, ue, ye, skip, fs, count, limits)
+        held = _rmse(model, u, y, n_est)
+        if held < held0:
+            best = (held, model, dims, th, count)
+    held, model, _, _, knots = best
     model.provenance = {"tool": "rtlift identify --record", "record": rec.name, "structure": structure,
                         "bla_order": n, "bla_holdout_rmse": bla_holdout, "holdout_fraction": opt.holdout,
-                        "splits_refined": len(starts)}
+                        "splits_refined": len(starts), "knots": knots}
     model.metrics = {"holdout_rmse": held, "train_rmse": _rmse(model, ue, ye, skip)}
     return model
 
