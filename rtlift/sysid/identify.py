@@ -101,7 +101,7 @@ def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
     above = x >= knots[-1]
     d = np.where(above, x - knots[-1], x - knots[seg])
     rows = np.arange(x.size)
-    phi = np.zeros((x.size, knots.size))
+    phi = np.zeros((x.size, knots.size), order="F")    # column-major: G₂ filters it column by column
     phi[rows, seg] = np.where(above, -inv[seg] * d + 0.0, -inv[seg] * d + 1.0)
     phi[rows, seg + 1] = np.where(above, inv[seg] * d + 1.0, inv[seg] * d + 0.0)
     phi[x == knots[-1], last - 1] = 0.0
@@ -175,9 +175,12 @@ def _fit_values(phi: np.ndarray, y: np.ndarray, skip: int, limits: Limits = NO_L
     rows, where LAPACK's SVD-based least squares costs ~10× more (and ~100× on a loaded 2-core
     machine, its threads contending). Falls back to that least squares when ΦᵀΦ is not
     positive definite to working precision (a knot no sample reaches)."""
-    keep = _uncensored(y, limits)
-    keep[:skip] = False
-    a, b = phi[keep], y[keep]
+    if limits == NO_LIMITS:
+        a, b = phi[skip:], y[skip:]                      # views: no sample is censored
+    else:
+        keep = _uncensored(y, limits)
+        keep[:skip] = False
+        a, b = phi[keep], y[keep]
     g = a.T @ a
     scale = np.sqrt(np.diag(g))
     if np.all(scale > 0):
