@@ -78,11 +78,13 @@ def test_the_feedback_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
     # odd seeds: a limit on the state (the recursion clipped inside the loop) at 0.05
     limits = (-np.inf, 0.05) if seed % 2 else (-np.inf, np.inf)
     # every other pair of seeds: an output offset (the operating point the map is centred on)
+    # and a direct feedthrough of the input (every other quadruple of seeds)
     offset = rng.uniform(-0.05, 0.05) if seed % 4 >= 2 else 0.0
+    b0 = rng.uniform(-0.05, 0.05) if seed % 8 >= 4 else 0.0      # small: the loop-gain bound above holds
     m1 = FeedbackModel(a, g, [rng.uniform(-0.5, 0.5), rng.uniform(0, 2)], 100.0, state_limits=limits,
-                       offset=offset)
+                       offset=offset, feedthrough=b0)
     m2 = model_from_dict(json.loads(json.dumps(m1.to_dict())))
-    assert m2.state_limits == limits and m2.limited == bool(seed % 2) and m2.offset == offset
+    assert m2.state_limits == limits and m2.limited == bool(seed % 2) and m2.offset == offset and m2.b0 == b0
     u = rng.normal(size=sum(cuts)) * 0.1
     stepped = np.array([m1.step(v) for v in u])
     assert np.all(np.isfinite(stepped)) and np.max(stepped) <= limits[1] + 1e-15
@@ -97,13 +99,14 @@ def test_the_feedback_model_steps_and_chunks_alike_and_round_trips(seed, cuts):
 
 
 def test_a_feedback_model_file_without_an_offset_loads_as_before():
-    """Files written before the output offset existed have no ``offset``: they load with none and
-    simulate exactly as the model without it; a model with one writes it and is shifted by it."""
+    """Files written before the output offset and the feedthrough existed have neither: they load
+    with none and simulate exactly as the model without them; a model with an offset writes it
+    and is shifted by it."""
     m = FeedbackModel([-1.5, 0.7], [0.1, 0.05], [0.2, 1.0], 100.0)
     d = json.loads(json.dumps(m.to_dict()))
-    del d["offset"]
+    del d["offset"], d["feedthrough"]
     old = model_from_dict(d)
-    assert old.offset == 0.0
+    assert old.offset == 0.0 and old.b0 == 0.0
     u = np.sin(np.arange(300) * 0.1) * 0.1
     np.testing.assert_array_equal(old.simulate(u), m.simulate(u))
     shifted = FeedbackModel(m.a, m.b, m.k, 100.0, offset=0.25)
@@ -474,4 +477,4 @@ def test_on_silverbox_the_diagnosis_feeds_the_output_back_through_a_cubic(tmp_pa
         model.reset()
         rmse[name] = 1e3 * float(np.sqrt(np.mean((model.simulate(test.u) - test.y)[50:] ** 2)))
     assert rmse["wiener"] > 8.0                                    # ≈ 14 mV, a Wiener model's level
-    assert rmse["feedback"] < 1.5                                  # 0.56 mV with the full estimation data
+    assert rmse["feedback"] < 1.5                                  # 0.40 mV with the full estimation data

@@ -185,7 +185,7 @@ REGISTRY: tuple[Entry, ...] = (     # in INTERFACES.md's order
            "(amplitude-dependent resonance, Duffing-like)",
            diagnosis=Diagnosis(_SISO, _HIGHER_ORDER),
            how="the output's deviation y from an operating point fed back through k2 y^2 + k3 y^3 into a strictly "
-               "proper linear block, all refined jointly from the ARX fit",
+               "proper linear block, plus the input's direct path, all refined jointly from the ARX fit",
            forms=(("nonlinear_feedback", None),)),
     _entry("saturation", "structure",
            "a hard limit on the input, a state or the output (overflow, clipping, actuator limits)",

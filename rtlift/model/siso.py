@@ -100,7 +100,8 @@ class FeedbackModel:
     G = B/A strictly proper, so y(k) needs no v(k) (no algebraic loop). ``offset`` c is the
     output's operating point: the model outputs c + y(k), the map and the recursion act on the
     deviation y from it (a spring's rest position that is not the sensor's zero; 0 in files
-    written before it existed). The feedback makes the
+    written before it existed). ``feedthrough`` b₀ adds b₀ u(k) to y(k): the input's direct
+    path, known at sample k, so still no algebraic loop (0 in files written before it existed). The feedback makes the
     response amplitude dependent (the resonance shifts with amplitude); it cannot be filtered
     in one vectorised pass, so :meth:`simulate` runs the same recursion as :meth:`step` over the
     array (identical by construction). State: [y(k−1) … y(k−n), v(k−1) … v(k−n)].
@@ -119,13 +120,14 @@ class FeedbackModel:
 
     def __init__(self, a: np.ndarray, b: np.ndarray, feedback: np.ndarray, fs_hz: float,
                  provenance: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None,
-                 state_limits: tuple[float, float] = (-np.inf, np.inf), offset: float = 0.0) -> None:
+                 state_limits: tuple[float, float] = (-np.inf, np.inf), offset: float = 0.0,
+                 feedthrough: float = 0.0) -> None:
         a, b, k = (np.asarray(v, dtype=float).ravel() for v in (a, b, feedback))
         if a.size != b.size or a.size == 0 or k.size != 2 or not all(np.all(np.isfinite(v)) for v in (a, b, k)):
             raise ValueError("nonlinear_feedback needs finite a, b of one length and two feedback coefficients")
-        self.offset = float(offset)
-        if not np.isfinite(self.offset):
-            raise ValueError(f"nonlinear_feedback needs a finite offset, got {offset}")
+        self.offset, self.b0 = float(offset), float(feedthrough)
+        if not (np.isfinite(self.offset) and np.isfinite(self.b0)):
+            raise ValueError(f"nonlinear_feedback needs a finite offset and feedthrough, got {offset}, {feedthrough}")
         self.a, self.b, self.k = a, b, k
         self.n = a.size
         self.fs_hz = float(fs_hz)
@@ -149,7 +151,7 @@ class FeedbackModel:
 
     def step(self, u: float) -> float:
         yh, vh = self._y, self._v
-        y = 0.0
+        y = self.b0 * u
         for i in range(self.n):
             y += self._b[i] * vh[i] - self._a[i] * yh[i]
         y = min(max(y, self._lo), self._hi)
@@ -165,7 +167,7 @@ class FeedbackModel:
         u = np.ascontiguousarray(u, dtype=float)
         out = np.empty(u.size)
         yh, vh = np.array(self._y), np.array(self._v)
-        _feedback_run(self.a, self.b, self._k2, self._k3, self._lo, self._hi, self.offset, u, yh, vh, out)
+        _feedback_run(self.a, self.b, self._k2, self._k3, self._lo, self._hi, self.offset, self.b0, u, yh, vh, out)
         self._y[:], self._v[:] = yh.tolist(), vh.tolist()
         return out
 
@@ -190,7 +192,7 @@ class FeedbackModel:
     def to_dict(self) -> dict[str, Any]:
         d = {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
              "fs_hz": self.fs_hz, "a": self.a.tolist(), "b": self.b.tolist(), "feedback": self.k.tolist(),
-             "offset": self.offset, "provenance": self.provenance, "metrics": self.metrics}
+             "offset": self.offset, "feedthrough": self.b0, "provenance": self.provenance, "metrics": self.metrics}
         return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> FeedbackModel:
@@ -202,17 +204,18 @@ class FeedbackModel:
         ValueError if wrong; a file without ``offset``, written before it existed, has none)."""
         sat = d.get("saturation")
         return cls(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"), d.get("metrics"),
-                   _limit_pair(sat) if sat is not None else (-np.inf, np.inf), float(d.get("offset", 0.0)))
+                   _limit_pair(sat) if sat is not None else (-np.inf, np.inf), float(d.get("offset", 0.0)),
+                   float(d.get("feedthrough", 0.0)))
 
 
 @njit_cached
-def _feedback_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, lo: float, hi: float, c: float,
+def _feedback_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, lo: float, hi: float, c: float, b0: float,
                   u: np.ndarray, yh: np.ndarray, vh: np.ndarray, out: np.ndarray) -> None:   # pragma: no cover
     """:meth:`FeedbackModel.step` over ``u`` (compiled; the same arithmetic in the same order),
     advancing the histories ``yh``, ``vh`` (newest first) in place."""
     n = a.size
     for k in range(u.size):
-        y = 0.0
+        y = b0 * u[k]
         for i in range(n):
             y += b[i] * vh[i] - a[i] * yh[i]
         y = min(max(y, lo), hi)

@@ -93,6 +93,7 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
         return {**model.limits(), "model": model.structure, "model_params": _structure_params(model, False)}
     if model.structure == "nonlinear_feedback":
         return {"feedback": {"k2": float(model.k[0]), "k3": float(model.k[1])}, "offset": model.offset,
+                "feedthrough": model.b0,
                 "order": model.n,
                 "poles": [[float(p.real), float(p.imag)] for p in np.roots(np.concatenate([[1.0], model.a]))]}
     if model.structure == "wiener":

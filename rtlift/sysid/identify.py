@@ -357,11 +357,13 @@ def identify_feedback(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np
     best = None
     for n in opt.feedback_orders:
         rows = np.arange(n, u.size)
-        X = np.column_stack([-y[rows - i] for i in range(1, n + 1)] + [u[rows - i] for i in range(1, n + 1)])
+        X = np.column_stack([-y[rows - i] for i in range(1, n + 1)] + [u[rows - i] for i in range(0, n + 1)])
         th, *_ = np.linalg.lstsq(X, y[rows], rcond=None)
+        th = np.concatenate([th[:n], th[n + 1:], [th[n]]])          # [a, b₁…bₙ, b₀]
 
         def build(p: np.ndarray, n: int = n) -> FeedbackModel:
-            return FeedbackModel(p[:n], p[n:2 * n], p[2 * n:2 * n + 2], fs, state_limits=inner, offset=p[-1])
+            return FeedbackModel(p[:n], p[n:2 * n], p[2 * n + 1:2 * n + 3], fs, state_limits=inner, offset=p[-1],
+                                 feedthrough=p[2 * n])
 
         def res(p: np.ndarray) -> np.ndarray:
             with np.errstate(all="ignore"):
