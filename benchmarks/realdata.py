@@ -5,8 +5,10 @@ official estimation data written as a generic ``t,u,y`` record (its last 20 % a 
 validation record, which starts ``SKIP`` samples earlier: like the test split, it is scored
 after a state-initialisation window of ``SKIP`` samples, here the end of the training part, so
 that all of the last 20 % is scored), ``rtlift identify --record EST --structure wiener``,
-``rtlift diagnose --skip 50`` with the validation record, and ``rtlift validate --skip 50`` of both model files on the
-official test split (free run from rest, the first 50 test samples unscored). Prints a markdown
+``rtlift diagnose --skip 50 --init-state`` with the validation record, and ``rtlift validate --skip 50
+--init-state`` of both model files on the official test split (free run from the state estimated on
+the first 50 test samples, which are unscored: the rules' state-initialisation window; Cascaded
+Tanks' records start with water in the tanks). Prints a markdown
 table (before, after, what the diagnosis added, published references, seconds) and, as its
 last line, one JSON object. ``--only NAME`` runs one benchmark.
 """
@@ -51,11 +53,11 @@ def run(name: str, work: Path) -> dict:
     run_cli("identify", "--record", est, "--structure", "wiener", "-o", work / "model.json")
     t1 = time.perf_counter()
     run_cli("diagnose", "--model", work / "model.json", "--train", est, "--validate", val, "--skip", SKIP,
-        "--out", work / "diag")
+            "--init-state", "--out", work / "diag")
     t2 = time.perf_counter()
     rmse = {}
     for which, model in (("before", work / "model.json"), ("after", work / "diag" / "model_augmented.json")):
-        run_cli("validate", "--model", model, test, "--skip", SKIP, "--json", work / f"{which}.json")
+        run_cli("validate", "--model", model, test, "--skip", SKIP, "--init-state", "--json", work / f"{which}.json")
         rmse[which] = scale * json.loads((work / f"{which}.json").read_text())["records"]["test"]["rmse"]
     report = json.loads((work / "diag" / "report.json").read_text())
     return {"benchmark": name, "unit": unit, "before": rmse["before"], "after": rmse["after"],

@@ -159,9 +159,11 @@ def read_records(records: Sequence[Any], model: Any, min_samples: int = 2) -> li
     return recs
 
 
-def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: PathLike | None = None) -> list:
+def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: PathLike | None = None,
+             init_state: bool = False) -> list:
     """ρ, NRMSE and RMSE of ``model`` on each record (``rtlift validate``): the model runs from
-    rest over the whole record, scored from sample ``skip``; one
+    rest over the whole record (a generic model with ``init_state``: from the state estimated on
+    the ``skip`` unscored samples, :mod:`rtlift.sysid.initial`), scored from sample ``skip``; one
     :class:`~rtlift.model.validation.RecordValidation` per record (``.name``, ``.scores``,
     ``.output``), and one figure per record into ``figures`` when given."""
     from rtlift.model.validation import (
@@ -175,11 +177,14 @@ def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: Path
     generic = is_generic(model)
     if skip < 0:
         raise UserError(f"--skip {skip}: must be 0 or more")
+    _check_init_state(init_state, generic, skip)
     recs = read_records(records, model, skip + 2)
     if generic:
         from rtlift.sysid.diagnose import predict, record_scores
 
-        results = [RecordValidation(r.name, record_scores(model, r, skip), predict(model, r)) for r in recs]
+        init = skip if init_state else 0
+        results = [RecordValidation(r.name, record_scores(model, r, skip, init_state), predict(model, r, init))
+                   for r in recs]
     else:
         results = [validate_record(model, r, skip) for r in recs]
     if figures is not None:
@@ -196,16 +201,25 @@ def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: Path
     return results
 
 
+def _check_init_state(init_state: bool, generic: bool, skip: int) -> None:
+    """``--init-state`` estimates a generic model's state on the ``skip`` unscored samples."""
+    if init_state and not (generic and skip > 0):
+        raise UserError("--init-state needs a generic (t,u,y) model and --skip N > 0 (the samples it is "
+                        "estimated on)")
+
+
 def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike | None = None, skip: int = 0,
-             score_from: Sequence[int] | None = None) -> tuple[dict[str, Any], Any]:
+             score_from: Sequence[int] | None = None, init_state: bool = False) -> tuple[dict[str, Any], Any]:
     """What ``model`` misses (``rtlift diagnose --train --validate``): candidate effects (a lift
     model) or structures (a generic model) fitted on ``train`` and judged on ``validate``.
     Returns ``(report, augmented_model)``; the report has INTERFACES.md's keys (``baseline``,
     ``augmented``, ``effects``, ``unexplained`` …; the same keys for both kinds). With ``out``:
     ``report.json``, ``report.md`` with figures, ``residual_tests.json`` and
     ``model_augmented.json`` written there. ``skip``: generic records' unscored first samples;
-    ``score_from``: per validation record, the first scored sample. The records are checked as
-    the command checks them (:mod:`rtlift.diagnose.sources`: their kind, rate, length, stems)."""
+    ``score_from``: per validation record, the first scored sample; ``init_state`` (generic models,
+    ``--init-state``): every model runs over a record from the state estimated on its ``skip``
+    unscored samples, not from rest. The records are checked as the command checks them
+    (:mod:`rtlift.diagnose.sources`: their kind, rate, length, stems)."""
     from rtlift.diagnose.sources import records
 
     name = str(model) if isinstance(model, (str, os.PathLike)) else None
@@ -213,11 +227,11 @@ def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike |
     src = records(train, list(validate), model, is_generic(model), skip, name)
     if score_from is not None:
         src.score_from = list(score_from)
-    return _diagnose(model, src, out, skip)
+    return _diagnose(model, src, out, skip, init_state)
 
 
 def diagnose_run(model: Any, record: Any, *, split: float | None = None, out: PathLike | None = None,
-                 skip: int = 0) -> tuple[dict[str, Any], Any]:
+                 skip: int = 0, init_state: bool = False) -> tuple[dict[str, Any], Any]:
     """:func:`diagnose` of one long record (``rtlift diagnose --run [--split]``): fitted on its
     first ``split`` (default 0.6), judged on the rest — every model run over the whole record
     from rest and scored from the split on. The report's records are ``<stem>_train`` and
@@ -226,12 +240,15 @@ def diagnose_run(model: Any, record: Any, *, split: float | None = None, out: Pa
 
     name = str(model) if isinstance(model, (str, os.PathLike)) else None
     model = load(model)
-    return _diagnose(model, run(record, model, is_generic(model), split, skip, name), out, skip)
+    return _diagnose(model, run(record, model, is_generic(model), split, skip, name), out, skip, init_state)
 
 
-def _diagnose(model: Any, src: Any, out: PathLike | None, skip: int) -> tuple[dict[str, Any], Any]:
+def _diagnose(model: Any, src: Any, out: PathLike | None, skip: int,
+              init_state: bool = False) -> tuple[dict[str, Any], Any]:
     """The diagnosis of either kind on the records of ``src`` (:class:`rtlift.diagnose.sources.Sources`)."""
     from rtlift.diagnose.report import write
+
+    _check_init_state(init_state, is_generic(model), skip)
 
     if out is not None:
         try:
@@ -241,7 +258,8 @@ def _diagnose(model: Any, src: Any, out: PathLike | None, skip: int) -> tuple[di
     if is_generic(model):
         from rtlift.sysid.diagnose import diagnose_generic
 
-        diag = diagnose_generic(model, src.train, src.validate, skip, validate_skip=src.score_from)
+        diag = diagnose_generic(model, src.train, src.validate, skip, validate_skip=src.score_from,
+                                init_state=init_state)
     else:
         from rtlift.diagnose import DiagnoseOptions
         from rtlift.diagnose import diagnose as diagnose_lift

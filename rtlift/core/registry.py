@@ -184,8 +184,8 @@ REGISTRY: tuple[Entry, ...] = (     # in INTERFACES.md's order
            "the output feeds back through a static nonlinearity into the linear block's input "
            "(amplitude-dependent resonance, Duffing-like)",
            diagnosis=Diagnosis(_SISO, _HIGHER_ORDER),
-           how="the output fed back through k2 y^2 + k3 y^3 into a strictly proper linear block, all refined "
-               "jointly from the ARX fit",
+           how="the output's deviation y from an operating point fed back through k2 y^2 + k3 y^3 into a strictly "
+               "proper linear block, plus the input's direct path, all refined jointly from the ARX fit",
            forms=(("nonlinear_feedback", None),)),
     _entry("saturation", "structure",
            "a hard limit on the input, a state or the output (overflow, clipping, actuator limits)",

@@ -97,15 +97,19 @@ class FeedbackModel:
 
         y(k) = Σ_{i=1..n} b_i v(k−i) − Σ_{i=1..n} a_i y(k−i),   v(k) = u(k) − k₂ y(k)² − k₃ y(k)³
 
-    G = B/A strictly proper, so y(k) needs no v(k) (no algebraic loop). The feedback makes the
+    G = B/A strictly proper, so y(k) needs no v(k) (no algebraic loop). ``offset`` c is the
+    output's operating point: the model outputs c + y(k), the map and the recursion act on the
+    deviation y from it (a spring's rest position that is not the sensor's zero; 0 in files
+    written before it existed). ``feedthrough`` b₀ adds b₀ u(k) to y(k): the input's direct
+    path, known at sample k, so still no algebraic loop (0 in files written before it existed). The feedback makes the
     response amplitude dependent (the resonance shifts with amplitude); it cannot be filtered
     in one vectorised pass, so :meth:`simulate` runs the same recursion as :meth:`step` over the
     array (identical by construction). State: [y(k−1) … y(k−n), v(k−1) … v(k−n)].
 
-    ``state_limits`` (lower, upper) is a limit on the state (``saturation`` where ``state``):
-    y(k) is clipped inside the recursion, before it is stored and fed back,
+    ``state_limits`` (lower, upper) is a limit on the state (``saturation`` where ``state``), in
+    output units: y(k) is clipped inside the recursion, before it is stored and fed back,
 
-        y(k) = min(max(Σ b_i v(k−i) − Σ a_i y(k−i), lower), upper),
+        y(k) = min(max(Σ b_i v(k−i) − Σ a_i y(k−i), lower − c), upper − c),
 
     a store that cannot fill beyond its brim (Cascaded Tanks: the lower tank overflows, its
     level stays at the brim and falls as soon as the inflow does), where an output limit
@@ -116,10 +120,14 @@ class FeedbackModel:
 
     def __init__(self, a: np.ndarray, b: np.ndarray, feedback: np.ndarray, fs_hz: float,
                  provenance: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None,
-                 state_limits: tuple[float, float] = (-np.inf, np.inf)) -> None:
+                 state_limits: tuple[float, float] = (-np.inf, np.inf), offset: float = 0.0,
+                 feedthrough: float = 0.0) -> None:
         a, b, k = (np.asarray(v, dtype=float).ravel() for v in (a, b, feedback))
         if a.size != b.size or a.size == 0 or k.size != 2 or not all(np.all(np.isfinite(v)) for v in (a, b, k)):
             raise ValueError("nonlinear_feedback needs finite a, b of one length and two feedback coefficients")
+        self.offset, self.b0 = float(offset), float(feedthrough)
+        if not (np.isfinite(self.offset) and np.isfinite(self.b0)):
+            raise ValueError(f"nonlinear_feedback needs a finite offset and feedthrough, got {offset}, {feedthrough}")
         self.a, self.b, self.k = a, b, k
         self.n = a.size
         self.fs_hz = float(fs_hz)
@@ -130,7 +138,7 @@ class FeedbackModel:
         if np.isnan(lo) or np.isnan(hi) or not lo < hi:
             raise ValueError(f"state limits need lower < upper, got {lo}, {hi}")
         self.state_limits = (lo, hi)
-        self._lo, self._hi = lo, hi
+        self._lo, self._hi = lo - self.offset, hi - self.offset     # on the deviation y
         self._y = [0.0] * self.n
         self._v = [0.0] * self.n
 
@@ -143,7 +151,7 @@ class FeedbackModel:
 
     def step(self, u: float) -> float:
         yh, vh = self._y, self._v
-        y = 0.0
+        y = self.b0 * u
         for i in range(self.n):
             y += self._b[i] * vh[i] - self._a[i] * yh[i]
         y = min(max(y, self._lo), self._hi)
@@ -151,7 +159,7 @@ class FeedbackModel:
         for i in range(self.n - 1, 0, -1):
             yh[i], vh[i] = yh[i - 1], vh[i - 1]
         yh[0], vh[0] = y, v
-        return y
+        return self.offset + y
 
     def simulate(self, u: np.ndarray) -> np.ndarray:
         """:meth:`step` over ``u``, compiled (:func:`_feedback_run`: the same arithmetic in the same
@@ -159,7 +167,7 @@ class FeedbackModel:
         u = np.ascontiguousarray(u, dtype=float)
         out = np.empty(u.size)
         yh, vh = np.array(self._y), np.array(self._v)
-        _feedback_run(self.a, self.b, self._k2, self._k3, self._lo, self._hi, u, yh, vh, out)
+        _feedback_run(self.a, self.b, self._k2, self._k3, self._lo, self._hi, self.offset, self.b0, u, yh, vh, out)
         self._y[:], self._v[:] = yh.tolist(), vh.tolist()
         return out
 
@@ -178,12 +186,13 @@ class FeedbackModel:
 
     def limits(self) -> dict[str, Any]:
         """The state limit as the report and the file give it (infinite sides as ``None``)."""
-        return {"lower": _finite(self._lo), "upper": _finite(self._hi), "where": "state"}
+        lo, hi = self.state_limits
+        return {"lower": _finite(lo), "upper": _finite(hi), "where": "state"}
 
     def to_dict(self) -> dict[str, Any]:
         d = {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
              "fs_hz": self.fs_hz, "a": self.a.tolist(), "b": self.b.tolist(), "feedback": self.k.tolist(),
-             "provenance": self.provenance, "metrics": self.metrics}
+             "offset": self.offset, "feedthrough": self.b0, "provenance": self.provenance, "metrics": self.metrics}
         return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> FeedbackModel:
@@ -192,20 +201,21 @@ class FeedbackModel:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FeedbackModel:
         """From its file form, a state limit its own (:func:`model_from_dict`; KeyError, TypeError or
-        ValueError if wrong)."""
+        ValueError if wrong; a file without ``offset``, written before it existed, has none)."""
         sat = d.get("saturation")
         return cls(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"), d.get("metrics"),
-                   _limit_pair(sat) if sat is not None else (-np.inf, np.inf))
+                   _limit_pair(sat) if sat is not None else (-np.inf, np.inf), float(d.get("offset", 0.0)),
+                   float(d.get("feedthrough", 0.0)))
 
 
 @njit_cached
-def _feedback_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, lo: float, hi: float, u: np.ndarray,
-                  yh: np.ndarray, vh: np.ndarray, out: np.ndarray) -> None:   # pragma: no cover
+def _feedback_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, lo: float, hi: float, c: float, b0: float,
+                  u: np.ndarray, yh: np.ndarray, vh: np.ndarray, out: np.ndarray) -> None:   # pragma: no cover
     """:meth:`FeedbackModel.step` over ``u`` (compiled; the same arithmetic in the same order),
     advancing the histories ``yh``, ``vh`` (newest first) in place."""
     n = a.size
     for k in range(u.size):
-        y = 0.0
+        y = b0 * u[k]
         for i in range(n):
             y += b[i] * vh[i] - a[i] * yh[i]
         y = min(max(y, lo), hi)
@@ -215,7 +225,7 @@ def _feedback_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, lo: float,
             vh[i] = vh[i - 1]
         yh[0] = y
         vh[0] = v
-        out[k] = y
+        out[k] = c + y
 
 
 @njit_cached

@@ -56,6 +56,7 @@ from rtlift.diagnose.significance import combination, lowest_admissible, signifi
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import TestResult, higher_order, input_crosscorr, whiteness
 from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
+from rtlift.sysid.initial import initial_state
 
 HOW = {e.name: e.how for e in STRUCTURES}
 """How each structure of the registry (:mod:`rtlift.core.registry`) is fitted, for the report."""
@@ -95,7 +96,9 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
     if isinstance(model, FeedbackModel) and model.limited and limited:
         return {**model.limits(), "model": model.structure, "model_params": _structure_params(model, False)}
     if model.structure == "nonlinear_feedback":
-        return {"feedback": {"k2": float(model.k[0]), "k3": float(model.k[1])}, "order": model.n,
+        return {"feedback": {"k2": float(model.k[0]), "k3": float(model.k[1])}, "offset": model.offset,
+                "feedthrough": model.b0,
+                "order": model.n,
                 "poles": [[float(p.real), float(p.imag)] for p in np.roots(np.concatenate([[1.0], model.a]))]}
     if model.structure == "wiener":
         b1, a1 = model.g1.ba
@@ -105,17 +108,22 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
             "zeros": [[float(z.real), float(z.imag)] for z in np.roots(b2)], "order": int(a2.size - 1)}
 
 
-def predict(model: SisoModel, rec: SisoRecord) -> np.ndarray:
-    """Free-run output over the record from rest; the model is left reset."""
+def predict(model: SisoModel, rec: SisoRecord, init: int = 0) -> np.ndarray:
+    """Free-run output over the record from rest, or with ``init`` > 0 from the state estimated on
+    the record's first ``init`` samples (:func:`rtlift.sysid.initial.initial_state`); the model is
+    left reset."""
     model.reset()
+    if init > 0:
+        model.set_state(initial_state(model, rec.u, rec.y, init))
     out = model.simulate(rec.u)
     model.reset()
     return out
 
 
-def record_scores(model: SisoModel, rec: SisoRecord, skip: int) -> dict[str, float]:
-    """ρ, NRMSE, RMSE from sample ``skip`` on (``rtlift validate --skip``)."""
-    return scores(rec.y[skip:], predict(model, rec)[skip:])
+def record_scores(model: SisoModel, rec: SisoRecord, skip: int, init_state: bool = False) -> dict[str, float]:
+    """ρ, NRMSE, RMSE from sample ``skip`` on (``rtlift validate --skip``); with ``init_state`` the
+    state at the start estimated on the unscored samples (``--init-state``)."""
+    return scores(rec.y[skip:], predict(model, rec, skip if init_state else 0)[skip:])
 
 
 FINGERPRINT = ("none stored (a generic model file holds no fingerprint): the training residual's whiteness, its "
@@ -141,23 +149,28 @@ def residual_tests(model: SisoModel, rec: SisoRecord, start: int,
 
 def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
                   skip: int = 0, options: SisoOptions | None = None,
-                  validate_skip: list[int] | None = None) -> tuple[dict[str, Any], SisoModel]:
+                  validate_skip: list[int] | None = None,
+                  init_state: bool = False) -> tuple[dict[str, Any], SisoModel]:
     """The report (INTERFACES.md schema) and the augmented model of :func:`diagnose_generic`."""
-    diag = diagnose_generic(model, train, validate, skip, options, validate_skip)
+    diag = diagnose_generic(model, train, validate, skip, options, validate_skip, init_state)
     return diag.report, diag.augmented
 
 
 @one_blas_thread
 def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
                      skip: int = 0, options: SisoOptions | None = None,
-                     validate_skip: list[int] | None = None) -> Diagnosis:
+                     validate_skip: list[int] | None = None, init_state: bool = False) -> Diagnosis:
     """The diagnosis (module docstring) as :func:`rtlift.diagnose.report.write` writes it.
     ``validate_skip``: per validation record, the samples left unscored (default ``skip``; one
-    long run's validation part is the whole run scored after its training part)."""
+    long run's validation part is the whole run scored after its training part). ``init_state``:
+    every model runs over a record from the state estimated on its unscored samples
+    (:func:`rtlift.sysid.initial.initial_state`) instead of from rest."""
     vskip = list(validate_skip) if validate_skip is not None else [skip] * len(validate)
     first = {r.name: k for r, k in zip(validate, vskip, strict=True)} if validate_skip is not None else {}
+    unscored = {train.name: skip, **{r.name: k for r, k in zip(validate, vskip, strict=True)}}
+    init = (lambda name: unscored[name]) if init_state else (lambda name: 0)   # noqa: E731
     s = max(skip, 1)
-    outputs = {r.name: predict(model, r) for r in (train, *validate)}
+    outputs = {r.name: predict(model, r, init(r.name)) for r in (train, *validate)}
     e = train.y - outputs[train.name]
     tests = residual_tests(model, train, s, outputs[train.name])
     evidence = "; ".join(f"{k} ({t.verdict}): {t.detail}" for k, t in tests.items()
@@ -177,10 +190,11 @@ def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRec
         candidates = [(name, lambda structure=structure: identify_siso(train, structure, options=options))
                       for name, structure in FORMS]
         if limits != NO_LIMITS:
-            candidates.append((SATURATION.name, lambda: _best_saturated(train, validate, vskip, options, limits)))
+            candidates.append((SATURATION.name,
+                               lambda: _best_saturated(train, validate, vskip, options, limits, init_state)))
         for name, fit in candidates:
             candidate = models[name] = fit()
-            after = [(r.y - predict(candidate, r))[k:] for r, k in zip(validate, vskip, strict=True)]
+            after = [(r.y - predict(candidate, r, init(r.name)))[k:] for r, k in zip(validate, vskip, strict=True)]
             ok, why = significant_gain(before, after, measured, block, DiagnoseOptions())
             ra = float(np.sqrt(np.mean(np.concatenate(after) ** 2)))
             rows.append(combination((name,), ra, None, ok, why))
@@ -198,7 +212,7 @@ def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRec
         t.accepted = chosen is not None and t.name == chosen["members"][0]
     unexplained = [f"{k}: {t.detail}" for k, t in tests.items() if t.significant] if augmented is model else []
     records = [train, *validate]
-    after_out = outputs if augmented is model else {r.name: predict(augmented, r) for r in records}
+    after_out = outputs if augmented is model else {r.name: predict(augmented, r, init(r.name)) for r in records}
     scored = {train.name: skip, **{r.name: k for r, k in zip(validate, vskip, strict=True)}}
 
     def scored_from(out: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:   # record_scores' numbers
@@ -215,8 +229,10 @@ def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRec
         "reestimation": None,
         "selection": {"pool": [r["members"][0] for r in rows], "chosen": [] if chosen is None else chosen["members"],
                       "combinations": rows, "rule": RULE},
-        "scoring": f"free run from rest over whole records, the first {skip} samples unscored "
-                   "(rtlift validate --skip)",
+        "scoring": (f"free run over whole records from the state estimated on the first {skip} samples, "
+                    "which are unscored (rtlift validate --skip --init-state)" if init_state else
+                    f"free run from rest over whole records, the first {skip} samples unscored "
+                    "(rtlift validate --skip)"),
         "not_built": not_built,
     }
     return Diagnosis(
@@ -229,7 +245,7 @@ def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRec
 
 
 def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[int], options: SisoOptions | None,
-                    limits: Limits) -> SaturatedModel | FeedbackModel | StoreChainModel:
+                    limits: Limits, init_state: bool = False) -> SaturatedModel | FeedbackModel | StoreChainModel:
     """The ``saturation`` candidate: each form re-identified with the limit in place; the one with
     the lowest pooled validation RMSE (a form the record cannot have, a store chain fed by an input
     of negative mean, is left out)."""
@@ -239,7 +255,7 @@ def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[in
             m = identify_siso(train, structure, options=options, limits=limits, where=where)
         except ValueError:
             continue
-        err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r))[k:]
+        err = float(np.sqrt(np.mean(np.concatenate([(r.y - predict(m, r, k if init_state else 0))[k:]
                                                     for r, k in zip(validate, skip, strict=True)]) ** 2)))
         if best is None or err < best[0]:
             best = (err, m)

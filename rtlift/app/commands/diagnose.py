@@ -33,6 +33,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--skip", type=int, default=0, metavar="N",
                    help="generic records: leave each record's first N samples out of the scores")
+    p.add_argument("--init-state", action="store_true",
+                   help="generic records: every model runs from the state estimated on a record's unscored "
+                        "samples (--skip) instead of from rest")
     p.set_defaults(func=run)
 
 
@@ -57,9 +60,11 @@ def run(args: argparse.Namespace) -> int:
 
     check_sources(args)
     if args.run is not None:
-        rep, augmented = api.diagnose_run(args.model, args.run, split=args.split, out=args.out, skip=args.skip)
+        rep, augmented = api.diagnose_run(args.model, args.run, split=args.split, out=args.out, skip=args.skip,
+                                          init_state=args.init_state)
     else:
-        rep, augmented = api.diagnose(args.model, args.train, args.validate, out=args.out, skip=args.skip)
+        rep, augmented = api.diagnose(args.model, args.train, args.validate, out=args.out, skip=args.skip,
+                                      init_state=args.init_state)
     print("\n".join(summary(rep, args.model, args.out, api.is_generic(augmented))))
     return 0
 

@@ -20,6 +20,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--skip", type=int, default=0, metavar="N",
                    help="leave each record's first N samples out of the scores (a benchmark's "
                         "state-initialisation window); the model runs from rest over them")
+    p.add_argument("--init-state", action="store_true",
+                   help="generic models: run from the state estimated on the --skip unscored samples "
+                        "(a record that does not start at rest) instead of from rest")
     p.add_argument("--figures", metavar="DIR", help="write one figure per record into DIR")
     p.set_defaults(func=run)
 
@@ -34,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     if args.skip < 0:
         raise UserError(f"--skip {args.skip}: must be 0 or more")
     records = read_records(args.records, model, args.skip + 2)
-    results = validate_model(model, records, skip=args.skip, figures=args.figures)
+    results = validate_model(model, records, skip=args.skip, figures=args.figures, init_state=args.init_state)
     stems = [r.name for r in results]
     doc = validation_json(args.model, results)
     if args.json:
