@@ -106,22 +106,14 @@ def _delayed(cmu, env, d_cmu, d_env, d_pos):
 
 
 @njit_cached(inline="always")
-def _fade_gain(fpar, fstate):
-    """The ``actuator_fade`` stage's g(k) = f + (1 − f) exp(−E(k)/τ) (1 without the stage)."""
-    if fpar[0] == 0.0:
-        return 1.0
-    f = fpar[1]
-    return f + (1.0 - f) * math.exp(-fstate[0] / fpar[2])
-
-
-@njit_cached(inline="always")
 def _faded(cmu, env, fpar, fstate):
     """The ``actuator_fade`` stage (:class:`rtlift.blocks.actuator_fade.ActuatorFade`):
     (g Cμ, g Cμ_env), E advanced by 1/fs when Cμ > 0 (or always, clock "time"). ``fpar`` =
     [on, f, τ, 1/fs, clock is "time"] (on = 0: no stage), ``fstate`` = [E]."""
     if fpar[0] == 0.0:
         return cmu, env
-    g = _fade_gain(fpar, fstate)
+    f = fpar[1]
+    g = f + (1.0 - f) * math.exp(-fstate[0] / fpar[2])
     if cmu > 0.0 or fpar[4] != 0.0:
         fstate[0] = fstate[0] + fpar[3]
     return cmu * g, env * g
@@ -194,6 +186,14 @@ def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x
     Form 0: ΔCL_L = N(Cμ_env) · y (paper, table held at its ends); 1: ΔCL_L = f(y) (textbook,
     table continued along its end segments).
     """
+    total, high, low, _, _ = hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x)
+    return total, high, low
+
+
+@njit_cached(inline="always")
+def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x):
+    """:func:`hybrid_step` that also returns the inputs after the input stages, (ΔCL, ΔCL_H,
+    ΔCL_L, Cμ′, Cμ_env′): what the observer's step needs besides the output."""
     cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
     cmu, env = _faded(cmu, env, fpar, fstate)
     p = _push(buf, pos, cmu)
@@ -205,7 +205,7 @@ def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x
     o = 2 + n_taps + 5 * (z.shape[0] // 2)
     xs, fs, slopes, scratch = _wiener_table(par, o, x.shape[0])
     low = _wiener(par, o, xs, fs, slopes, scratch, x, env)
-    return high + low, high, low
+    return high + low, high, low, cmu, env
 
 
 @njit_cached(inline="always")

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from rtlift.blocks.compiled import _fade_gain, _segment, _table, hybrid_step
+from rtlift.blocks.compiled import _segment, _table, hybrid_sample
 from rtlift.core.jit import njit_cached
 from rtlift.observer import config
 
@@ -69,14 +69,9 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, fade_state
         cmu, env, dcl = s[LAST_CMU], s[LAST_ENV], math.nan
         flags = config.FLAG_BAD_INPUT
         s[BAD_INPUTS] += 1
-    if d_cmu.shape[0] > 0:              # what the model's delay stage hands on: Cμ′, Cμ_env′
-        c_in, e_in = d_cmu[d_pos[0]], d_env[d_pos[0]]
-    else:
-        c_in, e_in = cmu, env
-    g = _fade_gain(fade_par, fade_state)     # and its fade after it, before the step advances E
-    c_in, e_in = c_in * g, e_in * g
-    total, high, _ = hybrid_step(cmu, env, mpar, d_cmu, d_env, d_pos, fade_par, fade_state, buf, pos, z, xm)
-    cmu, env = c_in, e_in
+    # the model's step, and the inputs its delay and fade stages hand on (Cμ′, Cμ_env′)
+    total, high, _, cmu, env = hybrid_sample(cmu, env, mpar, d_cmu, d_env, d_pos, fade_par, fade_state, buf, pos,
+                                             z, xm)
     known = high
     s[SAMPLE] += 1
 

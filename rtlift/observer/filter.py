@@ -10,6 +10,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import blas
 
+from rtlift.blocks.compiled import hybrid_step
 from rtlift.model.hybrid import HybridModel
 from rtlift.observer import compiled as cs
 from rtlift.observer.config import (
@@ -127,7 +128,7 @@ class Observer:
     def _bind_kernel(self) -> tuple:
         """(compiled step, its arguments after Cμ, Cμ_env, ΔCL), or () for the reference step."""
         kernel = self.model._bind_kernel()
-        if not kernel or kernel[0] is not cs.hybrid_step:    # the paper's structure only, not the interaction one
+        if not kernel or kernel[0] is not hybrid_step:       # the paper's structure only, not the interaction one
             return ()
         model_args = kernel[1]
         lay = self.layout
