@@ -145,8 +145,31 @@ def independent_records(work: Path, folders: tuple[str, ...] = ("clean", "campai
     return model, recs
 
 
+IP_CASES = ("clean", "fade", "drift", "mains", "delay_mains", "delay", "hysteresis", "resonance")
+
+
+def independent_cases(work: Path) -> dict | None:
+    """What the monitor raises on each of the independent plant's cases (effects present from the
+    start), with the model identified on its campaign: per case and loop-like record, the first
+    departure of each test ``{t_s, test, suspect}``."""
+    if not (IP_DATA / "clean").is_dir():
+        return None
+    model = independent_model(work)
+    out: dict = {}
+    for case in IP_CASES:
+        for t in LOOP_TYPES:
+            mon = monitor_record(model, read_record(IP_DATA / case / f"{t}.csv"))
+            first: dict = {}
+            for d in mon.departures:
+                first.setdefault(d["test"], {"t_s": d["t_s"], "test": d["test"], "suspect": d["suspect"]})
+            out.setdefault(case, {})[t] = sorted(first.values(), key=lambda d: d["t_s"])
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ip-cases", action="store_true",
+                    help="only: the first departures on each of the independent plant's cases")
     ap.add_argument("--calibrate", action="store_true", help="print thresholds from the calibration seeds")
     ap.add_argument("--cal-seeds", default="100,101,102", help="calibration seeds (default 100,101,102)")
     ap.add_argument("--seeds", default="200,201,202,203,204,205,206,207",
@@ -160,6 +183,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the independent plant's clean records of these folders (calibration: campaign; "
                          "null rate: clean)")
     args = ap.parse_args(argv)
+    if args.ip_cases:
+        cases = independent_cases(Path(tempfile.mkdtemp(prefix="rtlift-monitor-")))
+        if cases is None:
+            print(f"independent plant data not found at {IP_DATA}", file=sys.stderr)
+            return 1
+        for case, recs in cases.items():
+            print(case, "; ".join(f"{t}: " + (", ".join(f"{d['t_s']:g} s {d['test']} ({d['suspect']})" for d in ds)
+                                               or "-") for t, ds in recs.items()), file=sys.stderr)
+        print(json.dumps({"benchmark": "monitor_ip_cases", "cases": cases}))
+        return 0
     model = load_model(args.model)
     types = args.types.split(",")
     seeds = [int(s) for s in (args.cal_seeds if args.calibrate else args.seeds).split(",")]

@@ -55,10 +55,10 @@ def test_the_fade_is_raised_and_the_loop_adapts_to_it(runs):
     onset = ONSET_TRACKING_S + TARE_S          # the onset on the monitor's clock: 22 s
     deps = s["departures"]
     assert deps and deps[0]["t_s"] > onset, deps                       # nothing before the onset
-    # measured 15–19 s after the onset (the issue asks 10 s: the thresholds that also hold on the
-    # independent plant's clean records cost it); the suspect is a hint (at first a fade and a drift
-    # look alike to a closed loop), the diagnosis of the window decides
-    assert deps[0]["t_s"] <= onset + 22.0, deps
+    # the issue: a departure naming the fade within 10 s of its onset (the hold test: the loop holds
+    # its lift between reference steps, and the residual moves when the actuators fade)
+    assert deps[0]["t_s"] <= onset + 10.0, deps
+    assert deps[0]["suspect"] == "actuator_fade", deps
     swaps = [a for a in s["adaptations"] if a.get("swapped")]
     assert swaps, s["adaptations"]
     assert "actuator_fade" in swaps[0]["accepted"]

@@ -29,7 +29,20 @@ each block it evaluates, over the last ``window`` blocks (``trend_window`` for t
 - ``line``   the largest ratio (dB) of the innovations' Hann periodogram in one bin to the
   median of the ±``line_half_width_hz`` around it, outside DC and the burst-rate harmonics
   (a narrow pickup);
-- ``trend``  |slope of the block means of e| × the trend window / σ_fp — a slow drift.
+- ``trend``  |slope of the block means of e| × the trend window / σ_fp — a slow drift;
+- ``hold``   |ē_L − ē_ref| / σ_hold while the loop holds its operating point: a *hold* begins
+  when the model's lift settles (its block means within ``hold_band`` σ_fp of each other over
+  ``hold_reference`` blocks, ``hold_settle`` blocks after it last moved), ē_ref is the median of
+  those blocks' e and m_ref of their m; while every later block's m stays within ``hold_band`` σ_fp
+  of m_ref, ē_L (the mean of e over the last ``hold_current`` blocks) is compared with ē_ref. A
+  block whose m leaves the band ends the hold (a reference step; the next one begins). σ_hold is
+  the model's own block jitter on its quasi-static record, from the fingerprint
+  (:func:`fingerprint_hold_scale`): how much 1-s block means of its residual move from one block
+  to the next when nothing changes. A closed loop holds its operating point between reference
+  steps, where a clean plant's residual stays put: what moves it then is the plant (a fade in a
+  loop at first — the controller raises Cμ to hold the lift, so ē falls while m rises by as much —
+  or a drifting zero). Measured against the hold's own start, not the run's first window, the
+  model's misfit at other operating points does not enter it.
 
 A departure is raised when a statistic stays above its threshold for ``persist`` consecutive
 evaluations; the same test is not raised again until it has been back under its threshold for
@@ -44,7 +57,11 @@ the model's lift with a negative slope beside an offset and a trend in time, a `
 the lift moved and they did not follow it, else "actuator_fade or zero_drift" (in a closed loop
 the two look alike at first: the controller raises Cμ as the lift falls); ``gain`` < 0 an ``actuator_fade``;
 ``line`` a ``periodic_disturbance`` at the peak's frequency; ``level`` and ``whiteness`` an
-unmodelled ``resonance`` or noise; ``trend`` a ``zero_drift``.
+unmodelled ``resonance`` or noise; ``trend`` a ``zero_drift``; ``hold`` an ``actuator_fade`` when
+the lift fell below the model's (a fade cannot raise it), a ``zero_drift`` when it rose. A balance
+zero falling during a hold looks the same to a loop until its next reference step (the fade's part
+scales with the lift, the drift's does not): the name is the likelier cause on a rig whose
+actuators heat as they run, and the diagnosis ``--adapt`` runs decides.
 """
 
 from __future__ import annotations
@@ -58,12 +75,13 @@ import numpy as np
 
 from rtlift.core.rate import FS_HZ
 
-TESTS = ("bias", "gain", "level", "whiteness", "line", "trend")
+TESTS = ("bias", "gain", "level", "whiteness", "line", "trend", "hold")
 MARGIN = 1.25
 """Thresholds are the clean runs' largest persistent value times this margin."""
 
 THRESHOLDS: Mapping[str, float] = {
-    "bias": 0.8719, "gain": 0.2351, "level": 2.6901, "whiteness": 0.7771, "line": 25.4728, "trend": 1.5606,
+    "bias": 0.8705, "gain": 0.2351, "level": 2.6901, "whiteness": 0.7771, "line": 25.5823, "trend": 1.5606,
+    "hold": 4.2218,
 }
 """Set by ``python -m benchmarks.monitor_null --calibrate`` from clean streams (module docstring);
 the values and the runs they came from are in docs/INTERFACES.md ("Live departure monitor")."""
@@ -82,6 +100,10 @@ class MonitorConfig:
     line_min_hz: float = 0.5
     burst_hz: float = 8.0
     burst_guard_hz: float = 0.4
+    hold_band: float = 1.0
+    hold_settle_s: float = 2.0
+    hold_reference_s: float = 3.0
+    hold_current_s: float = 2.0
     thresholds: Mapping[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
 
 
@@ -101,6 +123,39 @@ def fingerprint_scale(fingerprint: Mapping[str, Any] | None) -> float:
     return float(np.median(vals)) if vals else math.nan
 
 
+QUASI_STATIC = "static"
+"""The identification record whose input holds still longest (the static sweep)."""
+
+
+def fingerprint_hold_scale(fingerprint: Mapping[str, Any] | None, block_s: float = 1.0) -> float:
+    """σ_hold: the standard deviation of a block mean's step from one ``block_s`` block to the next,
+    of the model's residual on its quasi-static record (the static sweep; else the loop-like
+    records' median), computed from the fingerprint's Welch PSD P(f) of that residual:
+
+        σ_hold² = ½ ∫ P(f) sinc²(f T) 4 sin²(π f T) df,   T = ``block_s``
+
+    (the variance of the difference of two adjacent T-means of a stationary series with one-sided
+    PSD P, halved). Differences, not the block means' spread: a sweep's slow misfit moves the block
+    means over tens of seconds, not from one block to the next. NaN without a usable PSD."""
+    recs = (fingerprint or {}).get("records") or {}
+
+    def one(r: Any) -> float:
+        psd = r.get("psd") if isinstance(r, Mapping) else None
+        if not psd:
+            return math.nan
+        f = np.asarray(psd["f_hz"], dtype=float)
+        p = 10.0 ** np.asarray(psd["log10"], dtype=float)
+        h2 = np.sinc(f * block_s) ** 2 * 4.0 * np.sin(np.pi * f * block_s) ** 2
+        g = p * h2
+        var = float(np.sum(0.5 * (g[1:] + g[:-1]) * np.diff(f)))
+        return math.sqrt(0.5 * var) if var > 0 else math.nan
+
+    if QUASI_STATIC in recs and math.isfinite(one(recs[QUASI_STATIC])):
+        return one(recs[QUASI_STATIC])
+    vals = [v for name, r in recs.items() if name.startswith(LOOP_LIKE) and math.isfinite(v := one(r))]
+    return float(np.median(vals)) if vals else math.nan
+
+
 class DepartureMonitor:
     """Sliding-window departure tests of a running observer's residual (module docstring).
 
@@ -109,16 +164,23 @@ class DepartureMonitor:
     ``on_departure`` (if set) is called with each as it is raised.
     """
 
-    def __init__(self, scale: float, fs_hz: float = FS_HZ, config: MonitorConfig | None = None) -> None:
+    def __init__(self, scale: float, fs_hz: float = FS_HZ, config: MonitorConfig | None = None,
+                 hold_scale: float = math.nan) -> None:
         if not (math.isfinite(scale) and scale > 0):
             raise ValueError(f"monitor scale (the fingerprint's residual RMSE) must be positive, got {scale!r}")
         self.scale = float(scale)
+        self.hold_scale = float(hold_scale) if math.isfinite(hold_scale) and hold_scale > 0 else math.nan
+        """σ_hold (:func:`fingerprint_hold_scale`); NaN turns the ``hold`` test off."""
         self.fs_hz = float(fs_hz)
         self.config = cfg = config or MonitorConfig()
         self.block = max(1, int(round(cfg.block_s * fs_hz)))
         self.window_blocks = max(2, int(round(cfg.window_s / cfg.block_s)))
         self.trend_blocks = max(self.window_blocks, int(round(cfg.trend_window_s / cfg.block_s)))
         self.thresholds = {k: float(cfg.thresholds.get(k, math.inf)) for k in TESTS}
+        if math.isnan(self.hold_scale):
+            self.thresholds["hold"] = math.inf
+        self._hold_blocks = tuple(max(1, int(round(x / cfg.block_s)))
+                                  for x in (cfg.hold_settle_s, cfg.hold_reference_s, cfg.hold_current_s))
         self._blocks = np.zeros((self.trend_blocks, N_SUMS))
         self._ring = np.zeros(self.window_blocks * self.block)
         n = self._ring.size
@@ -141,7 +203,8 @@ class DepartureMonitor:
         scale = fingerprint_scale(getattr(model, "fingerprint", None))
         if not math.isfinite(scale):
             raise ValueError("the model file has no residual fingerprint (identify it with rtlift identify)")
-        return cls(scale, model.fs_hz, config)
+        cfg = config or MonitorConfig()
+        return cls(scale, model.fs_hz, cfg, fingerprint_hold_scale(model.fingerprint, cfg.block_s))
 
     def reset(self) -> None:
         """Windows, runs and the sample count cleared (a new run)."""
@@ -164,6 +227,9 @@ class DepartureMonitor:
         self._run = dict.fromkeys(TESTS, 0)
         self._quiet = dict.fromkeys(TESTS, self.window_blocks)
         self._active = dict.fromkeys(TESTS, False)
+        self._hold_start = 0            # block count at which the current hold began
+        self._hold_ref: tuple[float, float] | None = None
+        self._hold = 0.0                # the hold statistic after the last block (signed, σ_hold)
 
     # -- the hot path -------------------------------------------------------------------
     def step(self, dcl: float | None, model_dcl: float, innovation: float) -> None:
@@ -203,8 +269,37 @@ class DepartureMonitor:
         self._acc = [0.0] * N_SUMS
         self._in_block = 0
         self._nb += 1
+        self._update_hold(row)
         if self._nb >= self.window_blocks:
             self._evaluate()
+
+    def _update_hold(self, row: np.ndarray) -> None:
+        """The ``hold`` test's state after a block (module docstring): begin, keep or end a hold,
+        and its statistic (0 outside a hold's comparison)."""
+        self._hold = 0.0
+        if math.isnan(self.hold_scale):
+            return
+        settle, ref_n, cur_n = self._hold_blocks
+        band = self.config.hold_band * self.scale
+        if row[0] <= 0:                               # no measurement: a hold cannot span it
+            self._hold_start, self._hold_ref = self._nb, None
+            return
+        m = row[3] / row[0]
+        ref = self._hold_ref
+        if ref is not None and abs(m - ref[1]) > band:
+            self._hold_start, self._hold_ref = self._nb - 1, None
+            return
+        if ref is None:
+            if self._nb - self._hold_start >= settle + ref_n:
+                w = self._window_sums(ref_n)
+                ms = w[:, 3] / w[:, 0]
+                if float(np.ptp(ms)) <= 0.5 * band:
+                    self._hold_ref = (float(np.median(w[:, 1] / w[:, 0])), float(np.median(ms)))
+                else:                                   # not settled yet: try the next blocks
+                    self._hold_start = self._nb - settle - ref_n + 1
+            return
+        w = self._window_sums(cur_n)
+        self._hold = (float(w[:, 1].sum() / w[:, 0].sum()) - ref[0]) / self.hold_scale
 
     def _window_sums(self, blocks: int) -> np.ndarray:
         nb = min(self._nb, self.trend_blocks)
@@ -248,6 +343,7 @@ class DepartureMonitor:
                 xc = x - x.mean()
                 slope = float(xc @ (means - means.mean()) / (xc @ xc))
                 out["trend"] = abs(slope) * self.config.trend_window_s / sc
+        out["hold"] = abs(self._hold)
         return out
 
     def _block_slope(self, w: np.ndarray) -> tuple[str, float]:
@@ -325,6 +421,8 @@ class DepartureMonitor:
             return f"periodic_disturbance at {getattr(self, '_line_hz', math.nan):.2f} Hz"
         if test == "trend":
             return "zero_drift"
+        if test == "hold":
+            return "actuator_fade" if self._hold < 0 else "zero_drift"
         return "resonance or added noise"
 
     def _raise(self, t_s: float, test: str, value: float, threshold: float) -> None:
@@ -335,7 +433,11 @@ class DepartureMonitor:
             self.on_departure(d)
 
     def summary(self) -> dict[str, Any]:
-        return {"scale": self.scale, "evaluations": self.evaluations, "thresholds": dict(self.thresholds),
+        def finite(v: float) -> float | None:
+            return float(v) if math.isfinite(v) else None
+
+        return {"scale": self.scale, "hold_scale": finite(self.hold_scale), "evaluations": self.evaluations,
+                "thresholds": {k: finite(v) for k, v in self.thresholds.items()},
                 "last": {k: float(v) for k, v in self.last.items()}}
 
 
