@@ -38,15 +38,34 @@ def _stages(delay: int, fade: int) -> tuple:
     return stages
 
 
+OUTPUT_STAGES = (
+    lambda: ZeroDrift(FS, rate_per_s=0.01, offset=0.001),
+    lambda: ZeroDrift(FS, amplitude=-0.02, time_constant_s=0.3, offset=0.002),
+    lambda: SensorResonance(30.0, 0.1, FS),
+    lambda: PeriodicDisturbance(50.0, 0.002, 0.3, FS, [{"n": 3, "amplitude": 0.001, "phase_rad": 1.0},
+                                                         {"n": 5, "amplitude": 0.0005}]),
+)
+"""Output stages, any of which the compiled step takes, in any number and order."""
+
+
+def _outputs(picks: list[int]) -> tuple:
+    return tuple(OUTPUT_STAGES[i]() for i in picks)
+
+
+output_picks = st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3)
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), kernel_len=st.integers(1, 60),
        order=st.integers(1, 3), hp_order=st.integers(1, 4), output_form=st.booleans(),
-       delay=st.integers(0, 5), fade=st.integers(0, 2), warm=st.integers(0, 50))
-def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_order, output_form, delay, fade, warm):
+       delay=st.integers(0, 5), fade=st.integers(0, 2), warm=st.integers(0, 50), outputs=output_picks)
+def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_order, output_form, delay, fade, warm,
+                                             outputs):
     """(ΔCL, ΔCL_H, ΔCL_L) and the state after the steps agree to 1e-12, from any starting state."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
     m.input_stages = _stages(delay, fade)
+    m.output_stages = _outputs(outputs)
     assert m.compiled
     cmu, env = burst_input(rng, n + warm)
     _run(m.reference_step, cmu[:warm], env[:warm])         # a state that is not the rest state
@@ -61,12 +80,14 @@ def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_orde
 
 
 @settings(max_examples=20, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), cut=st.integers(0, 200), delay=st.integers(0, 3), fade=st.integers(0, 2))
-def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay, fade):
+@given(seed=st.integers(0, 2**32 - 1), cut=st.integers(0, 200), delay=st.integers(0, 3), fade=st.integers(0, 2),
+       outputs=output_picks)
+def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay, fade, outputs):
     """Stop anywhere, checkpoint, restore into a fresh model: the rest of the record is identical."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=25, order=2)
     m.input_stages = _stages(delay, fade)
+    m.output_stages = _outputs(outputs)
     cmu, env = burst_input(rng, 200)
     whole = _run(m.step, cmu, env)
     m.reset()
@@ -94,9 +115,6 @@ def test_identified_model_forms_take_the_compiled_step(output_form):
 def _fallback_models():
     rng = np.random.default_rng(4)
     m = make_model(rng)
-    yield "zero_drift", m.with_stages(output_stages=(ZeroDrift(FS, rate_per_s=0.01, offset=0.001),))
-    yield "sensor_resonance", m.with_stages(output_stages=(SensorResonance(30.0, 0.1, FS),))
-    yield "periodic_disturbance", m.with_stages(output_stages=(PeriodicDisturbance(20.0, 0.002, 0.3, FS),))
     yield "fade_then_delay", m.with_stages(input_stages=(ActuatorFade(0.7, 2.0, FS), Delay(1 / FS, FS)))
     yield "two_delays", m.with_stages(input_stages=(Delay(1 / FS, FS), Delay(2 / FS, FS)))
     for cls in (HysteresisGain, OutputHysteresis):
@@ -119,10 +137,30 @@ def test_models_with_uncompiled_effects_step_with_the_reference(name, model):
 def test_assigning_stages_switches_between_compiled_and_reference():
     m = make_model(np.random.default_rng(6))
     assert m.compiled
-    m.output_stages = (ZeroDrift(FS, rate_per_s=0.01),)
+    m.input_stages = (Delay(1 / FS, FS), Delay(2 / FS, FS))
     assert not m.compiled
-    m.output_stages = ()
+    m.input_stages = ()
+    m.output_stages = (ZeroDrift(FS, rate_per_s=0.01),)
     assert m.compiled
+
+
+def test_output_stages_state_is_the_compiled_steps():
+    """The stages' own get_state, set_state and Python step work on the array the compiled step
+    advances: a model stepped compiled then by the reference goes on as the reference alone."""
+    rng = np.random.default_rng(11)
+    m = make_model(rng)
+    m.output_stages = _outputs([0, 2, 3])
+    cmu, env = burst_input(rng, 200)
+    mixed = np.concatenate([_run(m.step, cmu[:100], env[:100]), _run(m.reference_step, cmu[100:], env[100:])], axis=1)
+    m.reset()
+    alone = _run(m.reference_step, cmu, env)
+    np.testing.assert_allclose(mixed, alone, atol=TOL, rtol=0)
+    m.output_stages = _outputs([0])
+    drift = m.output_stages[0]
+    drift.set_state(np.array([0.5, 0.25]))         # in place: the compiled step sees it
+    total, high, low = m.step(0.0, 0.0)
+    assert m.compiled and total == high + low + 0.75
+    np.testing.assert_array_equal(drift.get_state(), [0.75, 0.25])
 
 
 def test_warm_up_leaves_the_state_untouched():
@@ -156,14 +194,15 @@ def test_integer_and_numpy_scalar_inputs_give_the_float_result():
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), cuts=st.lists(st.integers(0, 400), min_size=2, max_size=2),
        kernel_len=st.integers(1, 60), order=st.integers(1, 3), hp_order=st.integers(1, 4),
-       output_form=st.booleans(), delay=st.integers(0, 5), fade=st.integers(0, 2))
+       output_form=st.booleans(), delay=st.integers(0, 5), fade=st.integers(0, 2), outputs=output_picks)
 def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, order, hp_order, output_form, delay,
-                                                       fade):
+                                                       fade, outputs):
     """Stream, batch (the fused compiled loop), stream again: (ΔCL, ΔCL_H, ΔCL_L) and the state
     after each part equal the steps alone to 1e-12, batches shorter and longer than the kernel."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
     m.input_stages = _stages(delay, fade)
+    m.output_stages = _outputs(outputs)
     cmu, env = burst_input(rng, 450)
     a, b = sorted(cuts)
     expect = _run(m.step, cmu, env)
@@ -180,13 +219,14 @@ def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, o
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 3000), warm=st.integers(0, 400),
-       output_form=st.booleans(), delay=st.integers(0, 3), fade=st.integers(0, 2))
-def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay, fade):
+       output_form=st.booleans(), delay=st.integers(0, 3), fade=st.integers(0, 2), outputs=output_picks)
+def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay, fade, outputs):
     """The fused loop and the numpy/scipy chain (``reference_simulate``, scatter or FFT for long
     records) agree to 1e-12 from a mid-record state, and leave the same state."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=300, output_form=output_form)
     m.input_stages = _stages(delay, fade)
+    m.output_stages = _outputs(outputs)
     cmu, env = burst_input(rng, warm + n)
     _run(m.step, cmu[:warm], env[:warm])
     start = m.get_state()

@@ -13,6 +13,9 @@ from hypothesis import strategies as st
 from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.blocks.delay import Delay
 from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
+from rtlift.blocks.sensor_resonance import SensorResonance
+from rtlift.blocks.wiener import HysteresisGain
+from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer, ObserverConfig
 from testkit.synthetic import burst_input, make_model
@@ -38,6 +41,14 @@ def _inputs(rng, n):
     return cmu.tolist(), env.tolist(), [None if (v != v and i % 2) else v for i, v in enumerate(z.tolist())]
 
 
+OUTPUT_STAGES = (
+    lambda: ZeroDrift(FS, rate_per_s=0.01, offset=0.001),          # the bias state stands for it
+    lambda: ZeroDrift(FS, amplitude=-0.02, time_constant_s=0.3),
+    lambda: SensorResonance(30.0, 0.1, FS),                         # a known correction
+    lambda: PeriodicDisturbance(20.0, 0.003, 0.3, FS, [{"n": 3, "amplitude": 0.001}]),   # oscillator states
+)
+
+
 def _run(step, cmu, env, z):
     return np.array([step(c, e, m).as_tuple() for c, e, m in zip(cmu, env, z, strict=True)])
 
@@ -45,8 +56,9 @@ def _run(step, cmu, env, z):
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 500), order=st.integers(1, 3),
        output_form=st.booleans(), delay=st.integers(0, 4), fade=st.booleans(),
-       config=st.sampled_from(sorted(CONFIGS)), warm=st.integers(0, 100))
-def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay, fade, config, warm):
+       config=st.sampled_from(sorted(CONFIGS)), warm=st.integers(0, 100),
+       outputs=st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3))
+def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay, fade, config, warm, outputs):
     """Estimates (ΔĈL, open loop, ν, NIS, flags), counters and the whole state agree to 1e-12,
     from a state that is not the rest state."""
     rng = np.random.default_rng(seed)
@@ -55,6 +67,7 @@ def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay,
     if fade:      # an actuator fade after it (what --adapt swaps in): compiled too
         stages += (ActuatorFade(0.6, 0.05, FS),)
     model.input_stages = stages
+    model.output_stages = tuple(OUTPUT_STAGES[i]() for i in outputs)   # what diagnose and --adapt add
     obs = Observer(model, CONFIGS[config])
     assert obs.compiled
     cmu, env, z = _inputs(rng, n + warm)
@@ -88,11 +101,14 @@ def test_bad_inputs_and_missing_samples_are_counted_the_same_way(rng):
     assert est.flags == FLAG_MISSING and obs.missing == 2 and est.sample == 2
 
 
-def test_an_observer_of_a_model_with_an_uncompiled_stage_takes_the_reference_step(rng):
-    """A periodic disturbance (an output stage) is not in the compiled model step: the observer
-    says so and its step is the reference step, sample for sample."""
-    model = make_model(rng).with_stages(output_stages=(PeriodicDisturbance(20.0, 0.01, 0.0, FS),))
-    obs, ref = Observer(model, CONFIGS["plain"]), Observer(model, CONFIGS["plain"])
+def test_an_observer_of_a_model_with_an_uncompiled_block_takes_the_reference_step(rng):
+    """A hysteresis nonlinearity is not in the compiled model step: the observer says so and its
+    step is the reference step, sample for sample."""
+    model = make_model(rng)
+    nl = model.wiener.nonlinearity
+    model.wiener.nonlinearity = HysteresisGain(nl.cmu, nl.gain, magnitude=0.2, time_constant_s=0.1, fs_hz=FS)
+    model = model.copy()
+    obs, ref = Observer(model, CONFIGS["plain"]), Observer(model.copy(), CONFIGS["plain"])
     assert not model.compiled and not obs.compiled and obs.warm_up() < 0.01
     cmu, env, z = _inputs(rng, 300)
     np.testing.assert_array_equal(_run(obs.step, cmu, env, z), _run(ref.reference_step, cmu, env, z))

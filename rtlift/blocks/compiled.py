@@ -28,14 +28,16 @@ sample's recursions through memory) and 10–12 ms for the numpy/scipy chain.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import carray, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from rtlift.blocks.compiled_stages import _delayed, _faded, _output_chain
 from rtlift.core.jit import njit_cached
+
+OPAR_ARG = 6
+"""Where the output stages' parameters sit among :func:`hybrid_step`'s arguments after (Cμ, Cμ_env)."""
 
 _COUNT_MAX = 128
 """Grids up to this many points are searched by counting (:func:`_segment`)."""
@@ -88,35 +90,6 @@ def pack_parameters(taps: np.ndarray, coef: np.ndarray, A: np.ndarray, B: np.nda
     The lengths of φh, the sections and A follow from the state arrays' lengths."""
     head = np.array([float(form), float(xs.size)])
     return np.concatenate([head, taps, coef.ravel(), A.ravel(), B, C, xs, fs, slopes, np.zeros(B.size)])
-
-
-@njit_cached(inline="always")
-def _delayed(cmu, env, d_cmu, d_env, d_pos):
-    """The ``delay`` stage: (Cμ(k − D), Cμ_env(k − D)) out of its rings (length D; empty: D = 0),
-    (Cμ(k), Cμ_env(k)) in."""
-    n_delay = d_cmu.shape[0]
-    if n_delay == 0:
-        return cmu, env
-    i = d_pos[0]
-    c, e = d_cmu[i], d_env[i]
-    d_cmu[i] = cmu
-    d_env[i] = env
-    d_pos[0] = i + 1 if i + 1 < n_delay else 0
-    return c, e
-
-
-@njit_cached(inline="always")
-def _faded(cmu, env, fpar, fstate):
-    """The ``actuator_fade`` stage (:class:`rtlift.blocks.actuator_fade.ActuatorFade`):
-    (g Cμ, g Cμ_env), E advanced by 1/fs when Cμ > 0 (or always, clock "time"). ``fpar`` =
-    [on, f, τ, 1/fs, clock is "time"] (on = 0: no stage), ``fstate`` = [E]."""
-    if fpar[0] == 0.0:
-        return cmu, env
-    f = fpar[1]
-    g = f + (1.0 - f) * math.exp(-fstate[0] / fpar[2])
-    if cmu > 0.0 or fpar[4] != 0.0:
-        fstate[0] = fstate[0] + fpar[3]
-    return cmu * g, env * g
 
 
 @njit_cached(inline="always")
@@ -178,22 +151,26 @@ def _wiener(par, o, xs, fs, slopes, scratch, x, env):
 
 
 @njit_cached
-def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x):
+def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate, buf, pos, z, x):
     """One sample: (ΔCL, ΔCL_H, ΔCL_L); advances the delay rings, the fade's clock, the
-    convolution buffer and position, the filter state z and the LTI state x in place (``par``:
-    :func:`pack_parameters`). ``d_cmu``/``d_env`` are the ``delay`` stage's rings (length D;
-    empty: no delay), ``fpar``/``fstate`` the ``actuator_fade`` stage's after it (:func:`_faded`).
+    convolution buffer and position, the filter state z, the LTI state x and the output stages'
+    states in place (``par``: :func:`pack_parameters`). ``d_cmu``/``d_env`` are the ``delay``
+    stage's rings (length D; empty: no delay), ``fpar``/``fstate`` the ``actuator_fade`` stage's
+    after it, ``opar``/``ostate`` the output stages' (:mod:`rtlift.blocks.compiled_stages`).
     Form 0: ΔCL_L = N(Cμ_env) · y (paper, table held at its ends); 1: ΔCL_L = f(y) (textbook,
-    table continued along its end segments).
+    table continued along its end segments). ΔCL is after the output stages, ΔCL_H and ΔCL_L
+    before them.
     """
-    total, high, low, _, _ = hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x)
+    total, high, low, _, _, _ = hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate, buf,
+                                              pos, z, x)
     return total, high, low
 
 
 @njit_cached(inline="always")
-def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x):
-    """:func:`hybrid_step` that also returns the inputs after the input stages, (ΔCL, ΔCL_H,
-    ΔCL_L, Cμ′, Cμ_env′): what the observer's step needs besides the output."""
+def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate, buf, pos, z, x):
+    """:func:`hybrid_step` that also returns the inputs after the input stages and the flagged
+    output stages' corrections, (ΔCL, ΔCL_H, ΔCL_L, Cμ′, Cμ_env′, known): what the observer's
+    step needs besides the output."""
     cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
     cmu, env = _faded(cmu, env, fpar, fstate)
     p = _push(buf, pos, cmu)
@@ -205,7 +182,8 @@ def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z,
     o = 2 + n_taps + 5 * (z.shape[0] // 2)
     xs, fs, slopes, scratch = _wiener_table(par, o, x.shape[0])
     low = _wiener(par, o, xs, fs, slopes, scratch, x, env)
-    return high + low, high, low, cmu, env
+    total, known = _output_chain(high + low, opar, ostate)
+    return total, high, low, cmu, env, known
 
 
 @njit_cached(inline="always")
@@ -243,8 +221,8 @@ def state_slots(z: np.ndarray, x: np.ndarray) -> tuple[tuple[float, ...], ...]:
 
 
 @njit_cached
-def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, fstate, buf, pos, z, x, z_slots,
-                    x_slots, p_slots):
+def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate, buf, pos, z, x,
+                    z_slots, x_slots, p_slots):
     """:func:`hybrid_step` over whole arrays in one loop, into ``total``, ``high`` and ``low``
     (same length as ``cmu``), from and advancing the same state, through the same helpers.
 
@@ -301,6 +279,9 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, 
         total[k] = h + lo
     z[:] = z_local
     x[:] = x_local
+    if opar[0] != 0.0:                        # the output stages, sample by sample
+        for k in range(n):
+            total[k], _ = _output_chain(total[k], opar, ostate)
 
 
 @njit_cached

@@ -59,7 +59,7 @@ class PeriodicDisturbance(OutputStage):
         self.state_size = 2 * self.omegas.size
         self._cos = [math.cos(w) for w in self.omegas]
         self._sin = [math.sin(w) for w in self.omegas]
-        self._x = [0.0] * self.state_size
+        self._xs = np.zeros(self.state_size)
         self.reset()
 
     @property
@@ -90,17 +90,17 @@ class PeriodicDisturbance(OutputStage):
 
     def reset(self) -> None:
         for i, (a, p, w) in enumerate(zip(self.amplitudes, self.phases, self.omegas, strict=True)):
-            self._x[2 * i] = float(a * math.sin(p - w))
-            self._x[2 * i + 1] = float(a * math.cos(p - w))
+            self._xs[2 * i] = float(a * math.sin(p - w))
+            self._xs[2 * i + 1] = float(a * math.cos(p - w))
 
     def get_state(self) -> np.ndarray:
-        return np.array(self._x)
+        return np.array(self._xs)
 
     def set_state(self, state: np.ndarray) -> None:
         st = np.asarray(state, dtype=float)
         if st.shape != (self.state_size,):
             raise ValueError(f"{self.name} state must have shape ({self.state_size},), got {st.shape}")
-        self._x[:] = [float(v) for v in st]
+        self._xs[:] = [float(v) for v in st]
 
     def statespace(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         L = self.omegas.size
@@ -112,7 +112,7 @@ class PeriodicDisturbance(OutputStage):
         return A, np.zeros(2 * L), C, np.array(1.0)
 
     def step(self, dcl: float) -> float:
-        x = self._x
+        x = self._xs
         d = 0.0
         for i in range(len(self._cos)):
             c, s = self._cos[i], self._sin[i]
@@ -130,11 +130,11 @@ class PeriodicDisturbance(OutputStage):
         out = u.copy()
         k = np.arange(1, n + 1)
         for i, w in enumerate(self.omegas):
-            x0, x1 = self._x[2 * i], self._x[2 * i + 1]
+            x0, x1 = self._xs[2 * i], self._xs[2 * i + 1]
             amp = math.hypot(x0, x1)
             theta = math.atan2(x0, x1) + w * k
-            self._x[2 * i] = float(amp * math.sin(theta[-1]))
-            self._x[2 * i + 1] = float(amp * math.cos(theta[-1]))
+            self._xs[2 * i] = float(amp * math.sin(theta[-1]))
+            self._xs[2 * i + 1] = float(amp * math.cos(theta[-1]))
             out += amp * np.sin(theta)
         return out
 

@@ -25,6 +25,8 @@ class SensorResonance(OutputStage):
     name = "sensor_resonance"
     kind = "filter"
     state_size = 2
+    _w0 = property(lambda self: float(self._xs[0]), lambda self, v: self._xs.__setitem__(0, v))
+    _w1 = property(lambda self: float(self._xs[1]), lambda self, v: self._xs.__setitem__(1, v))
 
     def __init__(self, frequency_hz: float, damping_ratio: float, fs_hz: float) -> None:
         self.fs_hz = _positive(fs_hz, "fs_hz")
@@ -38,8 +40,7 @@ class SensorResonance(OutputStage):
         _, a1, a2 = (float(v) for v in self.a)
         self._a1, self._a2 = a1, a2
         self._c0, self._c1, self._d = b0 - b2 / a2, b1 - a1 * b2 / a2, b2 / a2
-        self._w0 = 0.0
-        self._w1 = 0.0
+        self._xs = np.zeros(2)
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> SensorResonance:

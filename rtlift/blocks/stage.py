@@ -73,6 +73,13 @@ class OutputStage(InputStage):
         """(A, B, C, D): x(k) = A x(k−1) + B u(k), out(k) = C x(k) + D u(k), x = get_state()."""
         raise NotImplementedError
 
+    def adopt_state(self, view: np.ndarray) -> None:
+        """Hold the state in ``view`` from now on (it already holds the current state; float64,
+        ``state_size`` long): the compiled output chain advances that array in place
+        (:func:`rtlift.blocks.compiled_stages.bind_output_states`). Every output stage keeps its
+        state in the array ``self._xs``, in the order of :meth:`get_state`."""
+        self._xs = view
+
     def simulate(self, dcl: np.ndarray) -> np.ndarray:  # type: ignore[override]
         raise NotImplementedError
 

@@ -15,6 +15,8 @@ class _Additive(OutputStage):
 
     kind = "additive"
     state_size = 2
+    _x0 = property(lambda self: float(self._xs[0]), lambda self, v: self._xs.__setitem__(0, v))
+    _x1 = property(lambda self: float(self._xs[1]), lambda self, v: self._xs.__setitem__(1, v))
 
     def _initial(self) -> tuple[float, float]:
         raise NotImplementedError
@@ -67,6 +69,7 @@ class ZeroDrift(_Additive):
             self._lam = math.exp(-1.0 / (self.time_constant_s * self.fs_hz))
         else:
             raise ValueError("zero_drift takes rate_per_s, or amplitude and time_constant_s")
+        self._xs = np.zeros(2)
         self.reset()
 
     @classmethod

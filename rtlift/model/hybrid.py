@@ -10,13 +10,15 @@ and the total after. :meth:`HybridModel.step` is the 400 Hz hot path; :meth:`sim
 its batch twin; both carry one explicit state.
 
 The hot path is compiled (:mod:`rtlift.blocks.compiled`, numba) for every model whose
-nonlinearity has a compiled form (``input_gain``, ``output``) and whose augmentation stages
-are at most one input ``delay`` followed by at most one ``actuator_fade``: the paper's model, a
-model as ``rtlift identify`` writes it, and one that ``rtlift diagnose`` (or ``--adapt``) gave a
-fade; and for the ``interaction`` structure (:mod:`rtlift.blocks.interaction`: its burst part in
-the convolution slot, its ``delivered_envelope`` stage after at most one ``delay``). The other
-effect stages (``sensor_resonance``, ``zero_drift``, ``periodic_disturbance``, a fade in the
-interaction structure) and the hysteresis nonlinearities are not compiled yet: a model that
+nonlinearity has a compiled form (``input_gain``, ``output``) and whose input stages are at most
+one ``delay`` followed by at most one ``actuator_fade``, with any output stages
+(``sensor_resonance``, ``zero_drift``, ``periodic_disturbance``, in their state-space form,
+:mod:`rtlift.blocks.compiled_stages`): the paper's model, a model as ``rtlift identify`` writes
+it, and what ``rtlift diagnose`` (or ``--adapt``) makes of it by adding those effects; and for
+the ``interaction`` structure (:mod:`rtlift.blocks.interaction`: its burst part in the
+convolution slot, its ``delivered_envelope`` stage after at most one ``delay``, no output
+stages). The hysteresis nonlinearities, other orders of input stages and the interaction
+structure's other stages are not compiled yet: a model that
 carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain of the
 blocks' own ``step`` (``model.compiled`` says which). That chain is also the compiled
 step's test oracle; both advance the same state arrays. :meth:`simulate` follows the same
@@ -44,8 +46,15 @@ from rtlift.blocks.delay import Delay
 from rtlift.blocks.delivered import DeliveredEnvelope
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
+from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
+from rtlift.blocks.sensor_resonance import SensorResonance
 from rtlift.blocks.stage import InputStage, OutputStage
 from rtlift.blocks.wiener import WienerBlock
+from rtlift.blocks.zero_drift import ZeroDrift
+
+COMPILED_OUTPUTS = (ZeroDrift, SensorResonance, PeriodicDisturbance)
+"""Output stages the compiled step takes (their state-space form, state in ``_xs``); a model with
+another one steps with the reference."""
 
 _STRUCTURE = frozenset({"convolution", "highpass", "wiener", "input_stages", "output_stages"})
 """Fields whose assignment changes which step (compiled or reference) the model takes."""
@@ -106,10 +115,10 @@ class HybridModel(BlockChain):
         after construction)."""
         kernel: tuple[Any, ...] = ()
         wiener = self.wiener.kernel_arrays()
-        if wiener is not None and not self.output_stages:
+        if wiener is not None:
             if type(self.convolution) is RingConvolution:
                 kernel = self._bind_hybrid(wiener)
-            elif type(self.convolution) is InteractionConvolution:
+            elif type(self.convolution) is InteractionConvolution and not self.output_stages:
                 kernel = self._bind_interaction(wiener)
         object.__setattr__(self, "_kernel", kernel)
         return kernel
@@ -131,17 +140,20 @@ class HybridModel(BlockChain):
         return (*delay, *faded)
 
     def _bind_hybrid(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
-        """The paper's structure: at most one input ``delay``, then at most one ``actuator_fade``."""
+        """The paper's structure: at most one input ``delay``, then at most one ``actuator_fade``;
+        any output stages (each in its state-space form, :mod:`rtlift.blocks.compiled_stages`)."""
         delay = self._input_state(self.input_stages)
-        if delay is None:
+        if delay is None or not all(type(st) in COMPILED_OUTPUTS for st in self.output_stages):
             return ()
         from rtlift.blocks.compiled import hybrid_simulate, hybrid_step, pack_parameters, state_slots
+        from rtlift.blocks.compiled_stages import bind_output_states, pack_outputs
 
         (taps,), conv_state = self.convolution.kernel_arrays()
         (coef,), hp_state = self.highpass.kernel_arrays()
         (A, B, C, form, xs, fs, slopes), wiener_state = wiener
         par = pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes)
-        return (hybrid_step, (par, *delay, *conv_state, *hp_state, *wiener_state), hybrid_simulate,
+        outputs = (pack_outputs(self.output_stages), bind_output_states(self.output_stages))
+        return (hybrid_step, (par, *delay, *outputs, *conv_state, *hp_state, *wiener_state), hybrid_simulate,
                 state_slots(hp_state[0], wiener_state[0]))
 
     def _bind_interaction(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
