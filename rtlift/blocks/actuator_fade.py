@@ -52,6 +52,11 @@ class ActuatorFade(InputStage):
     on_time = property(lambda self: float(self._state[0]), lambda self, v: self._state.__setitem__(0, float(v)))
     """E, the clock before the next sample (s)."""
 
+    def adopt_state(self, view: np.ndarray) -> None:
+        """Hold the clock E in ``view`` (one float64, already holding it) from now on: the compiled
+        step advances that array (:func:`rtlift.blocks.compiled_stages.bind_stage_states`)."""
+        self._state = view
+
     def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
         """For the compiled step: the parameters and the state, not copies."""
         return (self._par,), (self._state,)

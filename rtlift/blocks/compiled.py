@@ -36,9 +36,6 @@ from numba.extending import intrinsic
 from rtlift.blocks.compiled_stages import _delayed, _faded, _output_chain
 from rtlift.core.jit import njit_cached
 
-OPAR_ARG = 6
-"""Where the output stages' parameters sit among :func:`hybrid_step`'s arguments after (Cμ, Cμ_env)."""
-
 _COUNT_MAX = 128
 """Grids up to this many points are searched by counting (:func:`_segment`)."""
 
@@ -151,28 +148,29 @@ def _wiener(par, o, xs, fs, slopes, scratch, x, env):
 
 
 @njit_cached
-def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate, buf, pos, z, x):
+def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, buf, pos, z, x):
     """One sample: (ΔCL, ΔCL_H, ΔCL_L); advances the delay rings, the fade's clock, the
     convolution buffer and position, the filter state z, the LTI state x and the output stages'
-    states in place (``par``: :func:`pack_parameters`). ``d_cmu``/``d_env`` are the ``delay``
-    stage's rings (length D; empty: no delay), ``fpar``/``fstate`` the ``actuator_fade`` stage's
-    after it, ``opar``/``ostate`` the output stages' (:mod:`rtlift.blocks.compiled_stages`).
+    states in place (``par``: :func:`pack_parameters`, then the output stages',
+    :func:`~rtlift.blocks.compiled_stages.with_outputs`). ``d_cmu``/``d_env`` are the ``delay``
+    stage's rings (length D; empty: no delay), ``fpar`` the ``actuator_fade`` stage's parameters
+    after it and ``sstate`` its clock, then the output stages' states
+    (:func:`~rtlift.blocks.compiled_stages.bind_stage_states`).
     Form 0: ΔCL_L = N(Cμ_env) · y (paper, table held at its ends); 1: ΔCL_L = f(y) (textbook,
     table continued along its end segments). ΔCL is after the output stages, ΔCL_H and ΔCL_L
     before them.
     """
-    total, high, low, _, _, _ = hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate, buf,
-                                              pos, z, x)
+    total, high, low, _, _, _ = hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, buf, pos, z, x)
     return total, high, low
 
 
 @njit_cached(inline="always")
-def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate, buf, pos, z, x):
+def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, buf, pos, z, x):
     """:func:`hybrid_step` that also returns the inputs after the input stages and the flagged
     output stages' corrections, (ΔCL, ΔCL_H, ΔCL_L, Cμ′, Cμ_env′, known): what the observer's
     step needs besides the output."""
     cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
-    cmu, env = _faded(cmu, env, fpar, fstate)
+    cmu, env = _faded(cmu, env, fpar, sstate)
     p = _push(buf, pos, cmu)
     n_taps = buf.shape[0] // 2
     v = 0.0
@@ -182,7 +180,7 @@ def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate
     o = 2 + n_taps + 5 * (z.shape[0] // 2)
     xs, fs, slopes, scratch = _wiener_table(par, o, x.shape[0])
     low = _wiener(par, o, xs, fs, slopes, scratch, x, env)
-    total, known = _output_chain(high + low, opar, ostate)
+    total, known = _output_chain(high + low, par, sstate)
     return total, high, low, cmu, env, known
 
 
@@ -221,8 +219,8 @@ def state_slots(z: np.ndarray, x: np.ndarray) -> tuple[tuple[float, ...], ...]:
 
 
 @njit_cached
-def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, fstate, opar, ostate, buf, pos, z, x,
-                    z_slots, x_slots, p_slots):
+def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, sstate, buf, pos, z, x, z_slots,
+                    x_slots, p_slots):
     """:func:`hybrid_step` over whole arrays in one loop, into ``total``, ``high`` and ``low``
     (same length as ``cmu``), from and advancing the same state, through the same helpers.
 
@@ -260,7 +258,7 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, 
     if d_cmu.shape[0] > 0 or fpar[0] != 0.0:  # the staged inputs, in place of the outputs
         for k in range(n):
             c, e = _delayed(cmu[k], env[k], d_cmu, d_env, d_pos)
-            total[k], low[k] = _faded(c, e, fpar, fstate)
+            total[k], low[k] = _faded(c, e, fpar, sstate)
         cmu, env = total, low
     last = n - n_taps
     for k in range(n):
@@ -279,9 +277,9 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, 
         total[k] = h + lo
     z[:] = z_local
     x[:] = x_local
-    if opar[0] != 0.0:                        # the output stages, sample by sample
+    if par[par.shape[0] - 2] != 0.0:          # the output stages, sample by sample
         for k in range(n):
-            total[k], _ = _output_chain(total[k], opar, ostate)
+            total[k], _ = _output_chain(total[k], par, sstate)
 
 
 @njit_cached

@@ -12,9 +12,11 @@ Output stages, any number in any order, each in the state-space form every outpu
     x(k) = A x(k−1) + B u(k),   out(k) = C x(k) + D u(k),   u = the ΔCL the stage receives
 
 (``zero_drift``, ``sensor_resonance``, ``periodic_disturbance``; :func:`_output_chain`). Their
-parameters are packed in one array (:func:`pack_outputs`) and their states are views into one
-array (:func:`bind_output_states`), so the stages' own ``get_state``/``set_state`` and Python
-``step`` see what the compiled step did. The recurrences are the stages' own up to the order of
+parameters follow the model's in its packed array (:func:`with_outputs`) and their states are
+views into one array with the fade's clock (:func:`bind_stage_states`), so the stages' own
+``get_state``/``set_state`` and Python ``step`` see what the compiled step did, and the compiled
+step takes no more arguments than it did without them (each array argument costs the numba
+dispatcher ≈ 45 ns). The recurrences are the stages' own up to the order of
 the additions, so the compiled and the Python chains agree to rounding.
 """
 
@@ -56,43 +58,48 @@ def _faded(cmu, env, fpar, fstate):
     return cmu * g, env * g
 
 
-def pack_outputs(stages) -> np.ndarray:
-    """The output stages' parameters in one array: [count, scratch offset, then per stage
-    n, counts toward the observer's known part (1.0; see :func:`_output_chain`), D, A (row-major),
-    B, C], then n_max scratch floats."""
-    parts = [np.zeros(2)]
+def with_outputs(par: np.ndarray, stages) -> np.ndarray:
+    """The model's packed parameters ``par`` followed by the output stages': per stage n, counts
+    toward the observer's known part (1.0; see :func:`_output_chain`), D, A (row-major), B, C;
+    then n_max scratch floats, n_max, the stage count, and last this tail's length (so the chain
+    finds it from the end, whatever ``par`` holds before it)."""
+    parts = []
     n_max = 0
     for st in stages:
         A, B, C, D = (np.asarray(v, dtype=float) for v in st.statespace())
         n = B.size
         n_max = max(n_max, n)
         parts.append(np.concatenate([[float(n), 1.0, float(D)], A.reshape(n * n), B, C]))
-    opar = np.concatenate(parts + [np.zeros(max(n_max, 1))])
-    opar[0] = float(len(stages))
-    opar[1] = float(opar.size - max(n_max, 1))
-    return opar
+    n_max = max(n_max, 1)
+    tail = np.concatenate(parts + [np.zeros(n_max), [float(n_max), float(len(stages))]])
+    return np.concatenate([par, tail, [float(tail.size + 1)]])
 
 
-def output_flags(opar: np.ndarray, known: list[bool]) -> np.ndarray:
-    """A copy of ``opar`` whose per-stage flags say which stages' corrections count toward the
-    observer's known part of the output (those it does not carry as states)."""
-    out = opar.copy()
-    o = 2
+def output_flags(par: np.ndarray, known: list[bool]) -> np.ndarray:
+    """A copy of :func:`with_outputs`'s array whose per-stage flags say which stages' corrections
+    count toward the observer's known part of the output (those it does not carry as states)."""
+    out = par.copy()
+    count = int(out[-2])
+    if count != len(known):
+        raise ValueError(f"{len(known)} flags for {count} output stages")
+    o = out.size - int(out[-1])
     for flag in known:
         n = int(out[o])
         out[o + 1] = 1.0 if flag else 0.0
         o += 3 + n * n + 2 * n
-    if int(out[0]) != len(known):
-        raise ValueError(f"{len(known)} flags for {int(out[0])} output stages")
     return out
 
 
-def bind_output_states(stages) -> np.ndarray:
-    """One array holding every output stage's state, each stage's own state array made a view
-    into it (its current state copied in first), for the compiled chain to advance in place."""
+def bind_stage_states(fade, stages) -> np.ndarray:
+    """One array of the stages' states, [E of the ``actuator_fade`` (0 without one), then each
+    output stage's], each stage's own state array made a view into it (its current state copied
+    in first), for the compiled step to advance in place."""
     sizes = [int(st.state_size) for st in stages]
-    state = np.zeros(max(sum(sizes), 1))
-    o = 0
+    state = np.zeros(1 + sum(sizes))
+    if fade is not None:
+        state[0] = fade.on_time
+        fade.adopt_state(state[0:1])
+    o = 1
     for st, n in zip(stages, sizes, strict=True):
         view = state[o:o + n]
         view[:] = st.get_state()
@@ -102,32 +109,34 @@ def bind_output_states(stages) -> np.ndarray:
 
 
 @njit_cached(inline="always")
-def _output_chain(u, opar, ostate):
-    """ΔCL through the output stages packed in ``opar`` (:func:`pack_outputs`), advancing
-    ``ostate``: (ΔCL after them, the sum of the flagged stages' corrections out − u)."""
-    count = int(opar[0])
+def _output_chain(u, par, sstate):
+    """ΔCL through the output stages packed at the end of ``par`` (:func:`with_outputs`),
+    advancing their states in ``sstate[1:]`` (:func:`bind_stage_states`): (ΔCL after them, the
+    sum of the flagged stages' corrections out − u)."""
+    end = par.shape[0]
+    count = int(par[end - 2])
     known = 0.0
     if count == 0:
         return u, known
-    scr = int(opar[1])
-    o = 2
-    xo = 0
+    o = end - int(par[end - 1])
+    scr = end - 3 - int(par[end - 3])      # the scratch after the last stage
+    xo = 1
     for _ in range(count):
-        n = int(opar[o])
+        n = int(par[o])
         a = o + 3
         b = a + n * n
         c = b + n
         for i in range(n):
-            acc = opar[b + i] * u
+            acc = par[b + i] * u
             for j in range(n):
-                acc += opar[a + i * n + j] * ostate[xo + j]
-            opar[scr + i] = acc
-        y = opar[o + 2] * u
+                acc += par[a + i * n + j] * sstate[xo + j]
+            par[scr + i] = acc
+        y = par[o + 2] * u
         for i in range(n):
-            x = opar[scr + i]
-            ostate[xo + i] = x
-            y += opar[c + i] * x
-        if opar[o + 1] != 0.0:
+            x = par[scr + i]
+            sstate[xo + i] = x
+            y += par[c + i] * x
+        if par[o + 1] != 0.0:
             known += y - u
         u = y
         o = c + n

@@ -146,14 +146,16 @@ class HybridModel(BlockChain):
         if delay is None or not all(type(st) in COMPILED_OUTPUTS for st in self.output_stages):
             return ()
         from rtlift.blocks.compiled import hybrid_simulate, hybrid_step, pack_parameters, state_slots
-        from rtlift.blocks.compiled_stages import bind_output_states, pack_outputs
+        from rtlift.blocks.compiled_stages import bind_stage_states, with_outputs
 
         (taps,), conv_state = self.convolution.kernel_arrays()
         (coef,), hp_state = self.highpass.kernel_arrays()
         (A, B, C, form, xs, fs, slopes), wiener_state = wiener
-        par = pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes)
-        outputs = (pack_outputs(self.output_stages), bind_output_states(self.output_stages))
-        return (hybrid_step, (par, *delay, *outputs, *conv_state, *hp_state, *wiener_state), hybrid_simulate,
+        par = with_outputs(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), self.output_stages)
+        *delay, fpar, _ = delay
+        fade = next((st for st in self.input_stages if type(st) is ActuatorFade), None)
+        sstate = bind_stage_states(fade, self.output_stages)
+        return (hybrid_step, (par, *delay, fpar, sstate, *conv_state, *hp_state, *wiener_state), hybrid_simulate,
                 state_slots(hp_state[0], wiener_state[0]))
 
     def _bind_interaction(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:

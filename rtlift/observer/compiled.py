@@ -54,7 +54,7 @@ def pack_layout(layout, R: float, gate: float, max_rejections: int) -> tuple[np.
 
 
 @njit_cached
-def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, fade_state, opar, ostate, buf, pos, z, xm,
+def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, sstate, buf, pos, z, xm,
                   ipar, fpar, Q, xi, P, H, T, work, tab, s):
     """One sample (Cμ, Cμ_env, measured ΔCL or NaN): returns (ΔĈL, open-loop ΔCL, ν, NIS,
     flags, b̂). ``mpar … xm``: the model's compiled step and its state (``HybridModel``'s
@@ -70,9 +70,9 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, fade_state
         flags = config.FLAG_BAD_INPUT
         s[BAD_INPUTS] += 1
     # the model's step, the inputs its delay and fade stages hand on (Cμ′, Cμ_env′), and the
-    # corrections of the output stages the filter does not carry as states (``opar``'s flags)
-    total, high, _, cmu, env, corrections = hybrid_sample(cmu, env, mpar, d_cmu, d_env, d_pos, fade_par, fade_state,
-                                                          opar, ostate, buf, pos, z, xm)
+    # corrections of the output stages the filter does not carry as states (the flags in ``mpar``)
+    total, high, _, cmu, env, corrections = hybrid_sample(cmu, env, mpar, d_cmu, d_env, d_pos, fade_par, sstate, buf,
+                                                          pos, z, xm)
     known = high + corrections
     s[SAMPLE] += 1
 
@@ -231,14 +231,14 @@ def _touch(a):
 
 
 @njit_cached
-def observer_touch(mpar, d_cmu, d_env, d_pos, fade_par, fade_state, opar, ostate, buf, pos, z, xm, ipar, fpar, Q, xi,
-                   P, H, T, work, tab, s):
+def observer_touch(mpar, d_cmu, d_env, d_pos, fade_par, sstate, buf, pos, z, xm, ipar, fpar, Q, xi, P, H, T,
+                   work, tab, s):
     """Read every cache line :func:`observer_step` will read or write (same arguments after
     Cμ, Cμ_env, ΔCL), changing nothing: called while a spinning loop waits for the next
     sample, it keeps the step's working set (three dim_x² matrices, 22 kB at 30 states) in the
     core's cache, so the step does not start by fetching it from memory."""
-    return (_touch(mpar) + _touch(d_cmu) + _touch(d_env) + _touch(d_pos) + _touch(fade_par) + _touch(fade_state)
-            + _touch(opar) + _touch(ostate) + _touch(buf) + _touch(pos)
+    return (_touch(mpar) + _touch(d_cmu) + _touch(d_env) + _touch(d_pos) + _touch(fade_par) + _touch(sstate)
+            + _touch(buf) + _touch(pos)
             + _touch(z) + _touch(xm) + _touch(ipar) + _touch(fpar) + _touch(Q) + _touch(xi) + _touch(P)
             + _touch(H) + _touch(T) + _touch(work) + _touch(tab) + _touch(s))
 

@@ -10,7 +10,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import blas
 
-from rtlift.blocks.compiled import OPAR_ARG, hybrid_step
+from rtlift.blocks.compiled import hybrid_step
 from rtlift.blocks.compiled_stages import output_flags
 from rtlift.model.hybrid import HybridModel
 from rtlift.observer import compiled as cs
@@ -132,10 +132,9 @@ class Observer:
         if not kernel or kernel[0] is not hybrid_step:       # the paper's structure only, not the interaction one
             return ()
         lay = self.layout
-        # the model's arguments, its output stages' parameters with the observer's flags: a stage's
-        # correction counts toward the known part of ẑ unless states of ξ stand for it
-        model_args = list(kernel[1])
-        model_args[OPAR_ARG] = output_flags(model_args[OPAR_ARG], [not r for r in lay.replaced])
+        # the model's arguments, its parameters (the first) with the observer's flags on the output
+        # stages: a stage's correction counts toward the known part of ẑ unless states of ξ stand for it
+        model_args = (output_flags(kernel[1][0], [not r for r in lay.replaced]), *kernel[1][1:])
         ipar, fpar = cs.pack_layout(lay, self.config.R, self.gate, self.config.max_rejections)
         d = lay.dim_x
         tab = np.zeros((max(lay.max_period, 1) if lay.harmonics else 1, max(2 * lay.harmonics, 1)))
