@@ -105,7 +105,7 @@ def run_benchmark(run: str, data_dir: Path = DATA) -> dict:
         "result": result,
     }
     data_dir.mkdir(parents=True, exist_ok=True)
-    (data_dir / f"{run}.json").write_text(json.dumps(record, indent=1, sort_keys=True, ensure_ascii=False) + "\n")
+    (data_dir / f"{run}.json").write_text(json.dumps(record, indent=1, ensure_ascii=False) + "\n")
     print(f"results: {run}: saved ({record['seconds']:.0f} s, load {record['loadavg_before'][0]:.2f} → "
           f"{record['loadavg_after'][0]:.2f})", file=sys.stderr)
     return record

@@ -18,9 +18,10 @@ from benchmarks.independent_plant import params_close
 
 
 def table(header: list[str], rows: list[list[str]]) -> str:
-    """A markdown table."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
+    """A markdown table (an empty cell as ``| |``)."""
+    def line(cells: list[str]) -> str:
+        return "|" + "|".join(f" {c} " if c else " " for c in cells) + "|"
+    return "\n".join([line(header), "|" + "---|" * len(header)] + [line(row) for row in rows])
 
 
 def listed(items, empty: str = "—") -> str:
@@ -43,8 +44,8 @@ def ordinal(n: int) -> str:
     return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
 
 
-def us(median: float, p99: float) -> str:
-    return f"{median:.1f} / {p99:.1f} µs"
+def us(median: float, p99: float, digits: int = 1) -> str:
+    return f"{median:.{digits}f} / {p99:.{digits}f} µs"
 
 
 # ---------------------------------------------------------------- real measured data
@@ -120,7 +121,9 @@ def _accepted(row: dict, detail: bool) -> str:
     for name in row["accepted"]:
         got = row["accepted_params"][name]
         if detail and name == "periodic_disturbance" and got.get("harmonics"):
-            name += f" (with {', '.join(ordinal(h['n']) for h in got['harmonics'])} harmonics as sampled)"
+            orders = [ordinal(h["n"]) for h in got["harmonics"]]
+            name += f" (with {'the ' if len(orders) == 1 else ''}{', '.join(orders)} harmonic" \
+                    f"{'s' if len(orders) > 1 else ''} as sampled)"
         elif detail and name == "hysteresis":
             driver = "the lift" if got.get("driver") == "lift" else "Cμ"
             target = "what changed" if "fitted to what changed" in row.get("fit_target", "") else "its residual"
@@ -236,9 +239,9 @@ def render_speed(step: dict, live: dict, load: dict, ident: dict, soak: dict, ca
     lost = sum(p["lost_samples"] for p in (live, load))
     rows = [
         ["one `HybridModel.step` (300-tap kernel), compiled (numba), median / p99",
-         us(step["step_median_us"], step["step_p99_us"]), "median ≤ 2 µs"],
+         us(step["step_median_us"], step["step_p99_us"], 2), "median ≤ 2 µs"],
         ["the same in pure Python (`reference_step`, same run)",
-         us(step["reference_step_median_us"], step["reference_step_p99_us"]), ""],
+         us(step["reference_step_median_us"], step["reference_step_p99_us"], 2), ""],
         [f"batch vs streaming throughput, 10 min at 400 Hz (same output to {step['max_abs_difference']:.1e})",
          f"{step['batch_speedup']:.1f}× against the compiled step ({1e3 * step['batch_seconds']:.1f} ms vs "
          f"{step['stream_seconds']:.2f} s), {step['batch_speedup_vs_reference']:.0f}× against `reference_step`: "
