@@ -67,7 +67,8 @@ def test_replacement_changes_only_the_text_between_the_markers(tmp_path):
         end_marker("demo") + PROSE_AFTER
     assert first_difference(stale, [section], data) == "demo"
     new = render_doc(stale, [section], data)
-    assert new.startswith(PROSE_BEFORE + begin_marker("demo") + "\n\n| x | y |\n|---|---|\n| 1 | 0.50 |\n| 2 | 0.25 |\n\n")
+    body = "\n\n| x | y |\n|---|---|\n| 1 | 0.50 |\n| 2 | 0.25 |\n\n"
+    assert new.startswith(PROSE_BEFORE + begin_marker("demo") + body)
     assert new.endswith(end_marker("demo") + PROSE_AFTER)
     assert "0.99" not in new
     assert render_doc(new, [section], data) == new        # rendering again changes nothing
