@@ -136,6 +136,8 @@ def judge_case(case: str, report: dict, truth: dict, rmse_case: dict, rmse_aug: 
             "accepted": [e["name"] for e in accepted], "truth": sorted(want),
             "names_ok": names_ok, "params_ok": params_ok, "recovery_ok": recovery_ok,
             "recovered": recovery, "params": "; ".join(notes),
+            "accepted_params": {e["name"]: e["params"] for e in accepted}, "truth_params": want,
+            "fit_target": report.get("fit_target", ""),
             "rmse_clean": rmse_clean, "rmse_case": rmse_case, "rmse_augmented": rmse_aug,
             "other_entries": [f"{e['name']}({e.get('kind', '?')}, {'accepted' if e['accepted'] else 'rejected'})"
                               for e in report["effects"] if e not in accepted and e["accepted"]]}

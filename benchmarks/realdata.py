@@ -33,9 +33,9 @@ from benchmarks._common import run_cli  # noqa: E402
 SKIP = STATE_INIT_SAMPLES
 
 
-PUBLISHED = {"wh2009": "0.241 (SUBNET) – 0.45 (dynoNet) mV; linear ≈ 43–57 mV",
-             "silverbox": "arrow full: 1.4 mV (SUBNET); PNLSS 0.26 mV (multisine)",
-             "cascaded_tanks": "0.191 V (grey box) – 0.306 V; ARX 0.685 V"}
+PUBLISHED = {"wh2009": "0.241 (SUBNET) – 0.45 (dynoNet) mV",
+             "silverbox": "1.4 mV (SUBNET); 0.26 mV (PNLSS, multisine)",
+             "cascaded_tanks": "0.191 V (grey box) – 0.306 V (CT SUBNET); PNLSS 0.45 V"}
 
 
 def record(path: Path, fs: float, u: np.ndarray, y: np.ndarray, name: str) -> Path:
@@ -62,6 +62,9 @@ def run(name: str, work: Path) -> dict:
     report = json.loads((work / "diag" / "report.json").read_text())
     return {"benchmark": name, "unit": unit, "before": rmse["before"], "after": rmse["after"],
             "accepted": [e["name"] for e in report["effects"] if e["accepted"]],
+            "accepted_kinds": {e["name"]: e.get("kind", "structure") for e in report["effects"] if e["accepted"]},
+            "accepted_forms": {e["name"]: {"model": e["params"]["model"], "where": e["params"].get("where")}
+                               for e in report["effects"] if e["accepted"] and "model" in e.get("params", {})},
             "tried": [e["name"] for e in report["effects"]], "not_built": report.get("not_built", []),
             "identify_seconds": t1 - t0, "diagnose_seconds": t2 - t1, "published": PUBLISHED[name]}
 
