@@ -55,17 +55,36 @@ def _outputs(picks: list[int]) -> tuple:
 output_picks = st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3)
 
 
+def _hysteresis(m, kind: int) -> None:
+    """The model's Wiener nonlinearity with the ``hysteresis`` factor (kind 1: driven by Cμ_env,
+    a sharp switch; 2: by the lift, a play operator of finite width), in its own form; 0: none."""
+    if not kind:
+        return
+    nl = m.wiener.nonlinearity
+    width, driver = (0.0, "cmu") if kind == 1 else (0.004, "lift")
+    if hasattr(nl, "gain_at"):
+        m.wiener.nonlinearity = HysteresisGain(nl.cmu, nl.gain, 0.3, 0.02, FS, width, 0.9, driver)
+    else:
+        m.wiener.nonlinearity = OutputHysteresis(nl.y, nl.f, 0.3, 0.02, FS, width, 0.9, driver)
+    m.wiener = m.wiener                  # bound again (a part swapped inside a block is not seen)
+
+
+hysteresis_kinds = st.integers(0, 2)
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), kernel_len=st.integers(1, 60),
        order=st.integers(1, 3), hp_order=st.integers(1, 4), output_form=st.booleans(),
-       delay=st.integers(0, 5), fade=st.integers(0, 2), warm=st.integers(0, 50), outputs=output_picks)
+       delay=st.integers(0, 5), fade=st.integers(0, 2), warm=st.integers(0, 50), outputs=output_picks,
+       hysteresis=hysteresis_kinds)
 def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_order, output_form, delay, fade, warm,
-                                             outputs):
+                                             outputs, hysteresis):
     """(ΔCL, ΔCL_H, ΔCL_L) and the state after the steps agree to 1e-12, from any starting state."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
     m.input_stages = _stages(delay, fade)
     m.output_stages = _outputs(outputs)
+    _hysteresis(m, hysteresis)
     assert m.compiled
     cmu, env = burst_input(rng, n + warm)
     _run(m.reference_step, cmu[:warm], env[:warm])         # a state that is not the rest state
@@ -81,13 +100,14 @@ def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_orde
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), cut=st.integers(0, 200), delay=st.integers(0, 3), fade=st.integers(0, 2),
-       outputs=output_picks)
-def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay, fade, outputs):
+       outputs=output_picks, hysteresis=hysteresis_kinds)
+def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay, fade, outputs, hysteresis):
     """Stop anywhere, checkpoint, restore into a fresh model: the rest of the record is identical."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=25, order=2)
     m.input_stages = _stages(delay, fade)
     m.output_stages = _outputs(outputs)
+    _hysteresis(m, hysteresis)
     cmu, env = burst_input(rng, 200)
     whole = _run(m.step, cmu, env)
     m.reset()
@@ -117,12 +137,6 @@ def _fallback_models():
     m = make_model(rng)
     yield "fade_then_delay", m.with_stages(input_stages=(ActuatorFade(0.7, 2.0, FS), Delay(1 / FS, FS)))
     yield "two_delays", m.with_stages(input_stages=(Delay(1 / FS, FS), Delay(2 / FS, FS)))
-    for cls in (HysteresisGain, OutputHysteresis):
-        h = make_model(rng, output_form=cls is OutputHysteresis)
-        nl = h.wiener.nonlinearity
-        table = (nl.cmu, nl.gain) if cls is HysteresisGain else (nl.y, nl.f)
-        h.wiener.nonlinearity = cls(*table, magnitude=0.2, time_constant_s=0.1, fs_hz=FS)
-        yield cls.form, h
 
 
 @pytest.mark.parametrize("name,model", list(_fallback_models()), ids=lambda v: v if isinstance(v, str) else "")
@@ -194,15 +208,17 @@ def test_integer_and_numpy_scalar_inputs_give_the_float_result():
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), cuts=st.lists(st.integers(0, 400), min_size=2, max_size=2),
        kernel_len=st.integers(1, 60), order=st.integers(1, 3), hp_order=st.integers(1, 4),
-       output_form=st.booleans(), delay=st.integers(0, 5), fade=st.integers(0, 2), outputs=output_picks)
+       output_form=st.booleans(), delay=st.integers(0, 5), fade=st.integers(0, 2), outputs=output_picks,
+       hysteresis=hysteresis_kinds)
 def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, order, hp_order, output_form, delay,
-                                                       fade, outputs):
+                                                       fade, outputs, hysteresis):
     """Stream, batch (the fused compiled loop), stream again: (ΔCL, ΔCL_H, ΔCL_L) and the state
     after each part equal the steps alone to 1e-12, batches shorter and longer than the kernel."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
     m.input_stages = _stages(delay, fade)
     m.output_stages = _outputs(outputs)
+    _hysteresis(m, hysteresis)
     cmu, env = burst_input(rng, 450)
     a, b = sorted(cuts)
     expect = _run(m.step, cmu, env)
@@ -219,14 +235,16 @@ def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, o
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 3000), warm=st.integers(0, 400),
-       output_form=st.booleans(), delay=st.integers(0, 3), fade=st.integers(0, 2), outputs=output_picks)
-def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay, fade, outputs):
+       output_form=st.booleans(), delay=st.integers(0, 3), fade=st.integers(0, 2), outputs=output_picks,
+       hysteresis=hysteresis_kinds)
+def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay, fade, outputs, hysteresis):
     """The fused loop and the numpy/scipy chain (``reference_simulate``, scatter or FFT for long
     records) agree to 1e-12 from a mid-record state, and leave the same state."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=300, output_form=output_form)
     m.input_stages = _stages(delay, fade)
     m.output_stages = _outputs(outputs)
+    _hysteresis(m, hysteresis)
     cmu, env = burst_input(rng, warm + n)
     _run(m.step, cmu[:warm], env[:warm])
     start = m.get_state()

@@ -14,7 +14,7 @@ from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.blocks.delay import Delay
 from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
 from rtlift.blocks.sensor_resonance import SensorResonance
-from rtlift.blocks.wiener import HysteresisGain
+from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
 from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer, ObserverConfig
@@ -57,8 +57,9 @@ def _run(step, cmu, env, z):
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 500), order=st.integers(1, 3),
        output_form=st.booleans(), delay=st.integers(0, 4), fade=st.booleans(),
        config=st.sampled_from(sorted(CONFIGS)), warm=st.integers(0, 100),
-       outputs=st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3))
-def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay, fade, config, warm, outputs):
+       outputs=st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3), hysteresis=st.integers(0, 2))
+def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay, fade, config, warm, outputs,
+                                             hysteresis):
     """Estimates (ΔĈL, open loop, ν, NIS, flags), counters and the whole state agree to 1e-12,
     from a state that is not the rest state."""
     rng = np.random.default_rng(seed)
@@ -68,6 +69,13 @@ def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay,
         stages += (ActuatorFade(0.6, 0.05, FS),)
     model.input_stages = stages
     model.output_stages = tuple(OUTPUT_STAGES[i]() for i in outputs)   # what diagnose and --adapt add
+    if hysteresis:                   # the hysteresis factor (1: on Cμ_env, a switch; 2: on the lift, a play)
+        nl = model.wiener.nonlinearity
+        width, driver = (0.0, "cmu") if hysteresis == 1 else (0.004, "lift")
+        table = (nl.cmu, nl.gain) if hasattr(nl, "gain_at") else (nl.y, nl.f)
+        cls = HysteresisGain if hasattr(nl, "gain_at") else OutputHysteresis
+        model.wiener.nonlinearity = cls(*table, 0.3, 0.02, FS, width, 0.9, driver)
+        model.wiener = model.wiener
     obs = Observer(model, CONFIGS[config])
     assert obs.compiled
     cmu, env, z = _inputs(rng, n + warm)
@@ -102,12 +110,9 @@ def test_bad_inputs_and_missing_samples_are_counted_the_same_way(rng):
 
 
 def test_an_observer_of_a_model_with_an_uncompiled_block_takes_the_reference_step(rng):
-    """A hysteresis nonlinearity is not in the compiled model step: the observer says so and its
-    step is the reference step, sample for sample."""
-    model = make_model(rng)
-    nl = model.wiener.nonlinearity
-    model.wiener.nonlinearity = HysteresisGain(nl.cmu, nl.gain, magnitude=0.2, time_constant_s=0.1, fs_hz=FS)
-    model = model.copy()
+    """Two delays are not in the compiled model step: the observer says so and its step is the
+    reference step, sample for sample."""
+    model = make_model(rng).with_stages(input_stages=(Delay(1 / FS, FS), Delay(2 / FS, FS)))
     obs, ref = Observer(model, CONFIGS["plain"]), Observer(model.copy(), CONFIGS["plain"])
     assert not model.compiled and not obs.compiled and obs.warm_up() < 0.01
     cmu, env, z = _inputs(rng, 300)

@@ -58,11 +58,19 @@ def _faded(cmu, env, fpar, fstate):
     return cmu * g, env * g
 
 
-def with_outputs(par: np.ndarray, stages) -> np.ndarray:
+HYSTERESIS = 9
+"""The hysteresis factor's parameters [on, m, g, w, λ, driver is "lift"] end this many floats
+before the end of the packed array (then n_max, the stage count, the tail's length)."""
+STATE_OUTPUTS = 4
+"""Where the output stages' states start in the stages' state array (after E and [h, s, p])."""
+
+
+def with_outputs(par: np.ndarray, stages, memory: np.ndarray | None = None) -> np.ndarray:
     """The model's packed parameters ``par`` followed by the output stages': per stage n, counts
     toward the observer's known part (1.0; see :func:`_output_chain`), D, A (row-major), B, C;
-    then n_max scratch floats, n_max, the stage count, and last this tail's length (so the chain
-    finds it from the end, whatever ``par`` holds before it)."""
+    then n_max scratch floats, the hysteresis factor's parameters (:func:`_direction_factor`;
+    ``memory`` = [m, g, w, λ, driver is "lift"], None: no factor), n_max, the stage count, and
+    last this tail's length (so the step finds it from the end, whatever ``par`` holds before it)."""
     parts = []
     n_max = 0
     for st in stages:
@@ -71,7 +79,8 @@ def with_outputs(par: np.ndarray, stages) -> np.ndarray:
         n_max = max(n_max, n)
         parts.append(np.concatenate([[float(n), 1.0, float(D)], A.reshape(n * n), B, C]))
     n_max = max(n_max, 1)
-    tail = np.concatenate(parts + [np.zeros(n_max), [float(n_max), float(len(stages))]])
+    hyst = np.zeros(6) if memory is None else np.concatenate([[1.0], memory])
+    tail = np.concatenate(parts + [np.zeros(n_max), hyst, [float(n_max), float(len(stages))]])
     return np.concatenate([par, tail, [float(tail.size + 1)]])
 
 
@@ -90,16 +99,19 @@ def output_flags(par: np.ndarray, known: list[bool]) -> np.ndarray:
     return out
 
 
-def bind_stage_states(fade, stages) -> np.ndarray:
-    """One array of the stages' states, [E of the ``actuator_fade`` (0 without one), then each
-    output stage's], each stage's own state array made a view into it (its current state copied
-    in first), for the compiled step to advance in place."""
+def bind_stage_states(fade, memory, stages) -> np.ndarray:
+    """One array of the stages' states, [E of the ``actuator_fade``, [h, s, p] of the hysteresis
+    factor (zeros without them), then each output stage's], each one's own state array made a view
+    into it (its current state copied in first), for the compiled step to advance in place."""
     sizes = [int(st.state_size) for st in stages]
-    state = np.zeros(1 + sum(sizes))
+    state = np.zeros(STATE_OUTPUTS + sum(sizes))
     if fade is not None:
         state[0] = fade.on_time
         fade.adopt_state(state[0:1])
-    o = 1
+    if memory is not None:
+        state[1:4] = memory.get_state()
+        memory.adopt_state(state[1:4])
+    o = STATE_OUTPUTS
     for st, n in zip(stages, sizes, strict=True):
         view = state[o:o + n]
         view[:] = st.get_state()
@@ -109,18 +121,57 @@ def bind_stage_states(fade, stages) -> np.ndarray:
 
 
 @njit_cached(inline="always")
+def _direction_factor(q, env, par, sstate):
+    """The ``hysteresis`` factor (:class:`rtlift.blocks.wiener._DirectionMemory`) on the quasi-steady
+    lift q (N(Cμ_env)·y or f(y)): returns q · g (1 + m h(k)), advancing [h, s, p] in ``sstate[1:4]``:
+
+        p(k) = min(max(p(k−1), x − w/2), x + w/2),  s = (p − x)/w + 1/2      (w > 0)
+        s = 1 if x < x(k−1), 0 if x > x(k−1), s(k−1) otherwise              (w = 0)
+        h(k) = λ h(k−1) + (1 − λ) s(k),   x = Cμ_env (driver "cmu") or q (driver "lift").
+
+    Without the factor (its "on" 0) q is returned as it is."""
+    o = par.shape[0] - HYSTERESIS
+    if par[o] == 0.0:
+        return q
+    m, g, w, lam = par[o + 1], par[o + 2], par[o + 3], par[o + 4]
+    x = q if par[o + 5] != 0.0 else env
+    if w > 0.0:
+        half = 0.5 * w
+        p = min(max(sstate[3], x - half), x + half)
+        sstate[3] = p
+        sstate[2] = (p - x) / w + 0.5
+    else:
+        if x < sstate[3]:
+            sstate[2] = 1.0
+        elif x > sstate[3]:
+            sstate[2] = 0.0
+        sstate[3] = x
+    sstate[1] = (1.0 - lam) * sstate[2] + lam * sstate[1]
+    return q * (g * (1.0 + m * sstate[1]))
+
+
+@njit_cached(inline="always")
+def direction_gain(par, sstate):
+    """g (1 + m h) in force after this sample's step (1 without the factor): the observer's gain."""
+    o = par.shape[0] - HYSTERESIS
+    if par[o] == 0.0:
+        return 1.0
+    return par[o + 2] * (1.0 + par[o + 1] * sstate[1])
+
+
+@njit_cached(inline="always")
 def _output_chain(u, par, sstate):
     """ΔCL through the output stages packed at the end of ``par`` (:func:`with_outputs`),
-    advancing their states in ``sstate[1:]`` (:func:`bind_stage_states`): (ΔCL after them, the
-    sum of the flagged stages' corrections out − u)."""
+    advancing their states in ``sstate[STATE_OUTPUTS:]`` (:func:`bind_stage_states`): (ΔCL after
+    them, the sum of the flagged stages' corrections out − u)."""
     end = par.shape[0]
     count = int(par[end - 2])
     known = 0.0
     if count == 0:
         return u, known
     o = end - int(par[end - 1])
-    scr = end - 3 - int(par[end - 3])      # the scratch after the last stage
-    xo = 1
+    scr = end - HYSTERESIS - int(par[end - 3])      # the scratch after the last stage
+    xo = STATE_OUTPUTS
     for _ in range(count):
         n = int(par[o])
         a = o + 3

@@ -151,6 +151,10 @@ class _DirectionMemory:
     DRIVERS = ("cmu", "lift")
 
     state_size = 3
+    h = property(lambda self: float(self._hs[0]), lambda self, v: self._hs.__setitem__(0, v))
+    s = property(lambda self: float(self._hs[1]), lambda self, v: self._hs.__setitem__(1, v))
+    last = property(lambda self: float(self._hs[2]), lambda self, v: self._hs.__setitem__(2, v))
+    """The state [h, s, p or x(k−1)] lives in the array ``_hs`` (the compiled step advances it)."""
 
     def _init_memory(self, magnitude: float, time_constant_s: float, fs_hz: float, width: float = 0.0,
                      rising_gain: float = 1.0, driver: str = "cmu") -> None:
@@ -164,6 +168,7 @@ class _DirectionMemory:
         self.magnitude, self.time_constant_s, self.fs_hz, self.width = m, tau, fs, w
         self.rising_gain = g
         self._lam = float(np.exp(-1.0 / (tau * fs))) if tau > 0 else 0.0
+        self._hs = np.zeros(3)
         self.reset()
 
     def _factor_step(self, cmu: float, q: float) -> float:
@@ -223,6 +228,16 @@ class _DirectionMemory:
             raise ValueError(f"hysteresis state must have shape (3,), got {st.shape}")
         self.h, self.s, self.last = (float(v) for v in st)
 
+    def memory_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """For the compiled step: the parameters [m, g, w, λ, driver is "lift"] (a copy) and the
+        state array [h, s, p] itself (:func:`rtlift.blocks.compiled_stages._direction_factor`)."""
+        par = np.array([self.magnitude, self.rising_gain, self.width, self._lam, float(self.driver == "lift")])
+        return par, self._hs
+
+    def adopt_state(self, view: np.ndarray) -> None:
+        """Hold [h, s, p] in ``view`` (already holding them) from now on (the compiled step's array)."""
+        self._hs = view
+
     def _memory_dict(self) -> dict[str, Any]:
         return {"magnitude": self.magnitude, "rising_gain": self.rising_gain, "width": self.width,
                 "time_constant_s": self.time_constant_s, "fs_hz": self.fs_hz, "driver": self.driver}
@@ -233,7 +248,7 @@ class HysteresisGain(_DirectionMemory, InputGain):
     :class:`_DirectionMemory` (``hysteresis`` on the paper's form)."""
 
     form = "input_gain_hysteresis"
-    kernel_kind = None
+    kernel_kind = 0            # the paper's table, times the factor (rtlift.blocks.compiled_stages)
 
     def __init__(self, cmu: np.ndarray, gain: np.ndarray, magnitude: float,
                  time_constant_s: float, fs_hz: float, width: float = 0.0, rising_gain: float = 1.0,
@@ -304,7 +319,7 @@ class OutputHysteresis(_DirectionMemory, OutputNonlinearity):
     :meth:`slope_at` use the factor in force (after this sample's :meth:`step`)."""
 
     form = "output_hysteresis"
-    kernel_kind = None
+    kernel_kind = 1            # the textbook table, times the factor (rtlift.blocks.compiled_stages)
 
     def __init__(self, y: np.ndarray, f: np.ndarray, magnitude: float, time_constant_s: float,
                  fs_hz: float, width: float = 0.0, rising_gain: float = 1.0, driver: str = "cmu") -> None:

@@ -17,8 +17,9 @@ one ``delay`` followed by at most one ``actuator_fade``, with any output stages
 it, and what ``rtlift diagnose`` (or ``--adapt``) makes of it by adding those effects; and for
 the ``interaction`` structure (:mod:`rtlift.blocks.interaction`: its burst part in the
 convolution slot, its ``delivered_envelope`` stage after at most one ``delay``, no output
-stages). The hysteresis nonlinearities, other orders of input stages and the interaction
-structure's other stages are not compiled yet: a model that
+stages), each with the ``hysteresis`` factor on its Wiener nonlinearity or without. Other orders
+of input stages and the interaction structure's other stages (and its hysteresis) are not
+compiled yet: a model that
 carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain of the
 blocks' own ``step`` (``model.compiled`` says which). That chain is also the compiled
 step's test oracle; both advance the same state arrays. :meth:`simulate` follows the same
@@ -151,10 +152,13 @@ class HybridModel(BlockChain):
         (taps,), conv_state = self.convolution.kernel_arrays()
         (coef,), hp_state = self.highpass.kernel_arrays()
         (A, B, C, form, xs, fs, slopes), wiener_state = wiener
-        par = with_outputs(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), self.output_stages)
+        nl = self.wiener.nonlinearity
+        memory = nl if hasattr(nl, "memory_arrays") else None        # the hysteresis factor
+        par = with_outputs(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), self.output_stages,
+                           None if memory is None else memory.memory_arrays()[0])
         *delay, fpar, _ = delay
         fade = next((st for st in self.input_stages if type(st) is ActuatorFade), None)
-        sstate = bind_stage_states(fade, self.output_stages)
+        sstate = bind_stage_states(fade, memory, self.output_stages)
         return (hybrid_step, (par, *delay, fpar, sstate, *conv_state, *hp_state, *wiener_state), hybrid_simulate,
                 state_slots(hp_state[0], wiener_state[0]))
 
@@ -164,7 +168,8 @@ class HybridModel(BlockChain):
         ``delivered_momentum`` (as first merged) takes :meth:`reference_step`."""
         stages = self.input_stages
         identity = self.highpass.sos.shape == IDENTITY_SOS.shape and np.array_equal(self.highpass.sos, IDENTITY_SOS)
-        if not stages or type(stages[-1]) is not DeliveredEnvelope or not identity:
+        if (not stages or type(stages[-1]) is not DeliveredEnvelope or not identity
+                or hasattr(self.wiener.nonlinearity, "memory_arrays")):     # no hysteresis factor here
             return ()
         delay = self._input_state(stages[:-1], fade=False)
         if delay is None:

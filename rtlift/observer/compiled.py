@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from rtlift.blocks.compiled import _segment, _table, hybrid_sample
+from rtlift.blocks.compiled_stages import direction_gain
 from rtlift.core.jit import njit_cached
 from rtlift.observer import config
 
@@ -117,15 +118,16 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, sstate, bu
     xs = mpar[o:o + n_table]
     fs = mpar[o + n_table:o + 2 * n_table]
     slopes = mpar[o + 2 * n_table:o + 3 * n_table - 1]
+    factor = direction_gain(mpar, sstate)     # the hysteresis factor in force (1 without one)
     if ipar[FORM] == 0:
-        g = _table(xs, fs, slopes, env, False)
+        g = _table(xs, fs, slopes, env, False) * factor
         c0 = 0.0
     else:
         y = 0.0
         for i in range(n):
             y += C[i] * xi[i]
-        g = _slope(xs, slopes, y)
-        c0 = _table(xs, fs, slopes, y, True) - g * y
+        g = _slope(xs, slopes, y) * factor
+        c0 = _table(xs, fs, slopes, y, True) * factor - g * y
     for i in range(n):
         H[i] = g * C[i]
     ig = ipar[GAIN_H]
@@ -205,7 +207,7 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, sstate, bu
     if ipar[FORM] == 0:
         wiener = g * y
     else:
-        wiener = _table(xs, fs, slopes, y, True)
+        wiener = _table(xs, fs, slopes, y, True) * factor
     acc = 0.0
     for i in range(d):
         acc += h_lift[i] * xi[i]
