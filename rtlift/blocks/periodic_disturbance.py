@@ -35,6 +35,7 @@ class PeriodicDisturbance(OutputStage):
 
     name = "periodic_disturbance"
     kind = "additive"
+    compiled_form = True
 
     def __init__(self, frequency_hz: float, amplitude: float, phase_rad: float, fs_hz: float,
                  harmonics: list[dict[str, float]] | tuple = ()) -> None:

@@ -25,6 +25,7 @@ class SensorResonance(OutputStage):
     name = "sensor_resonance"
     kind = "filter"
     state_size = 2
+    compiled_form = True
     _w0 = property(lambda self: float(self._xs[0]), lambda self, v: self._xs.__setitem__(0, v))
     _w1 = property(lambda self: float(self._xs[1]), lambda self, v: self._xs.__setitem__(1, v))
 

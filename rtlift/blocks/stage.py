@@ -65,6 +65,9 @@ class OutputStage(InputStage):
     where: ClassVar[str] = "output"
     kind: ClassVar[str] = ""
     """"filter" or "additive" (module docstring, "For a Kalman observer")."""
+    compiled_form: ClassVar[bool] = False
+    """True when :meth:`statespace` is the stage's whole step and its state lives in ``_xs``
+    (:meth:`adopt_state`): the compiled step then runs it (:mod:`rtlift.blocks.compiled_stages`)."""
 
     def step(self, dcl: float) -> float:  # type: ignore[override]
         raise NotImplementedError

@@ -15,6 +15,7 @@ class _Additive(OutputStage):
 
     kind = "additive"
     state_size = 2
+    compiled_form = True
     _x0 = property(lambda self: float(self._xs[0]), lambda self, v: self._xs.__setitem__(0, v))
     _x1 = property(lambda self: float(self._xs[1]), lambda self, v: self._xs.__setitem__(1, v))
 

@@ -47,15 +47,8 @@ from rtlift.blocks.delay import Delay
 from rtlift.blocks.delivered import DeliveredEnvelope
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
-from rtlift.blocks.sensor_resonance import SensorResonance
 from rtlift.blocks.stage import InputStage, OutputStage
 from rtlift.blocks.wiener import WienerBlock
-from rtlift.blocks.zero_drift import ZeroDrift
-
-COMPILED_OUTPUTS = (ZeroDrift, SensorResonance, PeriodicDisturbance)
-"""Output stages the compiled step takes (their state-space form, state in ``_xs``); a model with
-another one steps with the reference."""
 
 _STRUCTURE = frozenset({"convolution", "highpass", "wiener", "input_stages", "output_stages"})
 """Fields whose assignment changes which step (compiled or reference) the model takes."""
@@ -144,7 +137,7 @@ class HybridModel(BlockChain):
         """The paper's structure: at most one input ``delay``, then at most one ``actuator_fade``;
         any output stages (each in its state-space form, :mod:`rtlift.blocks.compiled_stages`)."""
         delay = self._input_state(self.input_stages)
-        if delay is None or not all(type(st) in COMPILED_OUTPUTS for st in self.output_stages):
+        if delay is None or not all(type(st).compiled_form for st in self.output_stages):
             return ()
         from rtlift.blocks.compiled import hybrid_simulate, hybrid_step, pack_parameters, state_slots
         from rtlift.blocks.compiled_stages import bind_stage_states, with_outputs
