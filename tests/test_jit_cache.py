@@ -96,3 +96,28 @@ def test_processes_compiling_at_once_leave_a_consistent_cache(tmp_path):
                                 capture_output=True, text=True, timeout=120) for k in sizes]
         assert all(r.returncode == 0 for r in again), [r.stderr[-300:] for r in again]
         assert [r.stdout.split() for r in again] == [[str(k), "True", "1"] for k in sizes]
+
+
+def test_a_change_to_any_compiling_source_file_makes_every_cache_stale(tmp_path):
+    """numba stamps a cache with its function's own file only; rtlift's kernels inline helpers
+    from other files, so each cache is also stamped with every file that compiles code."""
+    from rtlift.blocks import compiled as blocks_compiled
+    from rtlift.core.jit import _sources_stamp, compiled_sources_stamp
+    from rtlift.observer import compiled as observer_compiled
+
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "kernel.py").write_text("from rtlift.core.jit import njit_cached\n")
+    (pkg / "helpers.py").write_text("from rtlift.core.jit import njit_cached  # inlined elsewhere\n")
+    (pkg / "plain.py").write_text("x = 1\n")
+    before = compiled_sources_stamp(pkg)
+    assert [row[0] for row in before] == ["helpers.py", "kernel.py"]
+    (pkg / "plain.py").write_text("x = 22\n")
+    assert compiled_sources_stamp(pkg) == before                 # a file that compiles nothing
+    (pkg / "helpers.py").write_text("from rtlift.core.jit import njit_cached  # inlined, changed\n")
+    assert compiled_sources_stamp(pkg) != before
+    # the package's own: the observer step's cache depends on the stages' kernels' file
+    stamp = observer_compiled.observer_step._cache._cache_file._source_stamp
+    assert stamp[1] == _sources_stamp()
+    assert any(row[0].endswith("compiled_stages.py") for row in stamp[1])
+    assert blocks_compiled.hybrid_step._cache._cache_file._source_stamp[1] == stamp[1]

@@ -20,6 +20,12 @@ things go wrong with the defaults, and both were seen here (issue 26):
   (numba issues #4807, #10128). Here every cache file of a function is read under a shared
   and written under an exclusive ``flock`` on ``NAME.nbi.lock`` (POSIX), so an index and the
   data it names are always written together.
+- **Staleness across files**: numba keeps a function's cached code while *its own* source file's
+  modification time and size are unchanged, but rtlift's kernels inline helpers from other files
+  (the observer step inlines the model step, which inlines the stages' kernels): after an upgrade
+  or an edit that changed only a helper's file, the old machine code would be loaded. Here every
+  cache index is stamped with the function's file *and* every rtlift source file that compiles
+  code (:func:`compiled_sources_stamp`), so any change to any of them recompiles them all.
 """
 
 from __future__ import annotations
@@ -60,6 +66,33 @@ def _use_cache_home() -> None:
     numba.config.CACHE_DIR = str(cache_home())
 
 
+PACKAGE = Path(__file__).resolve().parents[1]
+
+
+def compiled_sources_stamp(root: Path = PACKAGE, marker: str = "njit_cached") -> tuple:
+    """(path, mtime_ns, size) of every ``.py`` file under ``root`` whose text names ``marker``
+    (the files that compile code, and so may be inlined into one another), sorted."""
+    out = []
+    for path in sorted(root.rglob("*.py")):
+        try:
+            if marker in path.read_text(encoding="utf-8", errors="ignore"):
+                st = path.stat()
+                out.append((str(path.relative_to(root)), st.st_mtime_ns, st.st_size))
+        except OSError:
+            continue
+    return tuple(out)
+
+
+_STAMP: tuple | None = None
+
+
+def _sources_stamp() -> tuple:
+    global _STAMP
+    if _STAMP is None:
+        _STAMP = compiled_sources_stamp()
+    return _STAMP
+
+
 class _LockedCacheFile(caching.IndexDataCacheFile):
     """numba's index-and-data cache file with each ``save`` and ``load`` under one ``flock``."""
 
@@ -85,14 +118,16 @@ class _LockedCacheFile(caching.IndexDataCacheFile):
 
 
 def njit_cached(*args: Any, **options: Any) -> Callable:
-    """``numba.njit(cache=True, **options)`` with the cache in :func:`cache_home` and its files
-    read and written under a lock (see the module's docstring). Use it bare or with options,
+    """``numba.njit(cache=True, **options)`` with the cache in :func:`cache_home`, its files
+    read and written under a lock and stamped with every compiling source file (see the module's
+    docstring). Use it bare or with options,
     like ``njit``: ``@njit_cached`` or ``@njit_cached(inline="always")``."""
     def decorate(func: Callable) -> Any:
         dispatcher = numba.njit(cache=True, **options)(func)
         cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
         if type(cache_file) is caching.IndexDataCacheFile:
             cache_file.__class__ = _LockedCacheFile
+            cache_file._source_stamp = (cache_file._source_stamp, _sources_stamp())
         return dispatcher
 
     if args and callable(args[0]):
