@@ -117,7 +117,7 @@ def identify_record(record: Any, *, structure: str = "wiener", order: int | None
                     out: PathLike | None = None):
     """A single-input model of one generic ``t,u,y`` record (``rtlift identify --record``), its
     ``.metrics`` holding the held-out and training RMSE; written to ``out`` when given."""
-    from rtlift.model.siso import save_siso_model
+    from rtlift.model.siso_file import save_siso_model
     from rtlift.sysid.identify import identify_siso
 
     if structure not in GENERIC_STRUCTURES:

@@ -123,7 +123,7 @@ def test_a_generic_record_for_a_lift_model_is_one_line_and_exit_2(tmp_path, caps
 
 
 def test_a_generic_run_too_short_to_split_is_one_line_and_exit_2(tmp_path, capsys):
-    from rtlift.model.siso import save_siso_model
+    from rtlift.model.siso_file import save_siso_model
     from tests.test_sysid import random_model
 
     save_siso_model(random_model(np.random.default_rng(1), False), tmp_path / "w.json")
@@ -149,7 +149,7 @@ def test_the_api_splits_a_run_as_the_command_does(tmp_path):
     checks of the records are the command's (one line each)."""
     from rtlift import api
     from rtlift.core.errors import UserError
-    from rtlift.model.siso import save_siso_model
+    from rtlift.model.siso_file import save_siso_model
     from tests.test_sysid import random_model
 
     model = random_model(np.random.default_rng(4), True)      # Wiener-Hammerstein: no structure to try

@@ -20,9 +20,11 @@ from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.errors import RecordError
 from rtlift.core.records import SisoRecord, read_siso_record, write_siso_record
-from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel, model_from_dict
+from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
+from rtlift.model.siso_file import model_from_dict
+from rtlift.sysid.common import SisoOptions
 from rtlift.sysid.diagnose import clip_levels, diagnose_siso
-from rtlift.sysid.identify import SisoOptions, identify_siso
+from rtlift.sysid.identify import identify_siso
 from rtlift.sysid.initial import initial_state, steady_state
 
 DATA = Path(__file__).resolve().parents[1] / "data"

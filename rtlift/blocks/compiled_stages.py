@@ -1,5 +1,5 @@
 """The effect stages' compiled forms, inlined into the compiled model and observer steps
-(:mod:`rtlift.blocks.compiled`, :mod:`rtlift.observer.compiled`).
+(:mod:`rtlift.blocks.compiled`, :mod:`rtlift.blocks.compiled_interaction`, :mod:`rtlift.observer.compiled`).
 
 Input stages, each on its own arrays (the stage's ``kernel_arrays()``, not copies):
 

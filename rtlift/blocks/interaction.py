@@ -93,9 +93,9 @@ class InteractionConvolution(BlockChain):
                 + self.gain_static(envelope)) * envelope
 
     def kernel_arrays(self) -> tuple[tuple[Any, ...], tuple[np.ndarray, ...]]:
-        """For the compiled step (:func:`rtlift.blocks.compiled.interaction_step`): parameters
-        (φh, HF sections, m's (λ, 1 − λ, 1/d), knots, G_H values and slopes, G values and
-        slopes, S values and slopes) and state (convolution buffer and position, HF state, m),
+        """For the compiled step (:func:`rtlift.blocks.compiled_interaction.interaction_step`):
+        parameters (φh, HF sections, m's (λ, 1 − λ, 1/d), knots, G_H values and slopes, G values
+        and slopes, S values and slopes) and state (convolution buffer and position, HF state, m),
         not copies."""
         (taps,), conv_state = self.conv.kernel_arrays()
         (coef,), hp_state = self.highpass.kernel_arrays()

@@ -17,7 +17,7 @@ import numpy as np
 from rtlift.core.registry import ENTRIES
 from rtlift.diagnose.diagnosis import Diagnosis
 from rtlift.model.modelfile import save_model
-from rtlift.model.siso import save_siso_model
+from rtlift.model.siso_file import save_siso_model
 from rtlift.residual.stats import welch_psd
 
 

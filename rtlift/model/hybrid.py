@@ -24,7 +24,7 @@ carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain
 blocks' own ``step`` (``model.compiled`` says which). That chain is also the compiled
 step's test oracle; both advance the same state arrays. :meth:`simulate` follows the same
 choice: one compiled loop over the samples (:func:`rtlift.blocks.compiled.hybrid_simulate`,
-:func:`~rtlift.blocks.compiled.interaction_simulate`) for a compiled model, else
+:func:`~rtlift.blocks.compiled_interaction.interaction_simulate`) for a compiled model, else
 :meth:`HybridModel.reference_simulate`, the chain of the blocks' vectorised ``simulate``
 (numpy, scipy). The compiled step is bound to the blocks on the first step after a block or
 stage field of the model is assigned; a part swapped
@@ -167,7 +167,8 @@ class HybridModel(BlockChain):
         delay = self._input_state(stages[:-1], fade=False)
         if delay is None:
             return ()
-        from rtlift.blocks.compiled import interaction_simulate, interaction_step, pack_interaction, pack_parameters
+        from rtlift.blocks.compiled import pack_parameters
+        from rtlift.blocks.compiled_interaction import interaction_simulate, interaction_step, pack_interaction
 
         m_par, (m_in,) = stages[-1].kernel_arrays()
         (taps, coef, m_conv_par, knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes), (buf, pos, z, m_conv) = \

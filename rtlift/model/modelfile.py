@@ -158,7 +158,7 @@ def load_model(path: str | os.PathLike, allow_unstable: bool = False) -> HybridM
 def load_any_model(path: str | os.PathLike):
     """A lift model (:class:`HybridModel`) or a generic single-input one
     (:class:`rtlift.model.siso.SisoModel`, ``"kind": "siso"``), by what the file holds."""
-    from rtlift.model.siso import model_from_dict as siso_from_dict
+    from rtlift.model.siso_file import model_from_dict as siso_from_dict
 
     d = _read_json(path)
     if isinstance(d, dict) and d.get("kind") == "siso":

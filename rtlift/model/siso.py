@@ -10,12 +10,12 @@ it is Wiener–Hammerstein (the ``output_dynamics`` structure the diagnosis adds
 ambiguity is fixed by G₁(1) = 1: f carries the static gain.
 
 :meth:`SisoModel.step` is one sample (no allocation); :meth:`SisoModel.simulate` its batch
-twin; both carry one explicit state. A model file is JSON with ``"kind": "siso"``.
+twin; both carry one explicit state. A model file is JSON with ``"kind": "siso"``
+(:mod:`rtlift.model.siso_file`).
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,13 +24,10 @@ import numpy as np
 from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
-from rtlift.core.errors import ModelFileError
 from rtlift.core.jit import njit_cached
-from rtlift.core.jsonfile import write_json_atomic
 from rtlift.core.registry import ENTRIES, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES, resolve
+from rtlift.model.siso_file import FORMAT, VERSION, _finite, _limit_pair, model_from_dict
 
-FORMAT = "rtlift-siso-model"
-VERSION = 1
 STRUCTURES = MODEL_STRUCTURE_NAMES
 """The structures a generic record is identified in (:data:`rtlift.core.registry.MODEL_STRUCTURES`)."""
 LIMITED: dict[str, tuple[str, ...]] = {where: tuple(s for s, at in ENTRIES["saturation"].forms if at == where)
@@ -404,48 +401,8 @@ class SaturatedModel:
         return model_from_dict(self.to_dict())
 
 
-def _finite(v: float) -> float | None:
-    return float(v) if np.isfinite(v) else None
-
-
 SISO_MODELS = (SisoModel, FeedbackModel, StoreChainModel, SaturatedModel)
 """The single-input model classes (``isinstance(model, SISO_MODELS)``: a generic model)."""
 MODEL_CLASSES: dict[str, Any] = {s.name: resolve(s.model) for s in MODEL_STRUCTURES}
 """Each structure's model class, as the registry names it (:data:`rtlift.core.registry.MODEL_STRUCTURES`):
-what :func:`model_from_dict` builds a file of that ``structure`` with (its ``from_dict``)."""
-
-
-def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | FeedbackModel | SaturatedModel:
-    """Build and check a model from its file form; :class:`ModelFileError` (one line) if wrong."""
-    if d.get("format") != FORMAT or d.get("version") != VERSION:
-        raise ModelFileError(f"{source}: not an rtlift single-input model file of version {VERSION}")
-    sat = d.get("saturation")
-    where = sat.get("where", "output") if isinstance(sat, dict) else None
-    if sat is not None and where != "state":
-        inner = model_from_dict({k: v for k, v in d.items() if k != "saturation"}, source)
-        try:
-            if where != "output":
-                raise ValueError(f"saturation where {where!r} is not built (output, or state of "
-                                 f"{listed(LIMITED['state'])})")
-            return SaturatedModel(inner, *_limit_pair(sat))
-        except (AttributeError, TypeError, ValueError) as exc:
-            raise ModelFileError(f"{source}: {exc}") from None
-    structure = d.get("structure")
-    if where == "state" and structure not in LIMITED["state"]:
-        raise ModelFileError(f"{source}: saturation where 'state' is built for {listed(LIMITED['state'])} only")
-    cls = MODEL_CLASSES.get(structure, SisoModel) if isinstance(structure, str) else SisoModel
-    try:
-        return cls.from_dict(d)
-    except KeyError as exc:
-        raise ModelFileError(f"{source}: missing key {exc}") from None
-    except (TypeError, ValueError) as exc:
-        raise ModelFileError(f"{source}: {exc}") from None
-
-
-def _limit_pair(sat: dict[str, Any]) -> tuple[float, float]:
-    lo, hi = sat.get("lower"), sat.get("upper")
-    return -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi)
-
-
-def save_siso_model(model: SisoModel | FeedbackModel | SaturatedModel, path: str | os.PathLike) -> None:
-    write_json_atomic(path, model.to_dict(), stage="model file")
+what :func:`~rtlift.model.siso_file.model_from_dict` builds a file of that ``structure`` with (its ``from_dict``)."""

@@ -55,7 +55,8 @@ from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial
 from rtlift.diagnose.significance import combination, lowest_admissible, significant_gain
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import TestResult, higher_order, input_crosscorr, whiteness
-from rtlift.sysid.identify import NO_LIMITS, Limits, SisoOptions, identify_siso
+from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions
+from rtlift.sysid.identify import identify_siso
 from rtlift.sysid.initial import initial_state
 
 HOW = {e.name: e.how for e in STRUCTURES}

@@ -20,30 +20,14 @@
    with the lowest held-out RMSE is kept (M. Schoukens, Pintelon & Rolain 2014 initialise the
    same way from a nonparametric BLA).
 
-4. **Store chain** (``structure="store_chain"``, :class:`.model.StoreChainModel`): two stores in
-   cascade with power-law outflows. Its parameters enter nonlinearly and the simulation error
-   has many local minima (a store that drains too fast or never fills is a flat valley), so it
-   is refined by bounded least squares from ``chain_starts`` starts: exponents ½ (Torricelli),
-   the offset c at the record's 1 % level (the empty lower store), the stores' time constants
-   drawn log-uniformly between 2 samples and a third of the record (a fixed seed), each store's
-   outflow coefficient set so that, linearised about the mean level, it has that time constant,
-   and inflow and transfer so that the mean input holds both stores at that level. The stores'
-   levels at the record's start are refined with the rest (started with the lower store at the
-   first measured level, the upper one in equilibrium with it): a record need not start with
-   the stores empty (Cascaded Tanks' do not). The start with the lowest held-out RMSE (the run
-   from those levels) is kept. Positive parameters are refined in logarithms. With a limit
-   (``where="state"``, the only place a store chain takes one) the lower store is full at the
-   output's limit (``ceiling`` = upper); the upper store's brim and spill share are fitted.
-
-5. **Saturation** (``limits=(lower, upper)``, the ``saturation`` structure on any of the above):
+4. **Saturation** (``limits=(lower, upper)``, the ``saturation`` structure on any structure):
    the output is clipped at the limits, y = min(max(M(u), lower), upper). Samples measured at
    a limit are censored: they say only that M's output is at or beyond it, so f's values are
    fitted on the other samples, and every refinement cost is the simulation error of the
    clipped model, min(max(ŷ, lower), upper) − y, which for a censored sample is nonzero only
    while ŷ has not reached the limit (the censored least squares of a Tobit model).
-   With ``where="state"`` (nonlinear feedback; for a store chain see 4) the limit acts inside the recursion
-   (:class:`.model.FeedbackModel` ``state_limits``): the model's output sits at the limit
-   exactly while the store is full, so every sample is fitted, none censored.
+   With ``where="state"`` the limit acts inside the model instead (nonlinear feedback:
+   :mod:`.feedback`; a store chain: :mod:`.store_chain`).
 
 Refinement costs are evaluated on at most ``cost_samples`` samples of the estimation part
 (simulation over them, from rest; the first ``skip`` samples left out as the initial state is
@@ -53,7 +37,6 @@ unknown); f is refitted on the whole estimation part at the end.
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,30 +47,10 @@ from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.records import SisoRecord
 from rtlift.core.threads import one_blas_thread
 from rtlift.identify.poles import denominator_from_theta, theta_from_poles
-from rtlift.model.siso import (
-    LIMITED,
-    STRUCTURES,
-    FeedbackModel,
-    SaturatedModel,
-    SisoModel,
-    StoreChainModel,
-    listed,
-)
-
-
-@dataclass(frozen=True)
-class SisoOptions:
-    orders: tuple[int, ...] = (2, 4, 6)
-    knots: int = 16
-    more_knots: tuple[int, ...] = (48, 96)
-    more_knots_nfev: int = 100
-    holdout: float = 0.2
-    skip: int = 200
-    keep: int = 3
-    cost_samples: int = 30000
-    max_nfev: int = 400
-    feedback_orders: tuple[int, ...] = (2, 3, 4, 5, 6)
-    chain_starts: int = 12
+from rtlift.model.siso import LIMITED, STRUCTURES, SaturatedModel, SisoModel, listed
+from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions, _limited, _rmse
+from rtlift.sysid.feedback import identify_feedback
+from rtlift.sysid.store_chain import identify_store_chain
 
 
 def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
@@ -157,11 +120,6 @@ def _simulate_basis(dims: _Dims, th: np.ndarray, u: np.ndarray, count: int):
         # column by column in Fortran order: the same numbers as on the row-major array, in half the time
         phi = signal.lfilter(b2, a2, np.asfortranarray(phi), axis=0)
     return phi, knots
-
-
-
-Limits = tuple[float, float]
-NO_LIMITS: Limits = (-np.inf, np.inf)
 
 
 def _uncensored(y: np.ndarray, limits: Limits) -> np.ndarray:
@@ -263,18 +221,6 @@ def _model(dims: _Dims, th: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int,
     return _limited(SisoModel(HighPassFilter.from_ba(b1, a1), OutputNonlinearity(knots, c), g2, fs), limits)
 
 
-def _limited(model, limits: Limits):
-    """``model`` with its output clipped at ``limits`` (unchanged when there are none)."""
-    return model if limits == NO_LIMITS else SaturatedModel(model, *limits)
-
-
-def _rmse(model: SisoModel | FeedbackModel, u: np.ndarray, y: np.ndarray, skip: int) -> float:
-    model.reset()
-    out = model.simulate(u)
-    model.reset()
-    return float(np.sqrt(np.mean((out - y)[skip:] ** 2)))
-
-
 @one_blas_thread
 def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None = None,
                   options: SisoOptions | None = None, limits: Limits = NO_LIMITS,
@@ -344,127 +290,4 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
                         "bla_order": n, "bla_holdout_rmse": bla_holdout, "holdout_fraction": opt.holdout,
                         "splits_refined": len(starts), "knots": knots}
     model.metrics = {"holdout_rmse": held, "train_rmse": _rmse(model, ue, ye, skip)}
-    return model
-
-
-def identify_feedback(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np.ndarray, n_est: int,
-                      skip: int, fs: float, opt: SisoOptions, limits: Limits = NO_LIMITS,
-                      where: str = "output") -> FeedbackModel | SaturatedModel:
-    """The ``nonlinear_feedback`` model (module docstring, 4): fitted on (u, y), order chosen by the
-    held-out RMSE of (u_all, y_all) from ``n_est`` on; ``limits`` on its output or its state. The
-    output's offset (the operating point the map is centred on) is refined with the rest: Silverbox's
-    input has a mean of 6 mV, and a cubic about the sensor's zero instead of the spring's rest
-    position nearly doubled the held-out error."""
-    inner = limits if where == "state" else NO_LIMITS     # the limit inside the recursion
-    outer = NO_LIMITS if where == "state" else limits     # the clip after it
-    best = None
-    for n in opt.feedback_orders:
-        rows = np.arange(n, u.size)
-        X = np.column_stack([-y[rows - i] for i in range(1, n + 1)] + [u[rows - i] for i in range(0, n + 1)])
-        th, *_ = np.linalg.lstsq(X, y[rows], rcond=None)
-        th = np.concatenate([th[:n], th[n + 1:], [th[n]]])          # [a, b₁…bₙ, b₀]
-
-        def build(p: np.ndarray, n: int = n) -> FeedbackModel:
-            return FeedbackModel(p[:n], p[n:2 * n], p[2 * n + 1:2 * n + 3], fs, state_limits=inner, offset=p[-1],
-                                 feedthrough=p[2 * n])
-
-        def res(p: np.ndarray) -> np.ndarray:
-            with np.errstate(all="ignore"):
-                r = (np.clip(build(p).simulate(u), *outer) - y)[skip:]
-            return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3)
-
-        sol = optimize.least_squares(res, np.concatenate([th, [0.0, 0.0, 0.0]]), method="lm", x_scale="jac",
-                                     max_nfev=opt.max_nfev, ftol=1e-13, xtol=1e-13)
-        model = _limited(build(sol.x), outer)
-        with np.errstate(all="ignore"):
-            held = _rmse(model, u_all, y_all, n_est)
-        if np.isfinite(held) and (best is None or held < best[0]):
-            best = (held, model, n)
-    if best is None:
-        raise ValueError("no stable nonlinear-feedback model found")
-    held, model, n = best
-    model.provenance = {"structure": "nonlinear_feedback", "order": n}
-    model.metrics = {"holdout_rmse": held}
-    return model
-
-
-def identify_store_chain(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np.ndarray, n_est: int,
-                         skip: int, fs: float, opt: SisoOptions, limits: Limits = NO_LIMITS) -> StoreChainModel:
-    """The ``store_chain`` model (module docstring, 4): fitted on (u, y) from rest, the start kept
-    by the held-out RMSE of (u_all, y_all) from ``n_est`` on; ``limits``' upper side is the lower
-    store's brim as an output level."""
-    u_mean = float(np.mean(u))
-    if not u_mean > 0:
-        raise ValueError("a store chain needs an input of positive mean (a pump's flow)")
-    upper = float(limits[1])
-    c0 = float(np.quantile(y, 0.01))
-    level = float(np.mean(y)) - c0
-    if not level > 0:
-        raise ValueError("a store chain needs an output above its empty level")
-    rng = np.random.default_rng(0)
-    n = u.size
-
-    limited = bool(np.isfinite(upper))
-
-    def unpack(th: np.ndarray) -> dict[str, float]:
-        b, a1, p1, r, a2, p2, c = th[:7]
-        l1, beta = (math.exp(th[7]), th[8]) if limited else (np.inf, 0.0)
-        return {"inflow": math.exp(b), "outflow_1": math.exp(a1), "exponent_1": p1, "transfer": math.exp(r),
-                "outflow_2": math.exp(a2), "exponent_2": p2, "brim_1": l1,
-                "ceiling": upper if limited else np.inf, "spill": beta, "offset": c}
-
-    npar = 9 if limited else 7
-
-    def start(th: np.ndarray) -> np.ndarray:
-        """The stores' levels at the record's start: logarithms of the last two entries."""
-        return np.exp(th[npar:])
-
-    def res(th: np.ndarray) -> np.ndarray:
-        try:
-            m = StoreChainModel(unpack(th), fs)
-            m.set_state(start(th))
-        except (ValueError, OverflowError):
-            return np.full(n - skip, 1e3 * level)
-        with np.errstate(all="ignore"):
-            r = (m.simulate(u) - y)[skip:]
-        return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3 * level)
-
-    def held_out(model: StoreChainModel, x0: np.ndarray) -> float:
-        model.reset()
-        model.set_state(x0)
-        with np.errstate(all="ignore"):
-            out = model.simulate(u_all)
-        model.reset()
-        return float(np.sqrt(np.mean((out - y_all)[n_est:] ** 2)))
-
-    c_hi = upper - 1e-6 * level if limited else np.inf
-    lo = np.array([-40, -40, 0.1, -40, -40, 0.1, -np.inf, -40, 0.0][:npar] + [-40.0, -40.0])
-    hi = np.array([40, 40, 2.0, 40, 40, 2.0, c_hi, 40, 100.0][:npar] + [40.0, 40.0])
-    best = None
-    for _ in range(opt.chain_starts):
-        t1, t2 = np.exp(rng.uniform(np.log(2.0), np.log(max(3.0, n / 3.0)), 2)) / fs
-        x1 = x2 = level
-        a1, a2 = 2.0 * x1**0.5 / t1, 2.0 * x2**0.5 / t2            # x^(1−p)/(p τ), p = ½
-        b = a1 * x1**0.5 / u_mean
-        r = a2 * x2**0.5 / (a1 * x1**0.5)
-        brim = math.log(3.0 * x1) + rng.normal(0.0, 0.3)
-        c = min(c0, c_hi - 1e-6 * level)
-        # the record's start: the lower store at the first measured level, the upper one at the
-        # level that feeds it as much as it drains (in equilibrium)
-        x2 = min(max(float(y[0]) - c, 1e-3 * level), c_hi - c)
-        x1 = (a2 * x2**0.5 / (r * a1)) ** 2
-        th0 = np.array([math.log(b), math.log(a1), 0.5, math.log(r), math.log(a2), 0.5, c, brim, 0.3][:npar]
-                       + [math.log(x1), math.log(x2)])
-        th0 = np.clip(th0, lo + 1e-9, hi - 1e-9)
-        sol = optimize.least_squares(res, th0, bounds=(lo, hi), x_scale="jac", max_nfev=opt.max_nfev)
-        model = StoreChainModel(unpack(sol.x), fs)
-        held = held_out(model, start(sol.x))
-        if np.isfinite(held) and (best is None or held < best[0]):
-            best = (held, model, start(sol.x))
-    if best is None:
-        raise ValueError("no store chain fits the record")
-    held, model, x0 = best
-    model.provenance = {"structure": "store_chain", "starts": opt.chain_starts,
-                        "initial_state": [float(v) for v in x0]}
-    model.metrics = {"holdout_rmse": held}
     return model

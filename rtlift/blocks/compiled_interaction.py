@@ -1,0 +1,159 @@
+"""The compiled 400 Hz step and batch of the interaction structure (:mod:`rtlift.blocks.interaction`;
+numba, through :func:`rtlift.core.jit.njit_cached`), on the same per-sample helpers as the
+hybrid's (:mod:`rtlift.blocks.compiled`):
+
+    ΔCL_H(k) = G_H(m) HF(c)(k) + G(m) (c − HF(c))(k) + S(u) u,   c = φ h ∗ Cμ′
+    ΔCL_L(k) = N(u(k)) · C x(k)  (form 0)  or  f(C x(k))  (form 1),   x(k) = A x(k−1) + B u(k)
+
+:func:`interaction_step` is one sample, :func:`interaction_simulate` the batch, both on one
+packed copy of the parameters (:func:`pack_interaction`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import carray
+
+from rtlift.blocks.compiled import (
+    _highpass,
+    _push,
+    _scatter_past,
+    _stack_buffer,
+    _table,
+    _wiener,
+    _wiener_table,
+)
+from rtlift.blocks.compiled_stages import _delayed
+from rtlift.core.jit import njit_cached
+
+
+def pack_interaction(par: np.ndarray, envelope_in: tuple[float, float, float],
+                     momentum_conv: tuple[float, float, float], knots: np.ndarray, gains_h: np.ndarray,
+                     slopes_h: np.ndarray, gains: np.ndarray, slopes: np.ndarray, gains_s: np.ndarray,
+                     slopes_s: np.ndarray) -> np.ndarray:
+    """The interaction structure's fixed numbers: :func:`~rtlift.blocks.compiled.pack_parameters`'
+    array (its φh, SOS rows and scratch those of the burst part's convolution and HF), then the
+    delivered-envelope stage's (λ, 1 − λ, 1/q₀) and the burst part's own momentum's (λ, 1 − λ,
+    1/d), then [K, knots (K), G_H values (K), slopes (K − 1), G values (K), slopes (K − 1), S
+    values (K), slopes (K − 1)]."""
+    return np.concatenate([par, envelope_in, momentum_conv, [float(knots.size)], knots, gains_h, slopes_h,
+                           gains, slopes, gains_s, slopes_s])
+
+
+@njit_cached(inline="always")
+def _interaction_offset(par, n_taps, n_sections, n):
+    """Where :func:`pack_interaction`'s part starts in ``par`` (after the Wiener table and scratch)."""
+    return 2 + n_taps + 5 * n_sections + n * n + 2 * n + 3 * int(par[1]) - 1 + n
+
+
+@njit_cached(inline="always")
+def _gain_tables(par, o):
+    """Views of the G_H, G and S tables whose length K is ``par[o]``: (knots, G_H, slopes, G,
+    slopes, S, slopes)."""
+    k = int(par[o])
+    o += 1
+    return (par[o:o + k], par[o + k:o + 2 * k], par[o + 2 * k:o + 3 * k - 1], par[o + 3 * k - 1:o + 4 * k - 1],
+            par[o + 4 * k - 1:o + 5 * k - 2], par[o + 5 * k - 2:o + 6 * k - 2], par[o + 6 * k - 2:o + 7 * k - 3])
+
+
+@njit_cached(inline="always")
+def _momentum(lam, b, inv_d, m, cmu):
+    """``m(k) = (1 − λ) Cμ(k)/d + λ m(k−1)`` (:class:`~rtlift.blocks.delivered.DeliveredMomentum`'s order)."""
+    return b * (cmu * inv_d) + lam * m
+
+
+@njit_cached(inline="always")
+def _burst_memory(lam, b, q, cmu):
+    """``q(k) = (1 − λ) [Cμ(k) > 0] + λ q(k−1)`` (:class:`~rtlift.blocks.delivered.DeliveredEnvelope`'s order)."""
+    return b * (1.0 if cmu > 0.0 else 0.0) + lam * q
+
+
+@njit_cached
+def interaction_step(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, x):
+    """One sample of the interaction structure (:mod:`rtlift.blocks.interaction`): (ΔCL, ΔCL_H,
+    ΔCL_L); advances the delay rings, the delivered envelope's memory q (``m_in``, the input
+    stage's; u = Cμ_env′ min(1, q/q₀) is the Wiener part's input), the convolution buffer, the
+    burst part's HF state z and its m (``m_conv``) and the LTI state x in place (``par``:
+    :func:`pack_interaction`)::
+
+        ΔCL_H(k) = G_H(m) HF(c)(k) + G(m) (c − HF(c))(k) + S(u) u,   c = φ h ∗ Cμ′
+        ΔCL_L(k) = N(u(k)) · C x(k)  (form 0)  or  f(C x(k))  (form 1),   x(k) = A x(k−1) + B u(k)
+    """
+    cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
+    n_taps = buf.shape[0] // 2
+    n_sec = z.shape[0] // 2
+    n = x.shape[0]
+    o = _interaction_offset(par, n_taps, n_sec, n)
+    q = _burst_memory(par[o], par[o + 1], m_in[0], cmu)
+    m_in[0] = q
+    u = env * min(1.0, par[o + 2] * q)
+    p = _push(buf, pos, cmu)
+    c = 0.0
+    for j in range(n_taps):
+        c += par[2 + j] * buf[p + j]
+    hf = _highpass(par, 2 + n_taps, z, c)
+    mc = _momentum(par[o + 3], par[o + 4], par[o + 5], m_conv[0], cmu)
+    m_conv[0] = mc
+    knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes = _gain_tables(par, o + 6)
+    high = (_table(knots, gh, gh_slopes, mc, False) * hf + _table(knots, g, g_slopes, mc, False) * (c - hf)
+            + _table(knots, gs, gs_slopes, u, False) * u)
+    ow = 2 + n_taps + 5 * n_sec
+    xs, fs, slopes, scratch = _wiener_table(par, ow, n)
+    low = _wiener(par, ow, xs, fs, slopes, scratch, x, u)
+    return high + low, high, low
+
+
+@njit_cached
+def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, x,
+                         z_slots, x_slots):
+    """:func:`interaction_step` over whole arrays in one loop, into ``total``, ``high`` and
+    ``low``, from and advancing the same state: the convolution scattered as in
+    :func:`~rtlift.blocks.compiled.hybrid_simulate` (same helpers), the HF and LTI states and m
+    and q in registers."""
+    n = cmu.shape[0]
+    n_taps = buf.shape[0] // 2
+    n_z, n_x = len(z_slots), len(x_slots)
+    z_local = carray(_stack_buffer(z_slots), (n_z,))
+    x_local = carray(_stack_buffer(x_slots), (n_x,))
+    scratch = carray(_stack_buffer(x_slots), (n_x,))
+    z_local[:] = z
+    x_local[:] = x
+    taps = par[2:2 + n_taps]
+    o_hp = 2 + n_taps
+    o_w = o_hp + 5 * (n_z // 2)
+    grid, values, slopes, _ = _wiener_table(par, o_w, n_x)
+    o = _interaction_offset(par, n_taps, n_z // 2, n_x)
+    lam_i, b_i, scale_i, lam_c, b_c, inv_d_c = par[o], par[o + 1], par[o + 2], par[o + 3], par[o + 4], par[o + 5]
+    knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes = _gain_tables(par, o + 6)
+    mi, mc = m_in[0], m_conv[0]
+    _scatter_past(buf, pos[0], taps, high, n)
+    if d_cmu.shape[0] > 0:                    # the delayed inputs, in place of the outputs
+        for k in range(n):
+            total[k], low[k] = _delayed(cmu[k], env[k], d_cmu, d_env, d_pos)
+        cmu = total
+        env = low                             # each read before its slot is written
+    last = n - n_taps
+    for k in range(n):
+        c = cmu[k]
+        if k >= last:                         # as in hybrid_simulate
+            _push(buf, pos, c)
+        if k + n_taps - 1 < n:
+            high[k + n_taps - 1] = 0.0
+        if c != 0.0:
+            for j in range(min(n_taps, n - k)):
+                high[k + j] += taps[j] * c
+        conv = high[k]
+        hf = _highpass(par, o_hp, z_local, conv)
+        mi = _burst_memory(lam_i, b_i, mi, c)
+        u = env[k] * min(1.0, scale_i * mi)
+        mc = _momentum(lam_c, b_c, inv_d_c, mc, c)
+        h = (_table(knots, gh, gh_slopes, mc, False) * hf + _table(knots, g, g_slopes, mc, False) * (conv - hf)
+             + _table(knots, gs, gs_slopes, u, False) * u)
+        lo = _wiener(par, o_w, grid, values, slopes, scratch, x_local, u)
+        high[k] = h
+        low[k] = lo
+        total[k] = h + lo
+    m_in[0] = mi
+    m_conv[0] = mc
+    z[:] = z_local
+    x[:] = x_local
