@@ -45,13 +45,13 @@ def _env(cache: Path) -> dict:
 
 def test_every_compiled_function_reads_and_writes_its_cache_under_a_lock():
     from rtlift.blocks import compiled as blocks_compiled
-    from rtlift.blocks import compiled_interaction
+    from rtlift.blocks import compiled_interaction, compiled_stages
     from rtlift.core.jit import _LockedCacheFile
     from rtlift.model import siso
     from rtlift.observer import compiled as observer_compiled
 
-    dispatchers = [v for m in (blocks_compiled, compiled_interaction, observer_compiled, siso) for v in vars(m).values()
-                   if type(v).__name__ == "CPUDispatcher"]
+    modules = (blocks_compiled, compiled_interaction, compiled_stages, observer_compiled, siso)
+    dispatchers = [v for m in modules for v in vars(m).values() if type(v).__name__ == "CPUDispatcher"]
     assert len(dispatchers) >= 15
     assert all(isinstance(d._cache._cache_file, _LockedCacheFile) for d in dispatchers)
 
