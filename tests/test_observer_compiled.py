@@ -18,7 +18,7 @@ from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
 from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer, ObserverConfig
-from testkit.synthetic import burst_input, make_model
+from testkit.synthetic import burst_input, interaction_model, make_model
 
 TOL = 1e-12
 CONFIGS = {
@@ -76,7 +76,22 @@ def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay,
         cls = HysteresisGain if hasattr(nl, "gain_at") else OutputHysteresis
         model.wiener.nonlinearity = cls(*table, 0.3, 0.02, FS, width, 0.9, driver)
         model.wiener = model.wiener
-    obs = Observer(model, CONFIGS[config])
+    _agree(Observer(model, CONFIGS[config]), rng, n, warm)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 500), order=st.integers(1, 3), output_form=st.booleans(),
+       delay=st.integers(0, 4), config=st.sampled_from(sorted(CONFIGS)), warm=st.integers(0, 100))
+def test_compiled_step_equals_reference_step_on_the_interaction_structure(seed, n, order, output_form, delay, config,
+                                                                         warm):
+    """The same for a model of the ``interaction`` structure (what ``rtlift identify`` chooses
+    when the campaign has burst trains): its own compiled sample, the same filter."""
+    rng = np.random.default_rng(seed)
+    _agree(Observer(interaction_model(rng, 40, order, delay, output_form), CONFIGS[config]), rng, n, warm)
+
+
+def _agree(obs, rng, n, warm):
+    """Compiled and reference steps of ``obs`` from one mid-record state agree to 1e-12."""
     assert obs.compiled
     cmu, env, z = _inputs(rng, n + warm)
     _run(obs.reference_step, cmu[:warm], env[:warm], z[:warm])

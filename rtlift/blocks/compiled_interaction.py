@@ -79,6 +79,14 @@ def interaction_step(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_co
         ΔCL_H(k) = G_H(m) HF(c)(k) + G(m) (c − HF(c))(k) + S(u) u,   c = φ h ∗ Cμ′
         ΔCL_L(k) = N(u(k)) · C x(k)  (form 0)  or  f(C x(k))  (form 1),   x(k) = A x(k−1) + B u(k)
     """
+    total, high, low, _, _ = interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, x)
+    return total, high, low
+
+
+@njit_cached(inline="always")
+def interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, x):
+    """:func:`interaction_step` that also returns the inputs the filter of an observer sees,
+    (ΔCL, ΔCL_H, ΔCL_L, Cμ′, u): Cμ after the delay and the delivered envelope u."""
     cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
     n_taps = buf.shape[0] // 2
     n_sec = z.shape[0] // 2
@@ -100,7 +108,7 @@ def interaction_step(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_co
     ow = 2 + n_taps + 5 * n_sec
     xs, fs, slopes, scratch = _wiener_table(par, ow, n)
     low = _wiener(par, ow, xs, fs, slopes, scratch, x, u)
-    return high + low, high, low
+    return high + low, high, low, cmu, u
 
 
 @njit_cached

@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from rtlift.blocks.compiled import _segment, _table, hybrid_sample
+from rtlift.blocks.compiled_interaction import interaction_sample
 from rtlift.blocks.compiled_stages import direction_gain
 from rtlift.core.jit import njit_cached
 from rtlift.observer import config
@@ -62,6 +63,31 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, sstate, bu
     binding); ``ipar``/``fpar``: :func:`pack_layout`; ``Q`` the process noise; ``xi``, ``P``,
     ``H`` the state, covariance and measurement row; ``T`` (dim_x²) and ``work`` (2 dim_x)
     scratch; ``tab`` the basis rows of the current burst period; ``s`` the scalar state."""
+    cmu, env, dcl, flags = _checked_inputs(cmu, env, dcl, s)
+    # the model's step, the inputs its delay and fade stages hand on (Cμ′, Cμ_env′), and the
+    # corrections of the output stages the filter does not carry as states (the flags in ``mpar``)
+    total, high, _, cmu, env, corrections = hybrid_sample(cmu, env, mpar, d_cmu, d_env, d_pos, fade_par, sstate, buf,
+                                                          pos, z, xm)
+    return _filter(cmu, env, dcl, flags, total, high, high + corrections, direction_gain(mpar, sstate), mpar,
+                   buf.shape[0] // 2, z.shape[0] // 2, ipar, fpar, Q, xi, P, H, T, work, tab, s)
+
+
+@njit_cached
+def observer_step_interaction(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, xm,
+                              ipar, fpar, Q, xi, P, H, T, work, tab, s):
+    """:func:`observer_step` for a model of the ``interaction`` structure (its binding's
+    arguments, :func:`rtlift.blocks.compiled_interaction.interaction_step`'s): the same filter, on
+    Cμ′ and the delivered envelope u the model's Wiener part sees."""
+    cmu, env, dcl, flags = _checked_inputs(cmu, env, dcl, s)
+    total, high, _, cmu, env = interaction_sample(cmu, env, mpar, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, xm)
+    return _filter(cmu, env, dcl, flags, total, high, high, 1.0, mpar, buf.shape[0] // 2, z.shape[0] // 2,
+                   ipar, fpar, Q, xi, P, H, T, work, tab, s)
+
+
+@njit_cached(inline="always")
+def _checked_inputs(cmu, env, dcl, s):
+    """(Cμ, Cμ_env, ΔCL, flags): a non-finite input is replaced by the last good one, its
+    measurement by NaN, and counted."""
     flags = 0
     if -math.inf < cmu < math.inf and -math.inf < env < math.inf:
         s[LAST_CMU] = cmu
@@ -70,11 +96,16 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, sstate, bu
         cmu, env, dcl = s[LAST_CMU], s[LAST_ENV], math.nan
         flags = config.FLAG_BAD_INPUT
         s[BAD_INPUTS] += 1
-    # the model's step, the inputs its delay and fade stages hand on (Cμ′, Cμ_env′), and the
-    # corrections of the output stages the filter does not carry as states (the flags in ``mpar``)
-    total, high, _, cmu, env, corrections = hybrid_sample(cmu, env, mpar, d_cmu, d_env, d_pos, fade_par, sstate, buf,
-                                                          pos, z, xm)
-    known = high + corrections
+    return cmu, env, dcl, flags
+
+
+@njit_cached(inline="always")
+def _filter(cmu, env, dcl, flags, total, high, known, factor, mpar, n_taps, n_sections, ipar, fpar, Q, xi, P, H, T,
+            work, tab, s):
+    """The filter's predict and update after the model's step (:func:`observer_step`): ``cmu``,
+    ``env`` the inputs after the model's input stages, ``total`` the open-loop ΔCL, ``high`` its
+    burst part, ``known`` the part of ẑ carried by no state, ``factor`` the Wiener gain's
+    hysteresis factor in force (1 without one)."""
     s[SAMPLE] += 1
 
     d, n = ipar[DIM_X], ipar[N_WIENER]
@@ -114,11 +145,10 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, sstate, bu
 
     # measurement row H(k) and prediction ẑ⁻
     n_table = int(mpar[1])
-    o = _table_offset(mpar, buf.shape[0] // 2, z.shape[0] // 2, n)
+    o = _table_offset(mpar, n_taps, n_sections, n)
     xs = mpar[o:o + n_table]
     fs = mpar[o + n_table:o + 2 * n_table]
     slopes = mpar[o + 2 * n_table:o + 3 * n_table - 1]
-    factor = direction_gain(mpar, sstate)     # the hysteresis factor in force (1 without one)
     if ipar[FORM] == 0:
         g = _table(xs, fs, slopes, env, False) * factor
         c0 = 0.0

@@ -11,6 +11,7 @@ from filterpy.kalman import KalmanFilter
 from scipy.linalg import blas
 
 from rtlift.blocks.compiled import hybrid_step
+from rtlift.blocks.compiled_interaction import interaction_step
 from rtlift.blocks.compiled_stages import output_flags
 from rtlift.model.hybrid import HybridModel
 from rtlift.observer import compiled as cs
@@ -129,18 +130,25 @@ class Observer:
     def _bind_kernel(self) -> tuple:
         """(compiled step, its arguments after Cμ, Cμ_env, ΔCL), or () for the reference step."""
         kernel = self.model._bind_kernel()
-        if not kernel or kernel[0] is not hybrid_step:       # the paper's structure only, not the interaction one
+        if not kernel:
             return ()
         lay = self.layout
-        # the model's arguments, its parameters (the first) with the observer's flags on the output
-        # stages: a stage's correction counts toward the known part of ẑ unless states of ξ stand for it
-        model_args = (output_flags(kernel[1][0], [not r for r in lay.replaced]), *kernel[1][1:])
+        if kernel[0] is hybrid_step:
+            # the model's arguments, its parameters (the first) with the observer's flags on the output
+            # stages: a stage's correction counts toward the known part of ẑ unless states of ξ stand for it
+            step = cs.observer_step
+            model_args = (output_flags(kernel[1][0], [not r for r in lay.replaced]), *kernel[1][1:])
+        elif kernel[0] is interaction_step:      # the interaction structure: no output stages compiled
+            step = cs.observer_step_interaction
+            model_args = kernel[1]
+        else:  # pragma: no cover - every compiled model step is one of the two
+            return ()
         ipar, fpar = cs.pack_layout(lay, self.config.R, self.gate, self.config.max_rejections)
         d = lay.dim_x
         tab = np.zeros((max(lay.max_period, 1) if lay.harmonics else 1, max(2 * lay.harmonics, 1)))
         args = (*model_args, ipar, fpar, np.ascontiguousarray(self.kf.Q), self._xi, self._P, self._H,
                 np.zeros((d, d)), np.zeros(2 * d), tab, self._s)
-        return cs.observer_step, args
+        return step, args
 
     @property
     def compiled(self) -> bool:
