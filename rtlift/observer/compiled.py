@@ -8,6 +8,9 @@ runs the filter of :mod:`rtlift.observer` on the observer's arrays (ξ, P, H, th
 reference step see what it did. F is block diagonal and mostly identity: F P Fᵀ runs on its
 non-zeros (compressed rows), ≈ 2·nnz(F)·dim_x multiply-adds instead of 2·dim_x³. The
 recurrences are the reference step's in the same order, so the two agree to rounding.
+:func:`observer_step_interaction` is the same for a model of the ``interaction`` structure: its
+own compiled sample (:func:`rtlift.blocks.compiled_interaction.interaction_sample`), then the one
+filter both share (:func:`_filter`).
 
 The scalar state ``s`` (float64) is shared with the reference step; its slots are the
 constants below. numba compiles on the first call (≈ seconds) or loads the machine code from
