@@ -5,7 +5,7 @@ from __future__ import annotations
 import control
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
@@ -115,6 +115,7 @@ def test_highpass_removes_dc_and_passes_the_burst_rate():
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 3))
+@example(seed=199255, n=3)      # a pole at 0.991: the old block-Toeplitz batch drifted 8e-12 (CI, 2026-11-26)
 def test_lti_matches_python_control_forced_response(seed, n):
     """x(k) = A x(k−1) + B u(k), y = C x(k) equals python-control's (A, B, CA, CB) realisation."""
     rng = np.random.default_rng(seed)
