@@ -65,7 +65,8 @@ def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int
                       output_form: bool = False, fs_hz: float = FS_HZ) -> HybridModel:
     """A random model of the ``interaction`` structure (:mod:`rtlift.blocks.interaction`):
     ΔCL = G_H(m) HF(c) + G(m) (c − HF(c)) + S(u) u + N(u) C x (or f(C x), ``output_form``), u
-    the delivered envelope, its input ``delay`` samples late."""
+    the delivered envelope (in half the models through a static map, ``lift``), its input
+    ``delay`` samples late."""
     tau = float(rng.uniform(0.02, 1.0))
     duty = float(rng.uniform(0.05, 0.5))
     knots = np.array([0.0, 0.002, 0.006, 0.012, 0.022])
@@ -83,8 +84,12 @@ def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int
     nonlinearity = (OutputNonlinearity(grid, 10 * grid + rng.uniform(0, 0.01, size=8).cumsum()) if output_form
                     else InputGain(grid, 10 + rng.uniform(0, 5, size=8)))
     on = int(rng.integers(1, 9))
+    tau_q, period = float(rng.uniform(0.02, 1.0)), on + int(rng.integers(0, 80))
+    lift = None                       # half the models put the static map before the LTI (``lift``)
+    if rng.random() < 0.5:
+        lift = (grid, 5 + rng.uniform(0, 10, size=8)[::-1].cumsum()[::-1] / 8)
     stages = (*((Delay(delay / fs_hz, fs_hz),) if delay else ()),
-              DeliveredEnvelope(float(rng.uniform(0.02, 1.0)), on, on + int(rng.integers(0, 80)), fs_hz))
+              DeliveredEnvelope(tau_q, on, period, fs_hz, lift, float(rng.uniform(1.0, 4.0))))
     return HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(A, B, C, nonlinearity), fs_hz,
                        input_stages=stages)
 

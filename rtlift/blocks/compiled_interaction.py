@@ -4,6 +4,7 @@ hybrid's (:mod:`rtlift.blocks.compiled`):
 
     ΔCL_H(k) = G_H(m) HF(c)(k) + G(m) (c − HF(c))(k) + S(u) u,   c = φ h ∗ Cμ′
     ΔCL_L(k) = N(u(k)) · C x(k)  (form 0)  or  f(C x(k))  (form 1),   x(k) = A x(k−1) + B u(k)
+    u(k) = Cμ_env′(k) · min(1, q(k)/q₀)   or, with a static map,   f(Cμ_env′(k))/s · min(1, q(k)/q₀)^p
 
 :func:`interaction_step` is one sample, :func:`interaction_simulate` the batch, both on one
 packed copy of the parameters (:func:`pack_interaction`).
@@ -30,14 +31,20 @@ from rtlift.core.jit import njit_cached
 def pack_interaction(par: np.ndarray, envelope_in: tuple[float, float, float],
                      momentum_conv: tuple[float, float, float], knots: np.ndarray, gains_h: np.ndarray,
                      slopes_h: np.ndarray, gains: np.ndarray, slopes: np.ndarray, gains_s: np.ndarray,
-                     slopes_s: np.ndarray) -> np.ndarray:
+                     slopes_s: np.ndarray,
+                     lift: tuple[float, float, np.ndarray, np.ndarray, np.ndarray] = (1.0, 1.0, np.zeros(0), np.zeros(0),
+                                                                                       np.zeros(0))) -> np.ndarray:
     """The interaction structure's fixed numbers: :func:`~rtlift.blocks.compiled.pack_parameters`'
     array (its φh, SOS rows and scratch those of the burst part's convolution and HF), then the
     delivered-envelope stage's (λ, 1 − λ, 1/q₀) and the burst part's own momentum's (λ, 1 − λ,
     1/d), then [K, knots (K), G_H values (K), slopes (K − 1), G values (K), slopes (K − 1), S
-    values (K), slopes (K − 1)]."""
+    values (K), slopes (K − 1)], then the delivered envelope's static map
+    (:meth:`~rtlift.blocks.delivered.DeliveredEnvelope.lift_arrays`): [p, 1/s, L, grid (L),
+    N (L), slopes (L − 1)], L = 0 without one."""
+    power, inv_chord, grid, gain, gain_slopes = lift
     return np.concatenate([par, envelope_in, momentum_conv, [float(knots.size)], knots, gains_h, slopes_h,
-                           gains, slopes, gains_s, slopes_s])
+                           gains, slopes, gains_s, slopes_s, [power, inv_chord, float(grid.size)], grid, gain,
+                           gain_slopes])
 
 
 @njit_cached(inline="always")
@@ -54,6 +61,25 @@ def _gain_tables(par, o):
     o += 1
     return (par[o:o + k], par[o + k:o + 2 * k], par[o + 2 * k:o + 3 * k - 1], par[o + 3 * k - 1:o + 4 * k - 1],
             par[o + 4 * k - 1:o + 5 * k - 2], par[o + 5 * k - 2:o + 6 * k - 2], par[o + 6 * k - 2:o + 7 * k - 3])
+
+
+@njit_cached(inline="always")
+def _lift_table(par, o):
+    """(p, 1/s, grid, N, slopes) of the delivered envelope's static map, which starts at
+    ``par[o]`` (``o`` the gain tables' start, :func:`_gain_tables`); an empty grid without one."""
+    o += 7 * int(par[o]) - 2
+    n = int(par[o + 2])
+    o += 3
+    return par[o - 3], par[o - 2], par[o:o + n], par[o + n:o + 2 * n], par[o + 2 * n:o + 3 * n - 1]
+
+
+@njit_cached(inline="always")
+def _delivered(env, gate, power, inv_chord, grid, gain, slopes):
+    """The delivered envelope u (:class:`~rtlift.blocks.delivered.DeliveredEnvelope`): Cμ_env · gate,
+    or with the static map f(Cμ_env)/s · gate^p, gate = min(1, q/q₀)."""
+    if grid.shape[0] == 0:
+        return env * gate
+    return _table(grid, gain, slopes, env, False) * env * inv_chord * gate ** power
 
 
 @njit_cached(inline="always")
@@ -94,7 +120,8 @@ def interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_
     o = _interaction_offset(par, n_taps, n_sec, n)
     q = _burst_memory(par[o], par[o + 1], m_in[0], cmu)
     m_in[0] = q
-    u = env * min(1.0, par[o + 2] * q)
+    power, inv_chord, lgrid, lgain, lslopes = _lift_table(par, o + 6)
+    u = _delivered(env, min(1.0, par[o + 2] * q), power, inv_chord, lgrid, lgain, lslopes)
     p = _push(buf, pos, cmu)
     c = 0.0
     for j in range(n_taps):
@@ -133,6 +160,7 @@ def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, m
     o = _interaction_offset(par, n_taps, n_z // 2, n_x)
     lam_i, b_i, scale_i, lam_c, b_c, inv_d_c = par[o], par[o + 1], par[o + 2], par[o + 3], par[o + 4], par[o + 5]
     knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes = _gain_tables(par, o + 6)
+    power, inv_chord, lgrid, lgain, lslopes = _lift_table(par, o + 6)
     mi, mc = m_in[0], m_conv[0]
     _scatter_past(buf, pos[0], taps, high, n)
     if d_cmu.shape[0] > 0:                    # the delayed inputs, in place of the outputs
@@ -153,7 +181,7 @@ def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, m
         conv = high[k]
         hf = _highpass(par, o_hp, z_local, conv)
         mi = _burst_memory(lam_i, b_i, mi, c)
-        u = env[k] * min(1.0, scale_i * mi)
+        u = _delivered(env[k], min(1.0, scale_i * mi), power, inv_chord, lgrid, lgain, lslopes)
         mc = _momentum(lam_c, b_c, inv_d_c, mc, c)
         h = (_table(knots, gh, gh_slopes, mc, False) * hf + _table(knots, g, g_slopes, mc, False) * (conv - hf)
              + _table(knots, gs, gs_slopes, u, False) * u)

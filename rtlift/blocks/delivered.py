@@ -4,7 +4,8 @@
   λ = exp(−1/(τ fs)); Cμ′ = Cμ.
 - ``delivered_envelope`` (the structure's Wiener input): Cμ_env′(k) = Cμ_env(k) · min(1, q(k)/q₀),
   q(k) = λ q(k−1) + (1 − λ) [Cμ(k) > 0], q₀ the minimum of q at the lift-optimal burst rate
-  (:func:`optimal_rate_floor`); Cμ′ = Cμ.
+  (:func:`optimal_rate_floor`); Cμ′ = Cμ. With a static map (``lift``, issue 31):
+  Cμ_env′(k) = f(Cμ_env(k))/s · min(1, q(k)/q₀)^p, f(Cμ) = N(Cμ)·Cμ the map, s its last chord.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 from scipy import signal
 
 from rtlift.blocks.stage import InputStage, _positive
+from rtlift.blocks.wiener import _check_table, _Table
 
 
 class DeliveredMomentum(InputStage):
@@ -94,12 +96,25 @@ class DeliveredEnvelope(InputStage):
     ``period_samples``, :func:`optimal_rate_floor`): at that rate or denser u is the envelope
     itself, the paper's hybrid's Wiener input, with no lag; after an isolated burst or between
     the bursts of a sparse train u falls with the memory q. ``time_constant_s`` = τ > 0.
+
+    With ``lift`` = (Cμ grid, N) the static map's gain table (f(Cμ) = N(Cμ)·Cμ, N held at the
+    table's ends) and ``power`` p, the stage puts the static map before the Wiener LTI (a
+    Hammerstein slow part, issue 31)::
+
+        u(k) = f(Cμ_env(k)) / s · min(1, q(k)/q₀)^p,   s = N(Cμ_max) = f(Cμ_max)/Cμ_max
+
+    u is the static lift of the envelope, in envelope units (u = Cμ_env at Cμ_max), falling as
+    the p-th power of the delivered burst rate below the lift-optimal one. A Wiener part
+    s·C x(k), x(k) = A x(k−1) + B u(k), then settles at f(Cμ_env) for every held envelope at
+    that rate or denser, and its mean over an amplitude-modulated record is the mean of f over
+    the envelope — what the independent plant's lift does on every record (issue 31).
     State: [q(k)]."""
 
     name = "delivered_envelope"
     state_size = 1
 
-    def __init__(self, time_constant_s: float, burst_samples: int, period_samples: int, fs_hz: float) -> None:
+    def __init__(self, time_constant_s: float, burst_samples: int, period_samples: int, fs_hz: float,
+                 lift: tuple[np.ndarray, np.ndarray] | None = None, power: float = 1.0) -> None:
         tau, fs = _positive(time_constant_s, "delivered_envelope time_constant_s"), _positive(fs_hz, "fs_hz")
         on, period = int(burst_samples), int(period_samples)
         if not 0 < on <= period:
@@ -109,24 +124,46 @@ class DeliveredEnvelope(InputStage):
         self._b = 1.0 - self._lam
         self._scale = 1.0 / optimal_rate_floor(self._lam, on, period)
         self._q = np.zeros(1)           # numpy, so the compiled step advances it too
+        self.lift: _Table | None = None
+        self.power = _positive(power, "delivered_envelope power") if lift is not None else 1.0
+        if lift is not None:
+            grid, gain = _check_table(lift[0], lift[1], "delivered_envelope lift N(Cmu)")
+            if gain[-1] <= 0:
+                raise ValueError("delivered_envelope lift: N at the table's end must be positive")
+            self.lift = _Table(grid, gain, extrapolate=False)
+            self._inv_chord = 1.0 / float(gain[-1])
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> DeliveredEnvelope:
+        lift = params.get("lift")
         return cls(float(params["time_constant_s"]), int(params["burst_samples"]), int(params["period_samples"]),
-                   fs_hz)
+                   fs_hz, None if lift is None else (np.asarray(lift["cmu"], float), np.asarray(lift["gain"], float)),
+                   float(params.get("power", 1.0)))
 
-    def params(self) -> dict[str, float]:
-        return {"time_constant_s": self.time_constant_s, "burst_samples": self.burst_samples,
-                "period_samples": self.period_samples}
+    def params(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"time_constant_s": self.time_constant_s, "burst_samples": self.burst_samples,
+                               "period_samples": self.period_samples}
+        if self.lift is not None:
+            out.update(lift={"cmu": self.lift.x.tolist(), "gain": self.lift.f.tolist()}, power=self.power)
+        return out
 
     def step(self, cmu: float, env: float) -> tuple[float, float]:
         q = self._b * (1.0 if cmu > 0.0 else 0.0) + self._lam * self._q.item()
         self._q[0] = q
-        return cmu, env * min(1.0, self._scale * q)
+        gate = min(1.0, self._scale * q)
+        if self.lift is None:
+            return cmu, env * gate
+        return cmu, self.lift(env) * env * self._inv_chord * gate ** self.power
 
     def kernel_arrays(self) -> tuple[tuple[float, ...], tuple[np.ndarray, ...]]:
         """For the compiled step: parameters (λ, 1 − λ, 1/q₀) and state (q,), not a copy."""
         return (self._lam, self._b, self._scale), (self._q,)
+
+    def lift_arrays(self) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+        """For the compiled step: (p, 1/s, grid, N, slopes); an empty grid without a map."""
+        if self.lift is None:
+            return 1.0, 1.0, np.zeros(0), np.zeros(0), np.zeros(0)
+        return self.power, self._inv_chord, self.lift.x, self.lift.f, self.lift.slope
 
     def simulate(self, cmu: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cmu = np.asarray(cmu, dtype=float)
@@ -135,7 +172,10 @@ class DeliveredEnvelope(InputStage):
             return cmu.copy(), env.copy()
         q, _ = signal.lfilter([self._b], [1.0, -self._lam], (cmu > 0).astype(float), zi=[self._lam * self._q.item()])
         self._q[0] = q[-1]
-        return cmu.copy(), env * np.minimum(1.0, self._scale * q)
+        gate = np.minimum(1.0, self._scale * q)
+        if self.lift is None:
+            return cmu.copy(), env * gate
+        return cmu.copy(), self.lift.batch(env) * env * self._inv_chord * gate ** self.power
 
     def get_state(self) -> np.ndarray:
         return self._q.copy()

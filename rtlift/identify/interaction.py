@@ -106,7 +106,7 @@ from rtlift.blocks.delay import Delay
 from rtlift.blocks.delivered import DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.wiener import WienerBlock
+from rtlift.blocks.wiener import InputGain, WienerBlock
 from rtlift.core.metrics import rmse, scores
 from rtlift.core.records import Record
 from rtlift.core.threads import one_blas_thread
@@ -131,6 +131,7 @@ class InteractionOptions:
     dead_time: int | None = None                  # samples the measured lift lags the actuation; None: choose
     max_dead_time: int = 4
     knot_fractions: tuple[float, ...] = (0.0, 0.1, 0.25, 0.5, 1.0)   # G knots × the sweep's Cμ max
+    lift_powers: tuple[float | None, ...] = (None, 1.0, 2.0, 3.0, 4.0)  # Wiener input: None u, p the static lift
     holdout_fraction: float = 0.3
     skip_s: float = 0.5
     form: str = "input_gain"                      # Wiener nonlinearity: "input_gain" (paper) or "output_map"
@@ -175,8 +176,19 @@ class _Rate:
     def duty(self) -> float:
         return self.burst_samples / self.period_samples
 
-    def envelope(self, tau: float, fs: float) -> DeliveredEnvelope:
-        return DeliveredEnvelope(tau, self.burst_samples, self.period_samples, fs)
+    def envelope(self, tau: float, fs: float, static: StaticMap | None = None, power: float | None = None
+                 ) -> DeliveredEnvelope:
+        """The Wiener input stage: u, or with ``power`` the static lift f(Cμ_env)/s · gate^p."""
+        lift = None if power is None or static is None else (static.gain_cmu, static.gain)
+        return DeliveredEnvelope(tau, self.burst_samples, self.period_samples, fs, lift, power or 1.0)
+
+
+def _slow_nonlinearity(static: StaticMap, form: str, power: float | None):
+    """The Wiener part's static block: N(u) or f(y) (``form``), or with the static lift as
+    input (``power``) the constant N ≡ s (the map's last chord), so that ΔCL_L = s · C x."""
+    if power is None:
+        return nonlinearity_for(static, form)
+    return InputGain(np.array([0.0, static.cmu_max]), np.full(2, float(static.gain[-1])))
 
 
 @dataclass(frozen=True)
@@ -192,18 +204,19 @@ class _Laid:
 
 
 def _lay(records: list[Record], static: StaticMap, kernel: SingleBurstKernel, hp: tuple[int, float],
-         tau: float, rate: _Rate, knots: np.ndarray, fs: float, dead_time: int) -> _Laid:
+         tau: float, rate: _Rate, knots: np.ndarray, fs: float, dead_time: int, power: float | None = None) -> _Laid:
     n = sum(len(r) for r in records)
     cmu = np.concatenate([np.zeros(dead_time)] + [r.cmu for r in records])[:n]
     env = np.concatenate([np.zeros(dead_time)] + [r.cmu_envelope for r in records])[:n]
     m = DeliveredMomentum(tau, rate.duty, fs).momentum_batch(cmu)
-    _, u = rate.envelope(tau, fs).simulate(cmu, env)
+    _, u = rate.envelope(tau, fs, static, power).simulate(cmu, env)
     c = kernel.phi * signal.lfilter(kernel.kernel, [1.0], cmu)
     hf = HighPassFilter.design(hp[0], hp[1], fs).simulate(c)
     X = np.column_stack([hf, _hats(m, knots) * (c - hf)[:, None], _hats(u, knots) * u[:, None]])
     bounds = np.cumsum([0] + [len(r) for r in records])
     parts = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True))
-    return _Laid(u, static.gain_at(u), X, np.concatenate([r.dcl for r in records]), parts)
+    gain = static.gain_at(u) if power is None else np.full(n, float(static.gain[-1]))
+    return _Laid(u, gain, X, np.concatenate([r.dcl for r in records]), parts)
 
 
 def _weights(laid: _Laid, cost: np.ndarray, train_weight: float = 1.0, static_weight: float = 1.0) -> np.ndarray:
@@ -227,20 +240,22 @@ def _fit(laid: _Laid, order: int, cost: np.ndarray, fs: float, static: StaticMap
     table = (static.cmu, static.dcl) if form == "output_map" else None
     res = fit_wiener(laid.m, laid.dcl, order, form=form, fs_hz=fs, gain=laid.gain, table=table,
                      extra=laid.X, cost=cost, weight=_weights(laid, cost, train_weight, static_weight))
-    low = nonlinearity_for(static, form).simulate(laid.m, res.lti.simulate(laid.m))
+    y = res.lti.simulate(laid.m)
+    low = laid.gain * y if form == "input_gain" else nonlinearity_for(static, form).simulate(laid.m, y)
     return res, low + laid.X @ res.extra_coef
 
 
 def _model(kernel: SingleBurstKernel, static: StaticMap, hp: tuple[int, float], tau: float, rate: _Rate,
-           knots: np.ndarray, pem: PEMResult, fs: float, dead_time: int, form: str) -> HybridModel:
+           knots: np.ndarray, pem: PEMResult, fs: float, dead_time: int, form: str,
+           power: float | None = None) -> HybridModel:
     """The structure with the fitted β_H (one constant G_H), G and S knots and Wiener LTI."""
     beta, lti, k = pem.extra_coef, pem.lti, knots.size
     burst = InteractionConvolution(kernel.kernel, kernel.phi, HighPassFilter.design(hp[0], hp[1], fs),
                                    knots, np.full(k, beta[0]), beta[1:1 + k], DeliveredMomentum(tau, rate.duty, fs),
                                    beta[1 + k:])
     return HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(
-        lti.A, lti.B, lti.C, nonlinearity_for(static, form)), fs,
-        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), rate.envelope(tau, fs)))
+        lti.A, lti.B, lti.C, _slow_nonlinearity(static, form, power)), fs,
+        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), rate.envelope(tau, fs, static, power)))
 
 
 def _refine_kernel(model: HybridModel, train: Record, skip: int, dead_time: int,
@@ -310,7 +325,13 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
             laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0)
             grid.append((held_out(laid, opt.order or opt.search_order)[0], hp, tau))
     _, hp, tau = min(grid, key=lambda g: g[0])
-    laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0)
+    by_power = {None: min(g[0] for g in grid)}          # then the Wiener input: u, or the static lift
+    for power in (opt.lift_powers if form == "input_gain" else ()):
+        if power is not None:
+            by_power[power] = held_out(_lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0,
+                                            power), opt.order or opt.search_order)[0]
+    power = min(by_power, key=lambda k: by_power[k])
+    laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0, power)
     orders = [opt.order] if opt.order else list(range(1, opt.max_order + 1))
     by_order = {k: held_out(laid, k)[0] for k in orders}
     best = min(by_order.values())
@@ -318,21 +339,21 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     by_dead_time = {opt.dead_time or 0: by_order[order]}
     if opt.dead_time is None:                 # then the dead time, the structure as chosen
         for d in range(1, opt.max_dead_time + 1):
-            by_dead_time[d] = held_out(_lay(records, static, kernel, hp, tau, rate, knots, fs, d), order)[0]
+            by_dead_time[d] = held_out(_lay(records, static, kernel, hp, tau, rate, knots, fs, d, power), order)[0]
     best = min(by_dead_time.values())
     dead_time = min(d for d, v in by_dead_time.items() if v <= 1.01 * best)
-    laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time)
+    laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time, power)
 
     est, held, _ = costs(laid)
     full = np.sort(np.concatenate([est, held]))
     pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
-    model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form)
+    model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form, power)
     refined = _refine_kernel(model, train_rec, skip, dead_time, opt)
     if refined.ridge is not None:             # refit the gains and the Wiener part on the refined kernel
         kernel = replace(kernel, kernel=refined.kernel)
-        laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time)
+        laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time, power)
         pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
-        model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form)
+        model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form, power)
     beta = pem.extra_coef
     lti = pem.lti
 
@@ -349,7 +370,7 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     metrics = {
         "train": {"record": train_rec.name, **per_record[train_rec.name]},
         "records": per_record,
-        "holdout": {"fraction": opt.holdout_fraction, "mean_nrmse": float(min(g[0] for g in grid)),
+        "holdout": {"fraction": opt.holdout_fraction, "mean_nrmse": float(min(by_power.values())),
                     "by_order": {str(k): v for k, v in by_order.items()},
                     "by_dead_time": {str(d): v for d, v in by_dead_time.items()}},
         **fit_metrics(resid[skip:], noise_std, static, kernel, pem),
@@ -364,15 +385,18 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
                       "duty": rate.duty, "knots": knots.tolist(), "gains_h": [float(beta[0])] * knots.size,
                       "gains": beta[1:1 + knots.size].tolist(), "gains_static": beta[1 + knots.size:].tolist(),
                       "wiener_input": {"name": "delivered_envelope", "time_constant_s": tau,
-                                       "burst_samples": rate.burst_samples, "period_samples": rate.period_samples},
-                      "rule": f"HF and τ, then the Wiener order, then the dead time, by the mean held-out NRMSE "
+                                       "burst_samples": rate.burst_samples, "period_samples": rate.period_samples,
+                                       "static_lift": power is not None,
+                                       **({} if power is None else {"power": power})},
+                      "rule": f"HF and τ, then the Wiener input (u, or the static lift and its power p), then the Wiener order, then the dead time, by the mean held-out NRMSE "
                               f"of the last {100 * opt.holdout_fraction:.0f} % of each record (the smaller order "
                               "and dead time within 1 %); the kernel's first burst period refined on the "
                               "training record where that lowers its held-out RMSE",
                       "record_weights": {"rule": "1 / (σ_r √n_r): every record weighs alike",
                                          "training_record_factor": opt.train_weight},
                       "candidates": [{"highpass": list(g[1]), "time_constant_s": g[2],
-                                      "holdout_mean_nrmse": g[0]} for g in grid]},
+                                      "holdout_mean_nrmse": g[0]} for g in grid],
+                      "wiener_inputs": [{"lift_power": k, "holdout_mean_nrmse": v} for k, v in by_power.items()]},
         "static_map": {"cmu_max": static.cmu_max, "limit_slope": static.limit_slope,
                        "hysteresis": static.hysteresis.to_dict(), "notes": static.notes},
         "kernel": {**kernel.to_dict(), "refinement": refined.to_dict()},

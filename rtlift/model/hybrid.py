@@ -175,7 +175,7 @@ class HybridModel(BlockChain):
             self.convolution.kernel_arrays()
         (A, B, C, form, xs, fs, slopes), (x,) = wiener
         par = pack_interaction(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), m_par, m_conv_par,
-                               knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes)
+                               knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes, stages[-1].lift_arrays())
         return (interaction_step, (par, *delay, m_in, buf, pos, z, m_conv, x), interaction_simulate,
                 ((0.0,) * z.size, (0.0,) * x.size))
 
