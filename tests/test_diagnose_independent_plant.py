@@ -188,3 +188,27 @@ def test_the_hysteresis_is_right_when_a_renamed_random_record_trains(model, clea
     assert row["recovered"]["run_b"] == pytest.approx(0.69, abs=0.15)
     assert row["recovered"]["run_c"] == pytest.approx(0.87, abs=0.15)
     assert row["right"]
+
+
+@pytest.fixture(scope="module")
+def trains_model(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ip_trains") / "model.json"
+    camp = DEFAULT_DATA / "campaign"
+    run_cli("identify", "--static", camp / "static.csv", "--single-burst", camp / "single_burst.csv",
+            "--trains", *(camp / f"{t}.csv" for t in ("train_T1p75", "train_T3p5", "train_T7")),
+            "--train", camp / "sine_k0125.csv", "-o", out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def trains_clean_rmse(trains_model) -> dict:
+    return validate(trains_model, DEFAULT_DATA / "clean", trains_model.parent / "clean.json")
+
+
+@pytest.mark.parametrize("case", ["clean", "delay", "resonance", "fade", "drift", "mains", "delay_mains"])
+def test_the_case_is_diagnosed_right_with_a_model_identified_with_the_trains(trains_model, trains_clean_rmse, case):
+    """Issue 31: the same protocol on the interaction model ``rtlift identify`` chooses for the full
+    campaign. Seven of eight cases right (the fade since its stage goes before the structure's
+    ``delivered_envelope``); the hysteresis is not (docs/results/bursts.md), and is not listed."""
+    row, _ = run_case(trains_model, trains_clean_rmse, case)
+    assert row["right"], row

@@ -54,11 +54,30 @@ def test_interaction_model_is_within_reach_of_the_ceiling_on_every_clean_record(
     assert s["nrmse"] <= max(0.5, ceiling["nrmse"] + 0.1), (s, ceiling)
 
 
-def test_interaction_model_is_as_good_as_the_papers_hybrid_on_the_faster_sine(model, camp):
-    """clean/sine_k025 (twice the training record's frequency): the delivered envelope drives the
-    slow part without m's lag. Measured ρ / NRMSE 0.978 / 0.22, the hybrid (identified on the
-    sine alone) 0.973 / 0.34. (On random it is 0.981 / 0.28 against the hybrid's 0.984 / 0.19.)"""
-    rec = read_record(DEFAULT_DATA / "clean" / "sine_k025.csv")
-    hybrid = identify_hybrid(camp["static"], camp["single_burst"], camp["sine_k0125"]).model
+@pytest.fixture(scope="module")
+def hybrid(camp):
+    return identify_hybrid(camp["static"], camp["single_burst"], camp["sine_k0125"]).model
+
+
+@pytest.mark.parametrize("name", ["sine_k0125", "sine_k025", "random"])
+def test_interaction_model_is_at_least_as_good_as_the_papers_hybrid_on_the_sines_and_random(model, hybrid, name):
+    """Issue 31's first deliverable, on records of another noise seed: ρ not lower and NRMSE not
+    higher than the paper's hybrid (identified on the sine alone). Measured ρ / NRMSE, the static
+    lift as the Wiener input: sine_k0125 0.993 / 0.13 (hybrid 0.991 / 0.18), sine_k025 0.978 / 0.22
+    (0.973 / 0.34), random 0.989 / 0.16 (0.984 / 0.19); with u before it random was 0.981 / 0.28."""
+    rec = read_record(DEFAULT_DATA / "clean" / f"{name}.csv")
     s, h = validate_record(model, rec).scores, validate_record(hybrid, rec).scores
-    assert s["corr"] >= h["corr"] and s["nrmse"] <= h["nrmse"] - 0.05, (s, h)
+    assert s["corr"] >= h["corr"] and s["nrmse"] <= h["nrmse"], (s, h)
+
+
+def test_the_static_lift_drives_the_slow_part_and_the_level_on_random_is_right(model):
+    """The plant's mean lift on every record is the mean of its static map over the envelope; the
+    identification chooses the static lift as the Wiener input (held-out error), and the model's
+    mean residual on clean random is then +0.003 (with u, +0.008)."""
+    stage = model.input_stages[-1]
+    assert stage.lift is not None and stage.power >= 2, stage.params()
+    rec = read_record(DEFAULT_DATA / "clean" / "random.csv")
+    model.reset()
+    resid = rec.dcl - model.simulate(rec.cmu, rec.cmu_envelope).total
+    model.reset()
+    assert abs(float(resid[400:].mean())) < 0.005

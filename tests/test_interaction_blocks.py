@@ -181,3 +181,30 @@ def test_the_unchanged_observer_runs_on_the_interaction_model():
     est = np.array([[(e := obs.step(c, v, z)).model_dcl, e.dcl] for c, v, z in zip(cmu, env, truth, strict=True)])
     np.testing.assert_allclose(est[:, 0], truth, atol=1e-12, rtol=0)
     assert np.sqrt(np.mean((est[:, 1] - truth) ** 2)) < 0.01 * np.std(truth)
+
+
+def test_an_effects_input_stage_goes_before_the_structures_own_and_acts_on_what_it_sees():
+    """The diagnosis's surgery puts a fade before ``delivered_envelope``: with the static lift as the
+    Wiener input the model then sees f(E·Cμ_env), not E·f(Cμ_env) (issue 31: the independent plant's
+    fade was taken for a drift while the fade came after the stage). The augmented model equals the
+    model run on the faded inputs."""
+    from rtlift.blocks.actuator_fade import ActuatorFade
+    from rtlift.diagnose.surgery import augment
+
+    rng = np.random.default_rng(5)
+    m = interaction_model(rng, 40, 2)
+    stage = m.input_stages[-1]
+    m.input_stages = (*m.input_stages[:-1], DeliveredEnvelope(stage.time_constant_s, stage.burst_samples,
+                                                              stage.period_samples, FS,
+                                                              (np.linspace(0, 0.022, 8), np.linspace(14, 8, 8)), 3.0))
+    m.__post_init__()
+    fade = ActuatorFade(0.7, 2.0, FS, "time")
+    aug = augment(m, input_stage=fade)
+    assert [s.name for s in aug.input_stages] == ["actuator_fade", "delivered_envelope"]
+    cmu, env = burst_input(rng, 1600, 20)
+    faded = ActuatorFade(0.7, 2.0, FS, "time")
+    c2, e2 = faded.simulate(cmu, env)
+    m.reset()
+    want = m.simulate(c2, e2).total
+    got = aug.simulate(cmu, env).total
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

@@ -20,6 +20,11 @@ from rtlift.blocks.stage import InputStage, _positive
 from rtlift.blocks.wiener import _check_table, _Table
 
 
+STRUCTURE_STAGES = ("delivered_momentum", "delivered_envelope")
+"""The interaction structure's own input stages (not effects): an effect's input stage (a fade,
+a delay) acts on the actuation they see, so it goes before them (:func:`rtlift.diagnose.surgery.augment`)."""
+
+
 class DeliveredMomentum(InputStage):
     """``m(k) = λ m(k−1) + (1 − λ) Cμ(k)/d``, ``λ = exp(−1/(τ fs))``; maps (Cμ, Cμ_env) to
     (Cμ, m). ``time_constant_s`` = τ > 0, ``duty`` = d ∈ (0, 1]. State: [m(k)]."""

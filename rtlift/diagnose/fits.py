@@ -61,7 +61,7 @@ def fit_actuator_fade(base: HybridModel, train: Record, ctx: Context) -> Fitted 
     fits: dict[str, Any] = {}
     for clock in ActuatorFade.CLOCKS:
         model = augment(base, input_stage=ActuatorFade(1.0, 1.0, ctx.fs, clock))
-        stage = model.input_stages[-1]
+        stage = next(s for s in model.input_stages if type(s) is ActuatorFade)
 
         def resid(theta: np.ndarray, stage: ActuatorFade = stage, model: HybridModel = model) -> np.ndarray:
             stage.final_fraction = float(np.clip(theta[0], 0.0, 1.0))

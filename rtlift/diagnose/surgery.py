@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.blocks.delivered import STRUCTURE_STAGES
 from rtlift.blocks.stage import InputStage, OutputStage
 from rtlift.core.records import Record
 from rtlift.model.hybrid import HybridModel, HybridOutput
@@ -40,11 +41,14 @@ class Context:
 def augment(model: HybridModel, *, input_stage: InputStage | None = None,
             output_stage: OutputStage | None = None, nonlinearity: Any = None,
             lti: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> HybridModel:
-    """A fresh copy of ``model`` with one more stage (filters before additive output stages)
-    or another Wiener nonlinearity."""
+    """A fresh copy of ``model`` with one more stage (an input stage after the effects' input
+    stages, before the interaction structure's own, :data:`~rtlift.blocks.delivered.STRUCTURE_STAGES`;
+    filters before additive output stages) or another Wiener nonlinearity."""
     d = model_to_dict(model)
-    if input_stage is not None:
-        d["input_stages"].append({"name": input_stage.name, "params": input_stage.params()})
+    if input_stage is not None:            # before the structure's own stages: it acts on the actuation they see
+        stages = d["input_stages"]
+        at = next((i for i, s in enumerate(stages) if s["name"] in STRUCTURE_STAGES), len(stages))
+        stages.insert(at, {"name": input_stage.name, "params": input_stage.params()})
     if output_stage is not None:
         entry = {"name": output_stage.name, "params": output_stage.params()}
         stages = d["output_stages"]

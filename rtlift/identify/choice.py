@@ -14,10 +14,11 @@
 (``provenance.structure.choice``).
 
 Known limit (issue 31, ``docs/results/bursts.md``): ``rtlift diagnose`` on the independent plant's
-development set gets 5 of 8 cases right with the interaction model identified from the full
-campaign, 8 of 8 with the hybrid: the interaction model's remaining misfit on the random record
-(NRMSE 0.28 against the hybrid's 0.19, its level 0.008 low) hides a fade, a drift and a
-hysteresis. For a diagnosis, identify without ``--trains`` (or with ``--structure paper``).
+development set gets 7 of 8 cases right with the interaction model identified from the full
+campaign (static lift as its Wiener input), 8 of 8 with the hybrid: the hysteresis is not found
+(the entry scales the Wiener part only, and this structure carries about half of its static lift
+in the burst part's slow term). For a diagnosis, identify without ``--trains`` (or with
+``--structure paper``).
 """
 
 from __future__ import annotations
