@@ -79,7 +79,14 @@ def _delivered(env, gate, power, inv_chord, grid, gain, slopes):
     or with the static map f(Cμ_env)/s · gate^p, gate = min(1, q/q₀)."""
     if grid.shape[0] == 0:
         return env * gate
-    return _table(grid, gain, slopes, env, False) * env * inv_chord * gate ** power
+    n = int(power)
+    if n == power and 0 < n <= 8:             # :func:`~rtlift.blocks.delivered.gate_power`'s products
+        g = gate
+        for _ in range(n - 1):
+            g = g * gate
+    else:
+        g = gate ** power
+    return _table(grid, gain, slopes, env, False) * env * inv_chord * g
 
 
 @njit_cached(inline="always")

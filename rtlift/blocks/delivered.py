@@ -158,7 +158,7 @@ class DeliveredEnvelope(InputStage):
         gate = min(1.0, self._scale * q)
         if self.lift is None:
             return cmu, env * gate
-        return cmu, self.lift(env) * env * self._inv_chord * gate ** self.power
+        return cmu, self.lift(env) * env * self._inv_chord * gate_power(gate, self.power)
 
     def kernel_arrays(self) -> tuple[tuple[float, ...], tuple[np.ndarray, ...]]:
         """For the compiled step: parameters (λ, 1 − λ, 1/q₀) and state (q,), not a copy."""
@@ -180,7 +180,7 @@ class DeliveredEnvelope(InputStage):
         gate = np.minimum(1.0, self._scale * q)
         if self.lift is None:
             return cmu.copy(), env * gate
-        return cmu.copy(), self.lift.batch(env) * env * self._inv_chord * gate ** self.power
+        return cmu.copy(), self.lift.batch(env) * env * self._inv_chord * gate_power(gate, self.power)
 
     def get_state(self) -> np.ndarray:
         return self._q.copy()
@@ -190,6 +190,18 @@ class DeliveredEnvelope(InputStage):
         if s.shape != (1,):
             raise ValueError(f"delivered_envelope state must have shape (1,), got {s.shape}")
         self._q[0] = s[0]
+
+
+def gate_power(gate, power: float):
+    """gate^p (a float or an array): for a whole p in 1 … 8 by repeated products, left to right
+    (the compiled step's order, and no pow call on the hot path), else ``**``."""
+    n = int(power)
+    if n == power and 0 < n <= 8:
+        out = gate
+        for _ in range(n - 1):
+            out = out * gate
+        return out
+    return gate ** power
 
 
 def optimal_rate_floor(lam: float, burst_samples: int, period_samples: int) -> float:
