@@ -151,3 +151,38 @@ def test_a_bad_reference_is_one_line(spec):
     with pytest.raises(UserError) as exc:
         parse_reference(spec)
     assert "\n" not in str(exc.value)
+
+
+def test_the_static_map_of_an_interaction_model_with_the_static_lift_is_its_steady_lift():
+    """Issue 31: with the static lift as the interaction structure's Wiener input, the controller's
+    map takes the Wiener part's input from the ``delivered_envelope`` stage (f(Cμ_env)/s, not
+    Cμ_env) and S at it: at every level the map equals the model's own mean lift once a held
+    envelope has settled under lift-optimal bursting (G_H, G and S flat, so that m's ripple within
+    a period has no mean effect)."""
+    from rtlift.blocks.delivered import DeliveredEnvelope
+    from rtlift.model.modelfile import model_from_dict, model_to_dict
+    from testkit.synthetic import interaction_model
+
+    m = interaction_model(np.random.default_rng(11), 40, 1)
+    d = model_to_dict(m)
+    conv = d["convolution"]["interaction"]
+    conv["gains"] = [0.4] * len(conv["knots"])
+    conv["gains_h"] = [0.9] * len(conv["knots"])
+    conv["gains_static"] = [1.5] * len(conv["knots"])
+    st = m.input_stages[-1]
+    conv["momentum"]["duty"] = st.burst_samples / st.period_samples     # d: the lift-optimal duty, as identified
+    m = model_from_dict(d)
+    grid = np.linspace(0, 0.022, 8)
+    m.input_stages = (DeliveredEnvelope(st.time_constant_s, st.burst_samples, st.period_samples, FS_HZ,
+                                        (grid, np.linspace(14.0, 8.0, 8)), 2.0),)
+    m.__post_init__()
+    cmu_grid, smap = static_map(m, 0.022, 12)
+    n = int(60 * FS_HZ)
+    on = (np.arange(n) % st.period_samples) < st.burst_samples
+    rising = np.flatnonzero(np.diff(smap) > 0) + 1          # not levelled by the map's monotone envelope
+    assert rising.size >= 6
+    for c, want in zip(cmu_grid[rising], smap[rising], strict=True):
+        m.reset()
+        lift = m.simulate(np.where(on, c, 0.0), np.full(n, c)).total
+        got = lift[-st.period_samples * (int(5 * FS_HZ) // st.period_samples):].mean()
+        assert abs(got - want) <= 1e-3 * abs(want) + 1e-6, (c, got, want)

@@ -131,18 +131,23 @@ def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> float:
 
 def static_map(model: Any, cmu_max: float, points: int = MAP_POINTS) -> tuple[np.ndarray, np.ndarray]:
     """(Cμ grid on [0, cmu_max], S(Cμ)) of the model's Wiener part (and of the interaction
-    structure's burst part, whose slow response has a mean), made non-decreasing."""
+    structure's burst part, whose slow response has a mean), made non-decreasing. The Wiener
+    input is the envelope, or what the interaction structure's ``delivered_envelope`` stage makes
+    of it under lift-optimal bursting (:meth:`~rtlift.blocks.delivered.DeliveredEnvelope.steady`:
+    the envelope, or its static lift)."""
     w = model.wiener
     g0 = dc_gain(w.A, w.B, w.C)
     cmu = np.linspace(0.0, cmu_max, points)
+    steady = getattr(model.input_stages[-1], "steady", None) if model.input_stages else None
+    u = np.array([steady(c) for c in cmu]) if steady is not None else cmu
     nl = w.nonlinearity
     if hasattr(nl, "gain_at"):
-        dcl = np.array([nl.gain_at(c) * g0 * c for c in cmu])
+        dcl = np.array([nl.gain_at(v) * g0 * v for v in u])
     else:
-        dcl = np.array([nl.output_at(c, g0 * c) for c in cmu])
+        dcl = np.array([nl.output_at(v, g0 * v) for v in u])
     burst = getattr(model.convolution, "steady_output", None)     # the interaction structure's slow burst part
     if burst is not None:
-        dcl = dcl + np.array([burst(c) for c in cmu])
+        dcl = dcl + np.array([burst(c, v) for c, v in zip(cmu, u, strict=True)])
     return cmu, np.maximum.accumulate(dcl)
 
 

@@ -160,6 +160,11 @@ class DeliveredEnvelope(InputStage):
             return cmu, env * gate
         return cmu, self.lift(env) * env * self._inv_chord * gate_power(gate, self.power)
 
+    def steady(self, env: float) -> float:
+        """u for an envelope held while bursts fire at the lift-optimal rate or denser (gate 1):
+        the envelope, or its static lift f(Cμ_env)/s."""
+        return env if self.lift is None else self.lift(env) * env * self._inv_chord
+
     def kernel_arrays(self) -> tuple[tuple[float, ...], tuple[np.ndarray, ...]]:
         """For the compiled step: parameters (λ, 1 − λ, 1/q₀) and state (q,), not a copy."""
         return (self._lam, self._b, self._scale), (self._q,)

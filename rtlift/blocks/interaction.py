@@ -85,12 +85,14 @@ class InteractionConvolution(BlockChain):
         m = self.momentum.momentum(u)
         return self.gain_h(m) * hf + self.gain(m) * (c - hf) + self.gain_static(w) * w
 
-    def steady_output(self, envelope: float) -> float:
-        """ΔCL_H's mean under lift-optimal bursting at ``envelope`` (duty d, so m ≈ u ≈ the
-        envelope): HF removes the mean of c, the slow part keeps G(m) φ Σh · d · envelope, the
-        static term S(u) u (the controller's static map adds them to the Wiener part's)."""
-        return (self.gain(envelope) * self.phi * float(np.sum(self.kernel)) * self.momentum.duty
-                + self.gain_static(envelope)) * envelope
+    def steady_output(self, envelope: float, u: float | None = None) -> float:
+        """ΔCL_H's mean under lift-optimal bursting at ``envelope`` (duty d, so m ≈ the envelope;
+        u the Wiener input there, the envelope unless given, e.g. its static lift): HF removes the
+        mean of c, the slow part keeps G(m) φ Σh · d · envelope, the static term S(u) u (the
+        controller's static map adds them to the Wiener part's)."""
+        u = envelope if u is None else u
+        return (self.gain(envelope) * self.phi * float(np.sum(self.kernel)) * self.momentum.duty * envelope
+                + self.gain_static(u) * u)
 
     def kernel_arrays(self) -> tuple[tuple[Any, ...], tuple[np.ndarray, ...]]:
         """For the compiled step (:func:`rtlift.blocks.compiled_interaction.interaction_step`):
