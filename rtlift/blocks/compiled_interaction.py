@@ -31,9 +31,7 @@ from rtlift.core.jit import njit_cached
 def pack_interaction(par: np.ndarray, envelope_in: tuple[float, float, float],
                      momentum_conv: tuple[float, float, float], knots: np.ndarray, gains_h: np.ndarray,
                      slopes_h: np.ndarray, gains: np.ndarray, slopes: np.ndarray, gains_s: np.ndarray,
-                     slopes_s: np.ndarray,
-                     lift: tuple[float, float, np.ndarray, np.ndarray, np.ndarray] = (1.0, 1.0, np.zeros(0), np.zeros(0),
-                                                                                       np.zeros(0))) -> np.ndarray:
+                     slopes_s: np.ndarray, lift: tuple[float, float, np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     """The interaction structure's fixed numbers: :func:`~rtlift.blocks.compiled.pack_parameters`'
     array (its φh, SOS rows and scratch those of the burst part's convolution and HF), then the
     delivered-envelope stage's (λ, 1 − λ, 1/q₀) and the burst part's own momentum's (λ, 1 − λ,

@@ -19,7 +19,6 @@ from scipy import signal
 from rtlift.blocks.stage import InputStage, _positive
 from rtlift.blocks.wiener import _check_table, _Table
 
-
 STRUCTURE_STAGES = ("delivered_momentum", "delivered_envelope")
 """The interaction structure's own input stages (not effects): an effect's input stage (a fade,
 a delay) acts on the actuation they see, so it goes before them (:func:`rtlift.diagnose.surgery.augment`)."""
@@ -136,7 +135,8 @@ class DeliveredEnvelope(InputStage):
             if gain[-1] <= 0:
                 raise ValueError("delivered_envelope lift: N at the table's end must be positive")
             self.lift = _Table(grid, gain, extrapolate=False)
-            self._inv_chord = 1.0 / float(gain[-1])
+            self._chord = float(gain[-1])
+            self._inv_chord = 1.0 / self._chord
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> DeliveredEnvelope:
@@ -158,7 +158,12 @@ class DeliveredEnvelope(InputStage):
         gate = min(1.0, self._scale * q)
         if self.lift is None:
             return cmu, env * gate
-        return cmu, self.lift(env) * env * self._inv_chord * gate_power(gate, self.power)
+        return cmu, self.steady(env) * gate_power(gate, self.power)
+
+    @property
+    def chord(self) -> float:
+        """s, the static map's last chord N(Cμ_max) (1 without a map): the Wiener part's constant N."""
+        return self._chord if self.lift is not None else 1.0
 
     def steady(self, env: float) -> float:
         """u for an envelope held while bursts fire at the lift-optimal rate or denser (gate 1):

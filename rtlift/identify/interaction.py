@@ -148,7 +148,7 @@ class InteractionOptions:
     dead_time: int | None = None                  # samples the measured lift lags the actuation; None: choose
     max_dead_time: int = 4
     knot_fractions: tuple[float, ...] = (0.0, 0.1, 0.25, 0.5, 1.0)   # G knots × the sweep's Cμ max
-    lift_powers: tuple[float | None, ...] = (None, 1.0, 2.0, 3.0, 4.0)  # Wiener input: None u, p the static lift
+    lift_powers: tuple[float, ...] = (1.0, 2.0, 3.0, 4.0)   # the static lift's powers tried against u
     holdout_fraction: float = 0.3
     skip_s: float = 0.5
     form: str = "input_gain"                      # Wiener nonlinearity: "input_gain" (paper) or "output_map"
@@ -200,12 +200,12 @@ class _Rate:
         return DeliveredEnvelope(tau, self.burst_samples, self.period_samples, fs, lift, power or 1.0)
 
 
-def _slow_nonlinearity(static: StaticMap, form: str, power: float | None):
+def _slow_nonlinearity(static: StaticMap, form: str, stage: DeliveredEnvelope):
     """The Wiener part's static block: N(u) or f(y) (``form``), or with the static lift as
-    input (``power``) the constant N ≡ s (the map's last chord), so that ΔCL_L = s · C x."""
-    if power is None:
+    input (``stage.lift``) the constant N ≡ s (the map's last chord), so that ΔCL_L = s · C x."""
+    if stage.lift is None:
         return nonlinearity_for(static, form)
-    return InputGain(np.array([0.0, static.cmu_max]), np.full(2, float(static.gain[-1])))
+    return InputGain(np.array([0.0, static.cmu_max]), np.full(2, stage.chord))
 
 
 @dataclass(frozen=True)
@@ -226,13 +226,14 @@ def _lay(records: list[Record], static: StaticMap, kernel: SingleBurstKernel, hp
     cmu = np.concatenate([np.zeros(dead_time)] + [r.cmu for r in records])[:n]
     env = np.concatenate([np.zeros(dead_time)] + [r.cmu_envelope for r in records])[:n]
     m = DeliveredMomentum(tau, rate.duty, fs).momentum_batch(cmu)
-    _, u = rate.envelope(tau, fs, static, power).simulate(cmu, env)
+    stage = rate.envelope(tau, fs, static, power)
+    _, u = stage.simulate(cmu, env)
     c = kernel.phi * signal.lfilter(kernel.kernel, [1.0], cmu)
     hf = HighPassFilter.design(hp[0], hp[1], fs).simulate(c)
     X = np.column_stack([hf, _hats(m, knots) * (c - hf)[:, None], _hats(u, knots) * u[:, None]])
     bounds = np.cumsum([0] + [len(r) for r in records])
     parts = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True))
-    gain = static.gain_at(u) if power is None else np.full(n, float(static.gain[-1]))
+    gain = static.gain_at(u) if stage.lift is None else np.full(n, stage.chord)
     return _Laid(u, gain, X, np.concatenate([r.dcl for r in records]), parts)
 
 
@@ -270,9 +271,10 @@ def _model(kernel: SingleBurstKernel, static: StaticMap, hp: tuple[int, float], 
     burst = InteractionConvolution(kernel.kernel, kernel.phi, HighPassFilter.design(hp[0], hp[1], fs),
                                    knots, np.full(k, beta[0]), beta[1:1 + k], DeliveredMomentum(tau, rate.duty, fs),
                                    beta[1 + k:])
+    stage = rate.envelope(tau, fs, static, power)
     return HybridModel(burst, HighPassFilter(IDENTITY_SOS, order=0), WienerBlock(
-        lti.A, lti.B, lti.C, _slow_nonlinearity(static, form, power)), fs,
-        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), rate.envelope(tau, fs, static, power)))
+        lti.A, lti.B, lti.C, _slow_nonlinearity(static, form, stage)), fs,
+        input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), stage))
 
 
 def _refine_kernel(model: HybridModel, train: Record, skip: int, dead_time: int,
@@ -344,9 +346,8 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     _, hp, tau = min(grid, key=lambda g: g[0])
     by_power = {None: min(g[0] for g in grid)}          # then the Wiener input: u, or the static lift
     for power in (opt.lift_powers if form == "input_gain" else ()):
-        if power is not None:
-            by_power[power] = held_out(_lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0,
-                                            power), opt.order or opt.search_order)[0]
+        by_power[power] = held_out(_lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0,
+                                        power), opt.order or opt.search_order)[0]
     power = min(by_power, key=lambda k: by_power[k])
     laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, opt.dead_time or 0, power)
     orders = [opt.order] if opt.order else list(range(1, opt.max_order + 1))
@@ -405,7 +406,8 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
                                        "burst_samples": rate.burst_samples, "period_samples": rate.period_samples,
                                        "static_lift": power is not None,
                                        **({} if power is None else {"power": power})},
-                      "rule": f"HF and τ, then the Wiener input (u, or the static lift and its power p), then the Wiener order, then the dead time, by the mean held-out NRMSE "
+                      "rule": f"HF and τ, then the Wiener input (u, or the static lift and its power p), "
+                              f"then the Wiener order, then the dead time, by the mean held-out NRMSE "
                               f"of the last {100 * opt.holdout_fraction:.0f} % of each record (the smaller order "
                               "and dead time within 1 %); the kernel's first burst period refined on the "
                               "training record where that lowers its held-out RMSE",
