@@ -28,6 +28,10 @@ record is renamed ``run_a``/``run_b``/``run_c`` (a closed-loop run: ``run_a``) a
 first N runs are also diagnosed with the other naming on the very same records, and the two
 reports' accepted entries and references are compared (the input, not the name, must decide).
 
+With ``--trains``, both models are identified from the full campaign, burst trains included
+(``identify_lift``: the interaction structure ``rtlift identify`` then chooses), as a lab that
+records its campaign with ``rtlift record … campaign`` gets them (closed-loop runs excluded).
+
 With ``--independent``, the independent plant's clean records (``clean`` and ``campaign`` folders
 of ``../shared/data/independent_plant``, when present) are diagnosed too, with a model
 identified on its campaign: each record type trains once, the folder's other two validate,
@@ -65,7 +69,9 @@ CLOSED_LOOP_S = 40
 CLOSED_LOOP_REFERENCES = ("sine:mean=0.1,amp=0.05,hz=0.2", "steps:0.06@0,0.12@5,0.16@10,0.08@15")
 USER_META = ("experiment", "seed", "effects", "source")
 
-_MODELS: dict[str, object] = {}
+TRAINS = ("train_T1p75", "train_T3p5", "train_T7")
+
+_MODELS: dict[tuple[str, bool], object] = {}
 
 
 def accepted(report: dict, kind: str) -> list[str]:
@@ -89,37 +95,45 @@ def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
     return lo, hi
 
 
-def _model(key: str, cache: str | None):
-    if key in _MODELS:
-        return _MODELS[key]
-    if key == "bench":
-        path = Path(cache) if cache else None
-        if path is not None and path.exists():
-            model = pickle.loads(path.read_bytes())
-        else:
+def _identified(campaign: dict, trains: bool):
+    """The model ``rtlift identify`` gives on a campaign ({name: Record}): the paper's hybrid from
+    static, single burst and sine k = 0.125, or with ``trains`` the full campaign's (its choice,
+    the interaction structure)."""
+    from rtlift.identify.choice import identify_lift
+
+    return identify_lift(campaign["static"], campaign["single_burst"],
+                         [campaign[t] for t in TRAINS] if trains else [], campaign["sine_k0125"])[0].model
+
+
+def _model(key: str, cache: str | None, trains: bool = False):
+    """The bench's model (``key`` "bench": its clean campaign, seed 1) or the independent plant's
+    (``key`` its folder: its ``campaign/``), pickled at ``cache`` (+ ".independent", + ".trains")."""
+    if (key, trains) in _MODELS:
+        return _MODELS[key, trains]
+    suffix = ("" if key == "bench" else ".independent") + (".trains" if trains else "")
+    path = Path(cache + suffix) if cache else None
+    if path is not None and path.exists():
+        model = pickle.loads(path.read_bytes())
+    else:
+        if key == "bench" and not trains:
             from benchmarks.effects_table import bench_model
 
             model = bench_model()
-            if path is not None:
-                tmp = path.with_suffix(f".{os.getpid()}.tmp")
-                tmp.write_bytes(pickle.dumps(model))
-                tmp.replace(path)
-    else:
-        from rtlift.core.records import read_record
-        from rtlift.identify import identify_hybrid
+        elif key == "bench":
+            from hil_sim.experiments import run_experiment
 
-        path = Path(cache + ".independent") if cache else None
-        if path is not None and path.exists():
-            model = pickle.loads(path.read_bytes())
+            names = ("static", "single_burst", "sine_k0125", *(TRAINS if trains else ()))
+            model = _identified({n: run_experiment(n, seed=1).to_record(n) for n in names}, trains)
         else:
+            from rtlift.core.records import read_record
+
             camp = Path(key) / "campaign"
-            model = identify_hybrid(read_record(camp / "static.csv"), read_record(camp / "single_burst.csv"),
-                                    read_record(camp / "sine_k0125.csv")).model
-            if path is not None:
-                tmp = path.with_suffix(f".{os.getpid()}.tmp")
-                tmp.write_bytes(pickle.dumps(model))
-                tmp.replace(path)
-    _MODELS[key] = model
+            model = _identified({p.stem: read_record(p) for p in camp.glob("*.csv")}, trains)
+        if path is not None:
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_bytes(pickle.dumps(model))
+            tmp.replace(path)
+    _MODELS[key, trains] = model
     return model
 
 
@@ -136,7 +150,7 @@ def bench_job(job: dict, cache: str | None) -> dict:
     from rtlift.diagnose import diagnose
 
     t0 = time.perf_counter()
-    model = _model("bench", cache)
+    model = _model("bench", cache, job.get("trains", False))
     ttype, seeds = job["train"], job["noise_seeds"]
     others = [t for t in TYPES if t != ttype]
     recs = [run_experiment(n, seed=s).to_record() for n, s in zip([ttype, *others], seeds, strict=True)]
@@ -236,7 +250,7 @@ def independent_job(job: dict, cache: str | None) -> dict:
 
     t0 = time.perf_counter()
     data = Path(job["data"])
-    model = _model(str(data), cache)
+    model = _model(str(data), cache, job.get("trains", False))
     folder = data / job["folder"]
     others = [t for t in TYPES if t != job["train"]]
     recs = [read_record(folder / f"{n}.csv") for n in (job["train"], *others)]
@@ -332,6 +346,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--twins", type=int, default=6, help="first N runs also diagnosed with the other naming "
                     "on the same records (default 6)")
     ap.add_argument("--independent", action="store_true", help="also the independent plant's clean records")
+    ap.add_argument("--trains", action="store_true", help="models identified from the full campaign, burst trains "
+                    "included (the interaction structure rtlift identify then chooses)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--budget", type=float, default=None, help="seconds after which no new run starts")
     ap.add_argument("--model-cache", default=None, help="pickle of the bench model (written if absent)")
@@ -345,23 +361,29 @@ def main(argv: list[str] | None = None) -> int:
     if args.seeds < 0 or args.workers < 1 or not types or any(t not in ALL_TYPES for t in types):
         print("--seeds must be >= 0, --workers >= 1, --types among " + ", ".join(ALL_TYPES), file=sys.stderr)
         return 2
+    if args.trains and CLOSED_LOOP in types:
+        print("--trains: the closed-loop runs identify through rtlift identify without trains; "
+              "leave closed_loop out of --types", file=sys.stderr)
+        return 2
     if args.independent and not (IP_DATA / "campaign" / "static.csv").exists():
         print(f"no independent plant data at {IP_DATA}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
     jobs = plan(args.seeds, args.first_seed, types, args.twins, IP_DATA if args.independent else None)
+    for job in jobs:
+        job["trains"] = args.trains
     if args.summarize:
         runs = [json.loads(line) for f in args.summarize for line in Path(f).read_text().splitlines() if line.strip()]
         summarize(runs, len(jobs) if len(args.summarize) == 1 else None,
                   sum(r.get("seconds", 0.0) for r in runs) / max(args.workers, 1))
         return 0
     jobs = jobs[args.skip:]
-    if args.model_cache and not Path(args.model_cache).exists() and any(j["plant"] == "bench" for j in jobs):
-        _model("bench", args.model_cache)          # once, before the workers start
+    if args.model_cache and any(j["plant"] == "bench" for j in jobs):
+        _model("bench", args.model_cache, args.trains)          # once, before the workers start
     if args.model_cache and any(j.get("train") == CLOSED_LOOP for j in jobs):
         model_file(args.model_cache, Path("."))   # once, before the workers start
-    if args.model_cache and args.independent and not Path(args.model_cache + ".independent").exists():
-        _model(str(IP_DATA), args.model_cache)
+    if args.model_cache and args.independent:
+        _model(str(IP_DATA), args.model_cache, args.trains)
     runs: list[dict] = []
     sink = open(args.jsonl, "a") if args.jsonl else None
     with ProcessPoolExecutor(max_workers=args.workers) as pool:

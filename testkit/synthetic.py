@@ -8,6 +8,7 @@ from rtlift.blocks import HighPassFilter, InputGain, OutputNonlinearity, RingCon
 from rtlift.blocks.delay import Delay
 from rtlift.blocks.delivered import DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
+from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
 from rtlift.core.rate import FS_HZ
 from rtlift.model.hybrid import HybridModel
 
@@ -62,11 +63,12 @@ def model_steps(model, cmu: np.ndarray, env: np.ndarray) -> np.ndarray:
 
 
 def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int = 2, delay: int = 0,
-                      output_form: bool = False, fs_hz: float = FS_HZ) -> HybridModel:
+                      output_form: bool = False, fs_hz: float = FS_HZ, hysteresis: str | None = None) -> HybridModel:
     """A random model of the ``interaction`` structure (:mod:`rtlift.blocks.interaction`):
     ΔCL = G_H(m) HF(c) + G(m) (c − HF(c)) + S(u) u + N(u) C x (or f(C x), ``output_form``), u
     the delivered envelope (in half the models through a static map, ``lift``), its input
-    ``delay`` samples late."""
+    ``delay`` samples late; with ``hysteresis`` (its driver, "cmu" or "lift") the Wiener part
+    times a random ``hysteresis`` factor."""
     tau = float(rng.uniform(0.02, 1.0))
     duty = float(rng.uniform(0.05, 0.5))
     knots = np.array([0.0, 0.002, 0.006, 0.012, 0.022])
@@ -83,6 +85,13 @@ def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int
     grid = np.linspace(0, 0.022, 8)
     nonlinearity = (OutputNonlinearity(grid, 10 * grid + rng.uniform(0, 0.01, size=8).cumsum()) if output_form
                     else InputGain(grid, 10 + rng.uniform(0, 5, size=8)))
+    if hysteresis is not None:
+        m, tau, g = float(rng.uniform(-0.5, 1.0)), float(rng.choice([0.0, rng.uniform(0.01, 0.5)])), \
+            float(rng.uniform(0.6, 1.2))
+        width = float(rng.choice([0.0, rng.uniform(0.001, 0.05)]))
+        table = (nonlinearity.y, nonlinearity.f) if output_form else (nonlinearity.cmu, nonlinearity.gain)
+        nonlinearity = (OutputHysteresis if output_form else HysteresisGain)(*table, m, tau, fs_hz, width, g,
+                                                                          hysteresis)
     on = int(rng.integers(1, 9))
     tau_q, period = float(rng.uniform(0.02, 1.0)), on + int(rng.integers(0, 80))
     lift = None                       # half the models put the static map before the LTI (``lift``)

@@ -208,3 +208,62 @@ def test_an_effects_input_stage_goes_before_the_structures_own_and_acts_on_what_
     want = m.simulate(c2, e2).total
     got = aug.simulate(cmu, env).total
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), driver=st.sampled_from(["cmu", "lift"]),
+       output_form=st.booleans(), cuts=st.lists(st.integers(0, 400), max_size=4))
+def test_a_hysteresis_factor_on_the_interaction_model_streams_as_it_batches(seed, n, driver, output_form, cuts):
+    """Issue 31: the factor's lift driver adds the burst part's slow term, which the model hands it
+    before each step or chunk: step, batch and chunked runs through get/set_state agree to 1e-12."""
+    rng = np.random.default_rng(seed)
+    m = interaction_model(rng, 30, 2, output_form=output_form, hysteresis=driver)
+    cmu, env = burst_input(rng, n, period=int(rng.integers(5, 120)))
+    streamed = model_steps(m, cmu, env)
+    m.reset()
+    out = m.simulate(cmu, env)
+    scale = max(1.0, float(np.max(np.abs(streamed))))
+    np.testing.assert_allclose(np.vstack([out.total, out.high, out.low]), streamed, atol=TOL * scale, rtol=0)
+    m.reset()
+    np.testing.assert_allclose(run_in_chunks(m, cmu, env, [c for c in cuts if c < n]), out.total,
+                               atol=TOL * scale, rtol=0)
+
+
+def test_the_lift_driver_of_the_interaction_model_is_the_flows_whole_slow_lift():
+    """x = N·y + G(m)(c − HF c) + S(u)u (the Wiener part and the burst part's slow term), not the
+    Wiener part alone: the model's Wiener part equals q · g (1 + m h) with h the play operator's
+    branch on that sum, and differs from the branch on q alone."""
+    from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
+
+    rng = np.random.default_rng(3)
+    m = interaction_model(rng, 30, 2)
+    nl = HysteresisGain(m.wiener.nonlinearity.cmu, m.wiener.nonlinearity.gain, 0.5, 0.0, FS, 0.02, 0.8, "lift")
+    m.wiener.nonlinearity = nl
+    cmu, env = burst_input(rng, 3000, period=40)
+    low = m.simulate(cmu, env).low
+    m.reset()
+    c, u = m.input_stages[-1].simulate(cmu, env)
+    _, slow = m.convolution.simulate_parts(c, u)
+    q = nl._n.batch(u) * m.wiener.lti.simulate(u)
+    m.reset()
+
+    def branch(offset):
+        memory = OutputHysteresis([0.0, 1.0], [0.0, 1.0], 0.5, 0.0, FS, 0.02, 0.8, "lift")
+        memory.offset = offset
+        return memory.branch(u, q)
+
+    np.testing.assert_allclose(low, q * 0.8 * (1 + 0.5 * branch(slow)), rtol=0, atol=1e-12)
+    assert np.max(np.abs(low - q * 0.8 * (1 + 0.5 * branch(0.0)))) > 1e-3 * np.max(np.abs(low))
+
+
+def test_the_observer_runs_an_interaction_model_with_a_lift_driven_hysteresis():
+    """The observer's open-loop model (its reference path: such a model has no compiled step) is
+    the model's own ΔCL to 1e-12."""
+    rng = np.random.default_rng(12)
+    m = interaction_model(rng, hysteresis="lift")
+    cmu, env = burst_input(rng, 1500, period=60)
+    truth = m.simulate(cmu, env).total
+    m.reset()
+    obs = Observer(m, ObserverConfig(R=1e-6, q_x=1e-8, q_bias=1e-10, p0_bias=1e-6, q_gain_h=1e-8))
+    est = np.array([obs.step(c, v, z).model_dcl for c, v, z in zip(cmu, env, truth, strict=True)])
+    np.testing.assert_allclose(est, truth, atol=1e-12, rtol=0)

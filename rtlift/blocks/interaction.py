@@ -78,12 +78,22 @@ class InteractionConvolution(BlockChain):
         """State order: [convolution (last L inputs, newest first), HF, m]."""
         return (self.conv, self.highpass, self.momentum)
 
+    slow = 0.0
+    """The slow term G(m)(c − HF c) + S(u)u of the last :meth:`step` (part of the flow's
+    quasi-steady lift, which drives a ``hysteresis`` factor on the lift: :meth:`simulate_parts`)."""
+
     def step(self, u: float, w: float) -> float:
-        """Push Cμ(k) (``u``) and the Wiener input u(k) (``w``), return ΔCL_H(k). No array allocation."""
+        """Push Cμ(k) (``u``) and the Wiener input u(k) (``w``), return ΔCL_H(k) (its slow term
+        kept in :attr:`slow`). No array allocation."""
         c = self.conv.step(u)
         hf = self.highpass.step(c)
         m = self.momentum.momentum(u)
-        return self.gain_h(m) * hf + self.gain(m) * (c - hf) + self.gain_static(w) * w
+        self.slow = self.gain(m) * (c - hf) + self.gain_static(w) * w
+        return self.gain_h(m) * hf + self.slow
+
+    def reset(self) -> None:
+        super().reset()
+        self.slow = 0.0
 
     def steady_output(self, envelope: float, u: float | None = None) -> float:
         """ΔCL_H's mean under lift-optimal bursting at ``envelope`` (duty d, so m ≈ the envelope;
@@ -109,12 +119,19 @@ class InteractionConvolution(BlockChain):
     def simulate(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
         """Batch twin of :meth:`step` (``w`` the Wiener input u); starts from and advances the
         current state."""
+        return self.simulate_parts(u, w)[0]
+
+    def simulate_parts(self, u: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`simulate` and its slow term G(m)(c − HF c) + S(u)u, per sample."""
         u = np.asarray(u, dtype=float)
         w = np.asarray(w, dtype=float)
         c = self.conv.simulate(u)
         hf = self.highpass.simulate(c)
         m = self.momentum.momentum_batch(u)
-        return self.gain_h.batch(m) * hf + self.gain.batch(m) * (c - hf) + self.gain_static.batch(w) * w
+        slow = self.gain.batch(m) * (c - hf) + self.gain_static.batch(w) * w
+        if slow.size:
+            self.slow = float(slow[-1])
+        return self.gain_h.batch(m) * hf + slow, slow
 
     def params(self) -> dict[str, Any]:
         """The model file's ``convolution.interaction`` entry."""

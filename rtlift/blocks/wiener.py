@@ -136,13 +136,19 @@ class _DirectionMemory:
         factor(k) = g (1 + m h(k))
 
     The driver is the actuation, x = Cμ (``driver = "cmu"``: the gain remembers which way the
-    command last moved), or the flow's own state, x = q, the nonlinearity's quasi-steady lift
-    before the factor (N(Cμ)·y or f(y); ``driver = "lift"``: stall hysteresis, where whether
-    the flow reattaches depends on the lift it has, which lags the command by the LTI's
-    dynamics). s is 0 on the rising branch, 1 on the falling one, and crosses between them
-    while x reverses by less than w (small reversals do not switch branch). The gain on a
-    falling driver is (1 + m) times that on a rising one; the rising branch is g times the
-    identified map (a map swept up and down is the mean of the two branches: g < 1 < g (1 + m)).
+    command last moved), or the flow's own state, x = q + ``offset``, the flow's quasi-steady
+    lift (``driver = "lift"``: stall hysteresis, where whether the flow reattaches depends on
+    the lift it has, which lags the command by the LTI's dynamics): q the nonlinearity's own
+    lift before the factor (N(Cμ)·y or f(y)), ``offset`` the rest of the model's slow lift, the
+    interaction structure's burst slow term G(m)(c − HF c) + S(u)u, which carries about half of
+    its static lift (0 in the paper's structure, whose burst part is high-passed). The model
+    sets ``offset`` before each :meth:`step` (a float) or ``simulate`` (an array of the chunk's
+    length): :meth:`rtlift.model.hybrid.HybridModel.parts_step`. The factor scales q only.
+
+    s is 0 on the rising branch, 1 on the falling one, and crosses between them while x reverses
+    by less than w (small reversals do not switch branch). The gain on a falling driver is
+    (1 + m) times that on a rising one; the rising branch is g times the identified map (a map
+    swept up and down is the mean of the two branches: g < 1 < g (1 + m)).
     ``magnitude`` = m, ``rising_gain`` = g, ``width`` = w (in the driver's unit: Cμ or ΔCL),
     ``time_constant_s`` = τ, ``driver``. State: [h, s, p] (w > 0) or [h, s, x(k−1)] (w = 0);
     at rest p = −w/2 (the rising branch).
@@ -172,7 +178,7 @@ class _DirectionMemory:
         self.reset()
 
     def _factor_step(self, cmu: float, q: float) -> float:
-        x = cmu if self.driver == "cmu" else q
+        x = cmu if self.driver == "cmu" else q + self.offset
         if self.width > 0.0:
             half = 0.5 * self.width
             p = min(max(self.last, x - half), x + half)
@@ -193,7 +199,7 @@ class _DirectionMemory:
 
     def branch(self, cmu: np.ndarray, q: np.ndarray) -> np.ndarray:
         """h(k) over a chunk (Cμ and the quasi-steady lift q), advancing the state."""
-        x = np.asarray(cmu if self.driver == "cmu" else q, dtype=float)
+        x = np.asarray(cmu if self.driver == "cmu" else q + self.offset, dtype=float)
         if self.width > 0.0:                 # the play operator is a recursion: one pass
             half, inv = 0.5 * self.width, 1.0 / self.width
             s = np.empty(x.size)
@@ -218,6 +224,7 @@ class _DirectionMemory:
     def reset(self) -> None:
         self.h = self.s = 0.0
         self.last = -0.5 * self.width
+        self.offset: float | np.ndarray = 0.0
 
     def get_state(self) -> np.ndarray:
         return np.array([self.h, self.s, self.last])

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from rtlift.blocks.delivered import STRUCTURE_STAGES
+from rtlift.blocks.interaction import InteractionConvolution
 from rtlift.blocks.stage import InputStage, OutputStage
 from rtlift.core.records import Record
 from rtlift.model.hybrid import HybridModel, HybridOutput
@@ -93,6 +94,21 @@ def wiener_parts(model: HybridModel, rec: Record) -> tuple[np.ndarray, np.ndarra
     y = model.wiener.lti.simulate(env)
     model.reset()
     return env, y
+
+
+def burst_slow(model: HybridModel, rec: Record) -> np.ndarray:
+    """The slow lift the model carries outside its Wiener part on a record, from rest: the
+    interaction structure's burst slow term G(m)(c − HF c) + S(u)u (zeros in the paper's
+    structure, whose burst part is high-passed)."""
+    if type(model.convolution) is not InteractionConvolution:
+        return np.zeros(rec.dcl.size)
+    model.reset()
+    cmu, env = rec.cmu, rec.cmu_envelope
+    for s in model.input_stages:
+        cmu, env = s.simulate(cmu, env)
+    _, slow = model.convolution.simulate_parts(cmu, env)
+    model.reset()
+    return slow
 
 
 def output_sse(model: HybridModel, rec: Record, start: int) -> float:

@@ -13,12 +13,11 @@
 ``--structure`` overrides the choice. The choice and its reason go into the model file
 (``provenance.structure.choice``).
 
-Known limit (issue 31, ``docs/results/bursts.md``): ``rtlift diagnose`` on the independent plant's
-development set gets 7 of 8 cases right with the interaction model identified from the full
-campaign (static lift as its Wiener input), 8 of 8 with the hybrid: the hysteresis is not found
-(the entry scales the Wiener part only, and this structure carries about half of its static lift
-in the burst part's slow term). For a diagnosis, identify without ``--trains`` (or with
-``--structure paper``).
+The diagnosis on it (issue 31, ``docs/results/bursts.md``): ``rtlift diagnose`` gets all 8 of the
+independent plant's development cases right with the interaction model identified from the full
+campaign, as with the hybrid, and 8 of 8 in the user's form (the hybrid 7). A ``hysteresis``
+factor on this structure is driven by the flow's whole slow lift, the Wiener part plus the burst
+part's slow term (:class:`rtlift.blocks.wiener._DirectionMemory`'s ``offset``).
 """
 
 from __future__ import annotations

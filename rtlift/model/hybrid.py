@@ -208,12 +208,39 @@ class HybridModel(BlockChain):
         """:meth:`step` in pure Python, block by block (the compiled step's oracle)."""
         for s in self.input_stages:
             cmu, cmu_envelope = s.step(cmu, cmu_envelope)
-        high = self.high_step(cmu, cmu_envelope)
-        low = self.wiener.step(cmu_envelope)
+        high, low = self.parts_step(cmu, cmu_envelope)
         total = high + low
         for s in self.output_stages:
             total = s.step(total)
         return total, high, low
+
+    @property
+    def _lift_offset(self) -> bool:
+        """Whether the Wiener part's hysteresis factor is driven by the lift in a model whose
+        burst part carries slow lift too (the interaction structure): the factor's driver then
+        adds that slow term (:class:`rtlift.blocks.wiener._DirectionMemory`'s ``offset``)."""
+        return (type(self.convolution) is InteractionConvolution
+                and getattr(self.wiener.nonlinearity, "driver", None) == "lift")
+
+    def parts_step(self, cmu: float, cmu_envelope: float) -> tuple[float, float]:
+        """(ΔCL_H, ΔCL_L) of the inputs after the input stages, the burst part first: a
+        hysteresis factor on the lift sees the flow's whole quasi-steady lift, its Wiener part
+        and the burst part's slow term (interaction structure)."""
+        high = self.high_step(cmu, cmu_envelope)
+        if self._lift_offset:
+            self.wiener.nonlinearity.offset = self.convolution.slow
+        return high, self.wiener.step(cmu_envelope)
+
+    def parts_simulate(self, cmu: np.ndarray, cmu_envelope: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Batch twin of :meth:`parts_step`."""
+        if self._lift_offset:
+            burst, slow = self.convolution.simulate_parts(cmu, cmu_envelope)
+            high = self.highpass.simulate(burst)
+            self.wiener.nonlinearity.offset = slow
+            low, _ = self.wiener.simulate(cmu_envelope)
+            self.wiener.nonlinearity.offset = self.convolution.slow
+            return high, low
+        return self.high_simulate(cmu, cmu_envelope), self.wiener.simulate(cmu_envelope)[0]
 
     def high_step(self, cmu: float, cmu_envelope: float) -> float:
         """ΔCL_H(k) of the inputs after the input stages: HF(convolution) (paper), or the
@@ -252,8 +279,7 @@ class HybridModel(BlockChain):
         env = np.asarray(cmu_envelope, dtype=float)
         for s in self.input_stages:
             cmu, env = s.simulate(cmu, env)
-        high = self.high_simulate(cmu, env)
-        low, _ = self.wiener.simulate(env)
+        high, low = self.parts_simulate(cmu, env)
         total = high + low
         for s in self.output_stages:
             total = s.simulate(total)

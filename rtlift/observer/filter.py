@@ -291,9 +291,9 @@ class Observer:
         m = self.model
         for stage in m.input_stages:
             cmu, env = stage.step(cmu, env)
-        high = m.high_step(cmu, env)
+        high, low = m.parts_step(cmu, env)
         known = high
-        total = high + m.wiener.step(env)
+        total = high + low
         for stage, replaced in self._output_stages:
             before = total
             total = stage.step(total)

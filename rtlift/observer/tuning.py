@@ -34,7 +34,7 @@ def _open_loop(model: HybridModel, rec: Record) -> dict[str, np.ndarray]:
     cmu, env = rec.cmu, rec.cmu_envelope
     for s in m.input_stages:
         cmu, env = s.simulate(cmu, env)
-    total = m.high_simulate(cmu, env) + m.wiener.simulate(env)[0]
+    total = sum(m.parts_simulate(cmu, env))
     for s in m.output_stages:
         total = s.simulate(total)
     u = np.asarray(env, dtype=float)
