@@ -10,6 +10,10 @@ Targets (issue 14): step median ≤ 2 µs, batch ≥ 100× faster than streaming
 for a model of the ``interaction`` structure (issue 31: order-3 Wiener part, a 2-sample delay,
 the same kernel length and input) under ``"interaction"``; its target: step median ≤ 2 µs,
 batch ≥ 100× faster per sample than the pure-Python step (``batch_speedup_vs_reference``).
+Under ``"interaction_augmented"`` the same interaction model with what the diagnosis adds to it
+(``testkit.synthetic.with_effects``: an actuator fade, a sensor resonance and a zero drift after
+the sum, a hysteresis factor driven by the lift), compiled since the hysteresis fit on that
+structure (issue 31).
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit, percentiles_us  # noqa: E402
 from rtlift.core.rate import FS_HZ  # noqa: E402
-from testkit.synthetic import burst_input, interaction_model, make_model  # noqa: E402
+from testkit.synthetic import burst_input, interaction_model, make_model, with_effects  # noqa: E402
 
 
 def _latency(step, cmu: np.ndarray, env: np.ndarray) -> tuple[float, float]:
@@ -96,7 +100,10 @@ def main() -> None:
     cmu, env = burst_input(rng, n)
     hybrid = measure(model, cmu, env, args.steps)
     inter = measure(interaction_model(rng, kernel_len=300, order=3, delay=2), cmu, env, args.steps)
-    emit({**hybrid, "samples": n, "kernel_len": 300, "interaction": inter})
+    augmented = with_effects(interaction_model(np.random.default_rng(1), kernel_len=300, order=3, delay=2),
+                             fade=True, outputs=(1, 2), hysteresis=2)
+    emit({**hybrid, "samples": n, "kernel_len": 300, "interaction": inter,
+          "interaction_augmented": measure(augmented, cmu, env, args.steps)})
 
 
 if __name__ == "__main__":

@@ -5,10 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from rtlift.blocks import HighPassFilter, InputGain, OutputNonlinearity, RingConvolution, WienerBlock
+from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.blocks.delay import Delay
-from rtlift.blocks.delivered import DeliveredEnvelope, DeliveredMomentum
+from rtlift.blocks.delivered import STRUCTURE_STAGES, DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
+from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
+from rtlift.blocks.sensor_resonance import SensorResonance
 from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
+from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ
 from rtlift.model.hybrid import HybridModel
 
@@ -63,12 +67,11 @@ def model_steps(model, cmu: np.ndarray, env: np.ndarray) -> np.ndarray:
 
 
 def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int = 2, delay: int = 0,
-                      output_form: bool = False, fs_hz: float = FS_HZ, hysteresis: str | None = None) -> HybridModel:
+                      output_form: bool = False, fs_hz: float = FS_HZ) -> HybridModel:
     """A random model of the ``interaction`` structure (:mod:`rtlift.blocks.interaction`):
     ΔCL = G_H(m) HF(c) + G(m) (c − HF(c)) + S(u) u + N(u) C x (or f(C x), ``output_form``), u
     the delivered envelope (in half the models through a static map, ``lift``), its input
-    ``delay`` samples late; with ``hysteresis`` (its driver, "cmu" or "lift") the Wiener part
-    times a random ``hysteresis`` factor."""
+    ``delay`` samples late."""
     tau = float(rng.uniform(0.02, 1.0))
     duty = float(rng.uniform(0.05, 0.5))
     knots = np.array([0.0, 0.002, 0.006, 0.012, 0.022])
@@ -85,13 +88,6 @@ def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int
     grid = np.linspace(0, 0.022, 8)
     nonlinearity = (OutputNonlinearity(grid, 10 * grid + rng.uniform(0, 0.01, size=8).cumsum()) if output_form
                     else InputGain(grid, 10 + rng.uniform(0, 5, size=8)))
-    if hysteresis is not None:
-        m, tau, g = float(rng.uniform(-0.5, 1.0)), float(rng.choice([0.0, rng.uniform(0.01, 0.5)])), \
-            float(rng.uniform(0.6, 1.2))
-        width = float(rng.choice([0.0, rng.uniform(0.001, 0.05)]))
-        table = (nonlinearity.y, nonlinearity.f) if output_form else (nonlinearity.cmu, nonlinearity.gain)
-        nonlinearity = (OutputHysteresis if output_form else HysteresisGain)(*table, m, tau, fs_hz, width, g,
-                                                                          hysteresis)
     on = int(rng.integers(1, 9))
     tau_q, period = float(rng.uniform(0.02, 1.0)), on + int(rng.integers(0, 80))
     lift = None                       # half the models put the static map before the LTI (``lift``)
@@ -117,3 +113,33 @@ def run_in_chunks(model, cmu: np.ndarray, env: np.ndarray, cuts: list[int]) -> n
         else:
             pieces.append(model.simulate(cmu[a:b], env[a:b]).total)
     return np.concatenate(pieces)
+
+
+OUTPUT_STAGES = (
+    lambda: ZeroDrift(FS_HZ, rate_per_s=0.01, offset=0.001),       # an observer's bias state stands for it
+    lambda: ZeroDrift(FS_HZ, amplitude=-0.02, time_constant_s=0.3),
+    lambda: SensorResonance(30.0, 0.1, FS_HZ),                      # a known correction
+    lambda: PeriodicDisturbance(20.0, 0.003, 0.3, FS_HZ, [{"n": 3, "amplitude": 0.001}]),   # oscillator states
+)
+"""The output stages the diagnosis (and ``--adapt``) adds, fresh on each call."""
+
+
+def with_effects(model: HybridModel, fade: bool = False, outputs: tuple[int, ...] = (),
+                 hysteresis: int = 0) -> HybridModel:
+    """``model`` (changed in place, and returned) with what the diagnosis adds: an
+    ``actuator_fade`` after any ``delay`` and before the interaction structure's own stage,
+    output stages (indices into :data:`OUTPUT_STAGES`), a hysteresis factor on the Wiener
+    nonlinearity (1: driven by Cμ_env, a switch; 2: by the lift, a play operator)."""
+    if fade:
+        stages = list(model.input_stages)
+        at = next((i for i, st in enumerate(stages) if st.name in STRUCTURE_STAGES), len(stages))
+        model.input_stages = (*stages[:at], ActuatorFade(0.6, 0.05, FS_HZ), *stages[at:])
+    model.output_stages = tuple(OUTPUT_STAGES[i]() for i in outputs)
+    if hysteresis:
+        nl = model.wiener.nonlinearity
+        width, driver = (0.0, "cmu") if hysteresis == 1 else (0.004, "lift")
+        table = (nl.cmu, nl.gain) if hasattr(nl, "gain_at") else (nl.y, nl.f)
+        cls = HysteresisGain if hasattr(nl, "gain_at") else OutputHysteresis
+        model.wiener.nonlinearity = cls(*table, 0.3, 0.02, FS_HZ, width, 0.9, driver)
+        model.wiener = model.wiener                  # the compiled step bound again
+    return model

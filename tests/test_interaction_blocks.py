@@ -10,13 +10,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rtlift.blocks import HighPassFilter
+from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.blocks.delivered import DeliveredEnvelope, DeliveredMomentum
 from rtlift.blocks.interaction import InteractionConvolution
-from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig
-from testkit.synthetic import burst_input, interaction_model, model_steps, run_in_chunks
+from testkit.synthetic import OUTPUT_STAGES, burst_input, interaction_model, model_steps, run_in_chunks, with_effects
 
 TOL = 1e-12
 
@@ -52,13 +52,21 @@ def _run(step, cmu, env):
     return np.array([step(c, e) for c, e in zip(cmu, env, strict=True)]).reshape(-1, 3).T
 
 
-@settings(max_examples=40, deadline=None)
+EFFECTS = dict(fade=st.booleans(), outputs=st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3),
+               hysteresis=st.integers(0, 2))
+"""What the diagnosis adds to a model (:func:`testkit.synthetic.with_effects`)."""
+
+
+@settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), kernel_len=st.integers(1, 60),
-       order=st.integers(1, 3), delay=st.integers(0, 4), output_form=st.booleans(), warm=st.integers(0, 50))
-def test_compiled_interaction_step_equals_reference_step(seed, n, kernel_len, order, delay, output_form, warm):
-    """(ΔCL, ΔCL_H, ΔCL_L) and the state after the steps agree to 1e-12, from any starting state."""
+       order=st.integers(1, 3), delay=st.integers(0, 4), output_form=st.booleans(), warm=st.integers(0, 50),
+       **EFFECTS)
+def test_compiled_interaction_step_equals_reference_step(seed, n, kernel_len, order, delay, output_form, warm,
+                                                         fade, outputs, hysteresis):
+    """(ΔCL, ΔCL_H, ΔCL_L) and the state after the steps agree to 1e-12, from any starting state,
+    with any of the diagnosis's stages (a fade, output stages, a hysteresis factor)."""
     rng = np.random.default_rng(seed)
-    m = interaction_model(rng, kernel_len, order, delay, output_form)
+    m = with_effects(interaction_model(rng, kernel_len, order, delay, output_form), fade, tuple(outputs), hysteresis)
     assert m.compiled
     cmu, env = burst_input(rng, n + warm, period=int(rng.integers(5, 300)))
     _run(m.reference_step, cmu[:warm], env[:warm])
@@ -72,14 +80,16 @@ def test_compiled_interaction_step_equals_reference_step(seed, n, kernel_len, or
     np.testing.assert_allclose(after_compiled, m.get_state(), atol=TOL, rtol=1e-12)
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 3000), warm=st.integers(0, 400), delay=st.integers(0, 3),
-       output_form=st.booleans())
-def test_compiled_interaction_batch_equals_the_numpy_batch(seed, n, warm, delay, output_form):
+       output_form=st.booleans(), **EFFECTS)
+def test_compiled_interaction_batch_equals_the_numpy_batch(seed, n, warm, delay, output_form, fade, outputs,
+                                                           hysteresis):
     """The fused loop and the blocks' numpy/scipy chain (``reference_simulate``) agree to 1e-12
-    from a mid-record state, with a kernel as long as an identified one, and leave the same state."""
+    from a mid-record state, with a kernel as long as an identified one and any of the
+    diagnosis's stages, and leave the same state."""
     rng = np.random.default_rng(seed)
-    m = interaction_model(rng, 300, 2, delay, output_form)
+    m = with_effects(interaction_model(rng, 300, 2, delay, output_form), fade, tuple(outputs), hysteresis)
     cmu, env = burst_input(rng, warm + n, period=int(rng.integers(20, 300)))
     _run(m.step, cmu[:warm], env[:warm])
     start = m.get_state()
@@ -92,8 +102,10 @@ def test_compiled_interaction_batch_equals_the_numpy_batch(seed, n, warm, delay,
     np.testing.assert_allclose(after, m.get_state(), atol=TOL, rtol=1e-12)
 
 
-def test_interaction_model_with_an_output_stage_steps_with_the_reference():
-    m = interaction_model(np.random.default_rng(3)).with_stages(output_stages=(ZeroDrift(FS, rate_per_s=0.01),))
+def test_interaction_model_with_its_stages_in_another_order_steps_with_the_reference():
+    """A fade before the delay is not a compiled order: the model takes its reference step."""
+    m = interaction_model(np.random.default_rng(3), delay=2)
+    m.input_stages = (ActuatorFade(0.6, 0.05, FS), *m.input_stages)
     assert not m.compiled
     cmu, env = burst_input(np.random.default_rng(4), 300, period=60)
     stepped = _run(m.step, cmu, env)
@@ -211,19 +223,22 @@ def test_an_effects_input_stage_goes_before_the_structures_own_and_acts_on_what_
 
 
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), driver=st.sampled_from(["cmu", "lift"]),
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), hysteresis=st.integers(1, 2),
        output_form=st.booleans(), cuts=st.lists(st.integers(0, 400), max_size=4))
-def test_a_hysteresis_factor_on_the_interaction_model_streams_as_it_batches(seed, n, driver, output_form, cuts):
-    """Issue 31: the factor's lift driver adds the burst part's slow term, which the model hands it
-    before each step or chunk: step, batch and chunked runs through get/set_state agree to 1e-12."""
+def test_a_hysteresis_factor_on_the_interaction_model_streams_as_it_batches(seed, n, hysteresis, output_form, cuts):
+    """Issue 31: the factor's lift driver adds the burst part's slow term, which the Python chain
+    hands it before each step or chunk (``parts_step``): its step, its numpy batch, the compiled
+    batch and chunked runs through get/set_state agree to 1e-12."""
     rng = np.random.default_rng(seed)
-    m = interaction_model(rng, 30, 2, output_form=output_form, hysteresis=driver)
+    m = with_effects(interaction_model(rng, 30, 2, output_form=output_form), hysteresis=hysteresis)
     cmu, env = burst_input(rng, n, period=int(rng.integers(5, 120)))
-    streamed = model_steps(m, cmu, env)
+    streamed = _run(m.reference_step, cmu, env)
     m.reset()
     out = m.simulate(cmu, env)
     scale = max(1.0, float(np.max(np.abs(streamed))))
     np.testing.assert_allclose(np.vstack([out.total, out.high, out.low]), streamed, atol=TOL * scale, rtol=0)
+    m.reset()
+    np.testing.assert_allclose(np.array(m.reference_simulate(cmu, env)), streamed, atol=TOL * scale, rtol=0)
     m.reset()
     np.testing.assert_allclose(run_in_chunks(m, cmu, env, [c for c in cuts if c < n]), out.total,
                                atol=TOL * scale, rtol=0)
@@ -257,13 +272,15 @@ def test_the_lift_driver_of_the_interaction_model_is_the_flows_whole_slow_lift()
 
 
 def test_the_observer_runs_an_interaction_model_with_a_lift_driven_hysteresis():
-    """The observer's open-loop model (its reference path: such a model has no compiled step) is
-    the model's own ΔCL to 1e-12."""
+    """The observer's open-loop model, compiled and reference, is the model's own ΔCL to 1e-12."""
     rng = np.random.default_rng(12)
-    m = interaction_model(rng, hysteresis="lift")
+    m = with_effects(interaction_model(rng), hysteresis=2)
     cmu, env = burst_input(rng, 1500, period=60)
     truth = m.simulate(cmu, env).total
     m.reset()
-    obs = Observer(m, ObserverConfig(R=1e-6, q_x=1e-8, q_bias=1e-10, p0_bias=1e-6, q_gain_h=1e-8))
-    est = np.array([obs.step(c, v, z).model_dcl for c, v, z in zip(cmu, env, truth, strict=True)])
-    np.testing.assert_allclose(est, truth, atol=1e-12, rtol=0)
+    config = ObserverConfig(R=1e-6, q_x=1e-8, q_bias=1e-10, p0_bias=1e-6, q_gain_h=1e-8)
+    for step in ("step", "reference_step"):
+        obs = Observer(m.copy(), config)
+        assert obs.compiled
+        est = np.array([getattr(obs, step)(c, v, z).model_dcl for c, v, z in zip(cmu, env, truth, strict=True)])
+        np.testing.assert_allclose(est, truth, atol=1e-12, rtol=0)

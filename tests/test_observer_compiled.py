@@ -10,15 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.blocks.delay import Delay
-from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
-from rtlift.blocks.sensor_resonance import SensorResonance
-from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
-from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer, ObserverConfig
-from testkit.synthetic import burst_input, interaction_model, make_model
+from testkit.synthetic import OUTPUT_STAGES, burst_input, interaction_model, make_model, with_effects
 
 TOL = 1e-12
 CONFIGS = {
@@ -41,14 +36,6 @@ def _inputs(rng, n):
     return cmu.tolist(), env.tolist(), [None if (v != v and i % 2) else v for i, v in enumerate(z.tolist())]
 
 
-OUTPUT_STAGES = (
-    lambda: ZeroDrift(FS, rate_per_s=0.01, offset=0.001),          # the bias state stands for it
-    lambda: ZeroDrift(FS, amplitude=-0.02, time_constant_s=0.3),
-    lambda: SensorResonance(30.0, 0.1, FS),                         # a known correction
-    lambda: PeriodicDisturbance(20.0, 0.003, 0.3, FS, [{"n": 3, "amplitude": 0.001}]),   # oscillator states
-)
-
-
 def _run(step, cmu, env, z):
     return np.array([step(c, e, m).as_tuple() for c, e, m in zip(cmu, env, z, strict=True)])
 
@@ -64,30 +51,24 @@ def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay,
     from a state that is not the rest state."""
     rng = np.random.default_rng(seed)
     model = make_model(rng, kernel_len=40, order=order, output_form=output_form)
-    stages = (Delay(delay / FS, FS),) if delay else ()
-    if fade:      # an actuator fade after it (what --adapt swaps in): compiled too
-        stages += (ActuatorFade(0.6, 0.05, FS),)
-    model.input_stages = stages
-    model.output_stages = tuple(OUTPUT_STAGES[i]() for i in outputs)   # what diagnose and --adapt add
-    if hysteresis:                   # the hysteresis factor (1: on Cμ_env, a switch; 2: on the lift, a play)
-        nl = model.wiener.nonlinearity
-        width, driver = (0.0, "cmu") if hysteresis == 1 else (0.004, "lift")
-        table = (nl.cmu, nl.gain) if hasattr(nl, "gain_at") else (nl.y, nl.f)
-        cls = HysteresisGain if hasattr(nl, "gain_at") else OutputHysteresis
-        model.wiener.nonlinearity = cls(*table, 0.3, 0.02, FS, width, 0.9, driver)
-        model.wiener = model.wiener
-    _agree(Observer(model, CONFIGS[config]), rng, n, warm)
+    model.input_stages = (Delay(delay / FS, FS),) if delay else ()
+    # what diagnose and --adapt add: a fade after the delay, output stages, a hysteresis factor
+    _agree(Observer(with_effects(model, fade, tuple(outputs), hysteresis), CONFIGS[config]), rng, n, warm)
 
 
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 500), order=st.integers(1, 3), output_form=st.booleans(),
-       delay=st.integers(0, 4), config=st.sampled_from(sorted(CONFIGS)), warm=st.integers(0, 100))
+       delay=st.integers(0, 4), config=st.sampled_from(sorted(CONFIGS)), warm=st.integers(0, 100),
+       fade=st.booleans(), outputs=st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3),
+       hysteresis=st.integers(0, 2))
 def test_compiled_step_equals_reference_step_on_the_interaction_structure(seed, n, order, output_form, delay, config,
-                                                                         warm):
+                                                                         warm, fade, outputs, hysteresis):
     """The same for a model of the ``interaction`` structure (what ``rtlift identify`` chooses
-    when the campaign has burst trains): its own compiled sample, the same filter."""
+    when the campaign has burst trains) with what the diagnosis adds to it: its own compiled
+    sample, the same filter."""
     rng = np.random.default_rng(seed)
-    _agree(Observer(interaction_model(rng, 40, order, delay, output_form), CONFIGS[config]), rng, n, warm)
+    model = with_effects(interaction_model(rng, 40, order, delay, output_form), fade, tuple(outputs), hysteresis)
+    _agree(Observer(model, CONFIGS[config]), rng, n, warm)
 
 
 def _agree(obs, rng, n, warm):

@@ -182,7 +182,7 @@ def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, buf, pos, z,
     high = _highpass(par, 2 + n_taps, z, v)
     o = 2 + n_taps + 5 * (z.shape[0] // 2)
     xs, fs, slopes, scratch = _wiener_table(par, o, x.shape[0])
-    low = _direction_factor(_wiener(par, o, xs, fs, slopes, scratch, x, env), env, par, sstate)
+    low = _direction_factor(_wiener(par, o, xs, fs, slopes, scratch, x, env), env, par, sstate, 0.0)
     total, known = _output_chain(high + low, par, sstate)
     return total, high, low, cmu, env, known
 
@@ -274,7 +274,8 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, 
             for j in range(min(n_taps, n - k)):
                 high[k + j] += taps[j] * c
         h = _highpass(rec, o_hp, z_local, high[k])
-        lo = _direction_factor(_wiener(rec, o_wiener, grid, values, slopes, scratch, x_local, e), e, par, sstate)
+        lo = _direction_factor(_wiener(rec, o_wiener, grid, values, slopes, scratch, x_local, e), e, par, sstate,
+                               0.0)
         high[k] = h
         low[k] = lo
         total[k] = h + lo

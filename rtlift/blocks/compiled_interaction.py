@@ -6,6 +6,10 @@ hybrid's (:mod:`rtlift.blocks.compiled`):
     ΔCL_L(k) = N(u(k)) · C x(k)  (form 0)  or  f(C x(k))  (form 1),   x(k) = A x(k−1) + B u(k)
     u(k) = Cμ_env′(k) · min(1, q(k)/q₀)   or, with a static map,   f(Cμ_env′(k))/s · min(1, q(k)/q₀)^p
 
+with the diagnosis's stages as in the paper's structure (:mod:`rtlift.blocks.compiled_stages`):
+a ``delay`` and an ``actuator_fade`` before the structure's own stage (Cμ′, Cμ_env′), the
+``hysteresis`` factor on ΔCL_L and the output stages after the sum.
+
 :func:`interaction_step` is one sample, :func:`interaction_simulate` the batch, both on one
 packed copy of the parameters (:func:`pack_interaction`).
 """
@@ -24,7 +28,7 @@ from rtlift.blocks.compiled import (
     _wiener,
     _wiener_table,
 )
-from rtlift.blocks.compiled_stages import _delayed
+from rtlift.blocks.compiled_stages import _delayed, _direction_factor, _faded, _output_chain
 from rtlift.core.jit import njit_cached
 
 
@@ -100,25 +104,33 @@ def _burst_memory(lam, b, q, cmu):
 
 
 @njit_cached
-def interaction_step(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, x):
+def interaction_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, m_in, buf, pos, z, m_conv, x):
     """One sample of the interaction structure (:mod:`rtlift.blocks.interaction`): (ΔCL, ΔCL_H,
-    ΔCL_L); advances the delay rings, the delivered envelope's memory q (``m_in``, the input
-    stage's; u = Cμ_env′ min(1, q/q₀) is the Wiener part's input), the convolution buffer, the
-    burst part's HF state z and its m (``m_conv``) and the LTI state x in place (``par``:
-    :func:`pack_interaction`)::
+    ΔCL_L); advances the delay rings, the fade's clock, the delivered envelope's memory q (``m_in``,
+    the input stage's; u = Cμ_env′ min(1, q/q₀) is the Wiener part's input), the convolution
+    buffer, the burst part's HF state z and its m (``m_conv``), the LTI state x, the hysteresis
+    factor's and the output stages' states in place (``par``: :func:`pack_interaction`, then
+    :func:`~rtlift.blocks.compiled_stages.with_outputs`' tail; ``fpar``/``sstate`` as in
+    :func:`~rtlift.blocks.compiled.hybrid_step`)::
 
-        ΔCL_H(k) = G_H(m) HF(c)(k) + G(m) (c − HF(c))(k) + S(u) u,   c = φ h ∗ Cμ′
+        ΔCL_H(k) = G_H(m) HF(c)(k) + [G(m) (c − HF(c))(k) + S(u) u],   c = φ h ∗ Cμ′
         ΔCL_L(k) = N(u(k)) · C x(k)  (form 0)  or  f(C x(k))  (form 1),   x(k) = A x(k−1) + B u(k)
+
+    ΔCL_L times the hysteresis factor g (1 + m h) where the model has one, its lift driver the
+    Wiener part plus the bracket (the burst part's slow term); ΔCL after the output stages.
     """
-    total, high, low, _, _ = interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, x)
+    total, high, low, _, _, _ = interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, m_in, buf, pos,
+                                                   z, m_conv, x)
     return total, high, low
 
 
 @njit_cached(inline="always")
-def interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, x):
-    """:func:`interaction_step` that also returns the inputs the filter of an observer sees,
-    (ΔCL, ΔCL_H, ΔCL_L, Cμ′, u): Cμ after the delay and the delivered envelope u."""
+def interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, m_in, buf, pos, z, m_conv, x):
+    """:func:`interaction_step` that also returns what the filter of an observer sees, (ΔCL,
+    ΔCL_H, ΔCL_L, Cμ′, u, known): Cμ after the delay and the fade, the delivered envelope u, and
+    the flagged output stages' corrections (:func:`~rtlift.blocks.compiled_stages._output_chain`)."""
     cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
+    cmu, env = _faded(cmu, env, fpar, sstate)
     n_taps = buf.shape[0] // 2
     n_sec = z.shape[0] // 2
     n = x.shape[0]
@@ -135,21 +147,22 @@ def interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_
     mc = _momentum(par[o + 3], par[o + 4], par[o + 5], m_conv[0], cmu)
     m_conv[0] = mc
     knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes = _gain_tables(par, o + 6)
-    high = (_table(knots, gh, gh_slopes, mc, False) * hf + _table(knots, g, g_slopes, mc, False) * (c - hf)
-            + _table(knots, gs, gs_slopes, u, False) * u)
+    slow = _table(knots, g, g_slopes, mc, False) * (c - hf) + _table(knots, gs, gs_slopes, u, False) * u
+    high = _table(knots, gh, gh_slopes, mc, False) * hf + slow
     ow = 2 + n_taps + 5 * n_sec
     xs, fs, slopes, scratch = _wiener_table(par, ow, n)
-    low = _wiener(par, ow, xs, fs, slopes, scratch, x, u)
-    return high + low, high, low, cmu, u
+    low = _direction_factor(_wiener(par, ow, xs, fs, slopes, scratch, x, u), u, par, sstate, slow)
+    total, known = _output_chain(high + low, par, sstate)
+    return total, high, low, cmu, u, known
 
 
 @njit_cached
-def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, x,
-                         z_slots, x_slots):
+def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, sstate, m_in, buf, pos, z,
+                         m_conv, x, z_slots, x_slots):
     """:func:`interaction_step` over whole arrays in one loop, into ``total``, ``high`` and
     ``low``, from and advancing the same state: the convolution scattered as in
     :func:`~rtlift.blocks.compiled.hybrid_simulate` (same helpers), the HF and LTI states and m
-    and q in registers."""
+    and q in registers, the output stages after the loop."""
     n = cmu.shape[0]
     n_taps = buf.shape[0] // 2
     n_z, n_x = len(z_slots), len(x_slots)
@@ -168,9 +181,10 @@ def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, m
     power, inv_chord, lgrid, lgain, lslopes = _lift_table(par, o + 6)
     mi, mc = m_in[0], m_conv[0]
     _scatter_past(buf, pos[0], taps, high, n)
-    if d_cmu.shape[0] > 0:                    # the delayed inputs, in place of the outputs
+    if d_cmu.shape[0] > 0 or fpar[0] != 0.0:  # the staged inputs, in place of the outputs
         for k in range(n):
-            total[k], low[k] = _delayed(cmu[k], env[k], d_cmu, d_env, d_pos)
+            c, e = _delayed(cmu[k], env[k], d_cmu, d_env, d_pos)
+            total[k], low[k] = _faded(c, e, fpar, sstate)
         cmu = total
         env = low                             # each read before its slot is written
     last = n - n_taps
@@ -188,9 +202,9 @@ def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, m
         mi = _burst_memory(lam_i, b_i, mi, c)
         u = _delivered(env[k], min(1.0, scale_i * mi), power, inv_chord, lgrid, lgain, lslopes)
         mc = _momentum(lam_c, b_c, inv_d_c, mc, c)
-        h = (_table(knots, gh, gh_slopes, mc, False) * hf + _table(knots, g, g_slopes, mc, False) * (conv - hf)
-             + _table(knots, gs, gs_slopes, u, False) * u)
-        lo = _wiener(par, o_w, grid, values, slopes, scratch, x_local, u)
+        slow = _table(knots, g, g_slopes, mc, False) * (conv - hf) + _table(knots, gs, gs_slopes, u, False) * u
+        h = _table(knots, gh, gh_slopes, mc, False) * hf + slow
+        lo = _direction_factor(_wiener(par, o_w, grid, values, slopes, scratch, x_local, u), u, par, sstate, slow)
         high[k] = h
         low[k] = lo
         total[k] = h + lo
@@ -198,3 +212,6 @@ def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, m
     m_conv[0] = mc
     z[:] = z_local
     x[:] = x_local
+    if par[par.shape[0] - 2] != 0.0:          # the output stages, sample by sample
+        for k in range(n):
+            total[k], _ = _output_chain(total[k], par, sstate)

@@ -121,20 +121,21 @@ def bind_stage_states(fade, memory, stages) -> np.ndarray:
 
 
 @njit_cached(inline="always")
-def _direction_factor(q, env, par, sstate):
+def _direction_factor(q, env, par, sstate, offset):
     """The ``hysteresis`` factor (:class:`rtlift.blocks.wiener._DirectionMemory`) on the quasi-steady
     lift q (N(Cμ_env)·y or f(y)): returns q · g (1 + m h(k)), advancing [h, s, p] in ``sstate[1:4]``:
 
         p(k) = min(max(p(k−1), x − w/2), x + w/2),  s = (p − x)/w + 1/2      (w > 0)
         s = 1 if x < x(k−1), 0 if x > x(k−1), s(k−1) otherwise              (w = 0)
-        h(k) = λ h(k−1) + (1 − λ) s(k),   x = Cμ_env (driver "cmu") or q (driver "lift").
+        h(k) = λ h(k−1) + (1 − λ) s(k),   x = Cμ_env (driver "cmu") or q + offset (driver "lift")
 
-    Without the factor (its "on" 0) q is returned as it is."""
+    (``offset`` the rest of the flow's slow lift: the interaction structure's burst slow term, 0
+    in the paper's structure). Without the factor (its "on" 0) q is returned as it is."""
     o = par.shape[0] - HYSTERESIS
     if par[o] == 0.0:
         return q
     m, g, w, lam = par[o + 1], par[o + 2], par[o + 3], par[o + 4]
-    x = q if par[o + 5] != 0.0 else env
+    x = q + offset if par[o + 5] != 0.0 else env
     if w > 0.0:
         half = 0.5 * w
         p = min(max(sstate[3], x - half), x + half)

@@ -16,10 +16,10 @@ one ``delay`` followed by at most one ``actuator_fade``, with any output stages
 :mod:`rtlift.blocks.compiled_stages`): the paper's model, a model as ``rtlift identify`` writes
 it, and what ``rtlift diagnose`` (or ``--adapt``) makes of it by adding those effects; and for
 the ``interaction`` structure (:mod:`rtlift.blocks.interaction`: its burst part in the
-convolution slot, its ``delivered_envelope`` stage after at most one ``delay``, no output
+convolution slot, its ``delivered_envelope`` stage after the same delay and fade, the same output
 stages), each with the ``hysteresis`` factor on its Wiener nonlinearity or without. Other orders
-of input stages and the interaction structure's other stages (and its hysteresis) are not
-compiled yet: a model that
+of input stages and the first merged form of the interaction structure (``delivered_momentum``)
+are not compiled: a model that
 carries one steps with :meth:`HybridModel.reference_step`, the pure-Python chain of the
 blocks' own ``step`` (``model.compiled`` says which). That chain is also the compiled
 step's test oracle; both advance the same state arrays. :meth:`simulate` follows the same
@@ -112,7 +112,7 @@ class HybridModel(BlockChain):
         if wiener is not None:
             if type(self.convolution) is RingConvolution:
                 kernel = self._bind_hybrid(wiener)
-            elif type(self.convolution) is InteractionConvolution and not self.output_stages:
+            elif type(self.convolution) is InteractionConvolution:
                 kernel = self._bind_interaction(wiener)
         object.__setattr__(self, "_kernel", kernel)
         return kernel
@@ -133,6 +133,19 @@ class HybridModel(BlockChain):
             return None
         return (*delay, *faded)
 
+    def _with_stages(self, par: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``par`` followed by the output stages' and the hysteresis factor's parameters
+        (:func:`~rtlift.blocks.compiled_stages.with_outputs`), and the stages' one state array
+        (:func:`~rtlift.blocks.compiled_stages.bind_stage_states`: the fade's clock, the factor's
+        [h, s, p], the output stages' states), each stage's own state a view into it."""
+        from rtlift.blocks.compiled_stages import bind_stage_states, with_outputs
+
+        nl = self.wiener.nonlinearity
+        memory = nl if hasattr(nl, "memory_arrays") else None        # the hysteresis factor
+        fade = next((st for st in self.input_stages if type(st) is ActuatorFade), None)
+        return (with_outputs(par, self.output_stages, None if memory is None else memory.memory_arrays()[0]),
+                bind_stage_states(fade, memory, self.output_stages))
+
     def _bind_hybrid(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
         """The paper's structure: at most one input ``delay``, then at most one ``actuator_fade``;
         any output stages (each in its state-space form, :mod:`rtlift.blocks.compiled_stages`)."""
@@ -140,31 +153,26 @@ class HybridModel(BlockChain):
         if delay is None or not all(type(st).compiled_form for st in self.output_stages):
             return ()
         from rtlift.blocks.compiled import hybrid_simulate, hybrid_step, pack_parameters, state_slots
-        from rtlift.blocks.compiled_stages import bind_stage_states, with_outputs
 
         (taps,), conv_state = self.convolution.kernel_arrays()
         (coef,), hp_state = self.highpass.kernel_arrays()
         (A, B, C, form, xs, fs, slopes), wiener_state = wiener
-        nl = self.wiener.nonlinearity
-        memory = nl if hasattr(nl, "memory_arrays") else None        # the hysteresis factor
-        par = with_outputs(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), self.output_stages,
-                           None if memory is None else memory.memory_arrays()[0])
+        par, sstate = self._with_stages(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes))
         *delay, fpar, _ = delay
-        fade = next((st for st in self.input_stages if type(st) is ActuatorFade), None)
-        sstate = bind_stage_states(fade, memory, self.output_stages)
         return (hybrid_step, (par, *delay, fpar, sstate, *conv_state, *hp_state, *wiener_state), hybrid_simulate,
                 state_slots(hp_state[0], wiener_state[0]))
 
     def _bind_interaction(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
-        """The interaction structure: input stages [``delay``,] ``delivered_envelope``, the model's
-        ``highpass`` the identity (its HF lives in the burst part). A model whose Wiener input is
-        ``delivered_momentum`` (as first merged) takes :meth:`reference_step`."""
+        """The interaction structure: input stages [``delay``,] [``actuator_fade``,]
+        ``delivered_envelope``, the model's ``highpass`` the identity (its HF lives in the burst
+        part); any output stages with a compiled form, the hysteresis factor or none. A model whose
+        Wiener input is ``delivered_momentum`` (as first merged) takes :meth:`reference_step`."""
         stages = self.input_stages
         identity = self.highpass.sos.shape == IDENTITY_SOS.shape and np.array_equal(self.highpass.sos, IDENTITY_SOS)
         if (not stages or type(stages[-1]) is not DeliveredEnvelope or not identity
-                or hasattr(self.wiener.nonlinearity, "memory_arrays")):     # no hysteresis factor here
+                or not all(type(st).compiled_form for st in self.output_stages)):
             return ()
-        delay = self._input_state(stages[:-1], fade=False)
+        delay = self._input_state(stages[:-1])
         if delay is None:
             return ()
         from rtlift.blocks.compiled import pack_parameters
@@ -174,9 +182,11 @@ class HybridModel(BlockChain):
         (taps, coef, m_conv_par, knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes), (buf, pos, z, m_conv) = \
             self.convolution.kernel_arrays()
         (A, B, C, form, xs, fs, slopes), (x,) = wiener
-        par = pack_interaction(pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), m_par, m_conv_par,
-                               knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes, stages[-1].lift_arrays())
-        return (interaction_step, (par, *delay, m_in, buf, pos, z, m_conv, x), interaction_simulate,
+        par, sstate = self._with_stages(pack_interaction(
+            pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), m_par, m_conv_par, knots, gh, gh_slopes, g,
+            g_slopes, gs, gs_slopes, stages[-1].lift_arrays()))
+        *delay, fpar, _ = delay
+        return (interaction_step, (par, *delay, fpar, sstate, m_in, buf, pos, z, m_conv, x), interaction_simulate,
                 ((0.0,) * z.size, (0.0,) * x.size))
 
     @property

@@ -76,15 +76,16 @@ def observer_step(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, sstate, bu
 
 
 @njit_cached
-def observer_step_interaction(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, xm,
-                              ipar, fpar, Q, xi, P, H, T, work, tab, s):
+def observer_step_interaction(cmu, env, dcl, mpar, d_cmu, d_env, d_pos, fade_par, sstate, m_in, buf, pos, z, m_conv,
+                              xm, ipar, fpar, Q, xi, P, H, T, work, tab, s):
     """:func:`observer_step` for a model of the ``interaction`` structure (its binding's
     arguments, :func:`rtlift.blocks.compiled_interaction.interaction_step`'s): the same filter, on
     Cμ′ and the delivered envelope u the model's Wiener part sees."""
     cmu, env, dcl, flags = _checked_inputs(cmu, env, dcl, s)
-    total, high, _, cmu, env = interaction_sample(cmu, env, mpar, d_cmu, d_env, d_pos, m_in, buf, pos, z, m_conv, xm)
-    return _filter(cmu, env, dcl, flags, total, high, high, 1.0, mpar, buf.shape[0] // 2, z.shape[0] // 2,
-                   ipar, fpar, Q, xi, P, H, T, work, tab, s)
+    total, high, _, cmu, env, corrections = interaction_sample(cmu, env, mpar, d_cmu, d_env, d_pos, fade_par, sstate,
+                                                               m_in, buf, pos, z, m_conv, xm)
+    return _filter(cmu, env, dcl, flags, total, high, high + corrections, direction_gain(mpar, sstate), mpar,
+                   buf.shape[0] // 2, z.shape[0] // 2, ipar, fpar, Q, xi, P, H, T, work, tab, s)
 
 
 @njit_cached(inline="always")
@@ -276,6 +277,15 @@ def observer_touch(mpar, d_cmu, d_env, d_pos, fade_par, sstate, buf, pos, z, xm,
             + _touch(buf) + _touch(pos)
             + _touch(z) + _touch(xm) + _touch(ipar) + _touch(fpar) + _touch(Q) + _touch(xi) + _touch(P)
             + _touch(H) + _touch(T) + _touch(work) + _touch(tab) + _touch(s))
+
+
+@njit_cached
+def observer_touch_interaction(mpar, d_cmu, d_env, d_pos, fade_par, sstate, m_in, buf, pos, z, m_conv, xm, ipar,
+                               fpar, Q, xi, P, H, T, work, tab, s):
+    """:func:`observer_touch` for :func:`observer_step_interaction`'s arguments."""
+    return (observer_touch(mpar, d_cmu, d_env, d_pos, fade_par, sstate, buf, pos, z, xm, ipar, fpar, Q, xi, P, H, T,
+                           work, tab, s)
+            + _touch(m_in) + _touch(m_conv))
 
 
 @njit_cached

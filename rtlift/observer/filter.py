@@ -128,7 +128,8 @@ class Observer:
             raise ObserverError("observer: BLAS wrappers do not update buffers in place")
 
     def _bind_kernel(self) -> tuple:
-        """(compiled step, its arguments after Cμ, Cμ_env, ΔCL), or () for the reference step."""
+        """(compiled step, its arguments after Cμ, Cμ_env, ΔCL, its :meth:`touch`), or () for the
+        reference step."""
         kernel = self.model._bind_kernel()
         if not kernel:
             return ()
@@ -136,19 +137,18 @@ class Observer:
         if kernel[0] is hybrid_step:
             # the model's arguments, its parameters (the first) with the observer's flags on the output
             # stages: a stage's correction counts toward the known part of ẑ unless states of ξ stand for it
-            step = cs.observer_step
-            model_args = (output_flags(kernel[1][0], [not r for r in lay.replaced]), *kernel[1][1:])
-        elif kernel[0] is interaction_step:      # the interaction structure: no output stages compiled
-            step = cs.observer_step_interaction
-            model_args = kernel[1]
+            step, touch = cs.observer_step, cs.observer_touch
+        elif kernel[0] is interaction_step:
+            step, touch = cs.observer_step_interaction, cs.observer_touch_interaction
         else:  # pragma: no cover - every compiled model step is one of the two
             return ()
+        model_args = (output_flags(kernel[1][0], [not r for r in lay.replaced]), *kernel[1][1:])
         ipar, fpar = cs.pack_layout(lay, self.config.R, self.gate, self.config.max_rejections)
         d = lay.dim_x
         tab = np.zeros((max(lay.max_period, 1) if lay.harmonics else 1, max(2 * lay.harmonics, 1)))
         args = (*model_args, ipar, fpar, np.ascontiguousarray(self.kf.Q), self._xi, self._P, self._H,
                 np.zeros((d, d)), np.zeros(2 * d), tab, self._s)
-        return step, args
+        return step, args, touch
 
     @property
     def compiled(self) -> bool:
@@ -160,7 +160,7 @@ class Observer:
         the state is untouched. Returns the seconds taken (≈ 0 for the reference step)."""
         t0 = time.perf_counter()
         if self._kernel:
-            fn, args = self._kernel
+            fn, args, _ = self._kernel
             fn(0.0, 0.0, 0.0, *(a.copy() if isinstance(a, np.ndarray) else a for a in args))
         return time.perf_counter() - t0
 
@@ -169,7 +169,8 @@ class Observer:
         (:func:`.compiled.observer_touch`); a no-op for the reference step. For a loop that
         spins between samples (``link.on_idle``): the step then runs at its tight-loop cost."""
         if self._kernel:
-            cs.observer_touch(*self._kernel[1])
+            _, args, touch = self._kernel
+            touch(*args)
 
     @classmethod
     def from_model(cls, model: HybridModel) -> Observer:
@@ -265,7 +266,7 @@ class Observer:
         kernel = self._kernel
         if not kernel:
             return self.reference_step(cmu, env, dcl)
-        fn, args = kernel
+        fn, args, _ = kernel
         est = self.estimate
         est.dcl, est.model_dcl, est.innovation, est.nis, est.flags, est.bias = fn(
             float(cmu), float(env), math.nan if dcl is None else float(dcl), *args)
