@@ -39,6 +39,8 @@ RUNS: dict[str, tuple[str, ...]] = {
     "independent_plant": ("independent_plant",),
     "independent_plant_composed": ("independent_plant", "--cases", "--mixes", "--scaled"),
     "independent_plant_field": ("independent_plant", "--field"),
+    "independent_plant_trains": ("independent_plant", "--trains"),
+    "independent_plant_trains_field": ("independent_plant", "--trains", "--field"),
     "effects_table": ("effects_table",),
     "paper_table": ("paper_table", "docs/figures/paper_protocol.png"),
     "step_latency": ("step_latency",),

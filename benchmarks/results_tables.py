@@ -253,6 +253,16 @@ def render_speed(step: dict, live: dict, load: dict, ident: dict, soak: dict, ca
          f"{step['stream_seconds']:.2f} s), {step['batch_speedup_vs_reference']:.0f}× against `reference_step`: "
          "`simulate` is one fused numba loop (the convolution scattering each non-zero burst sample, the SOS "
          "high-pass, the LTI and the map, states on the stack)", target("≥ 100×", step["batch_speedup"] >= 100)],
+        *[[f"the same for the interaction structure (issue 31; {what}): step median / p99, and the batch against "
+           "its pure-Python step",
+           f"{us(part['step_median_us'], part['step_p99_us'], 2)} (Python step "
+           f"{part['reference_step_median_us']:.1f} µs); batch {part['batch_speedup_vs_reference']:.0f}× the Python "
+           f"step, batch − streamed step {part['max_abs_difference']:.1e}",
+           target("median ≤ 2 µs, ≥ 100×", part["step_median_us"] <= 2 and part["batch_speedup_vs_reference"] >= 100)]
+          for key, what in (("interaction", "order 3, a 2-sample delay"),
+                            ("interaction_augmented", "the same with a fade, a drift, a resonance and a "
+                             "lift-driven hysteresis, as the diagnosis adds them"))
+          if (part := step.get(key))],
         [f"observer step in a tight loop, median / p99 ({live['state_dim']} states; compiled, same run as the "
          "live loop)",
          f"{us(live['observer_step_tight_median_us'], live['observer_step_tight_p99_us'])} (reference step "
@@ -320,6 +330,8 @@ SECTIONS: tuple[Section, ...] = (
     Section("independent_plant", ("independent_plant",), render_independent_plant),
     Section("independent_plant_field", ("independent_plant_field",), render_independent_plant_field),
     Section("independent_plant_composed", ("independent_plant_composed",), render_independent_plant_composed),
+    Section("independent_plant_trains", ("independent_plant_trains",), render_independent_plant_field),
+    Section("independent_plant_trains_field", ("independent_plant_trains_field",), render_independent_plant_field),
     Section("effects_table", ("effects_table",), render_effects_table),
     Section("realdata", ("realdata",), render_realdata),
     Section("speed", ("step_latency", "observer_loop_spin", "observer_loop_load", "identify_speed", "soak",
