@@ -92,6 +92,15 @@ def _delivered(env, gate, power, inv_chord, grid, gain, slopes):
 
 
 @njit_cached(inline="always")
+def _burst_terms(knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes, m, u, c, hf):
+    """The burst part's three terms, G_H(m) HF(c), G(m) (c − HF(c)) and S(u) u: ΔCL_H is their
+    sum in this order (the Python step's, :meth:`~rtlift.blocks.interaction.InteractionConvolution.step`),
+    the last two its slow term."""
+    return (_table(knots, gh, gh_slopes, m, False) * hf, _table(knots, g, g_slopes, m, False) * (c - hf),
+            _table(knots, gs, gs_slopes, u, False) * u)
+
+
+@njit_cached(inline="always")
 def _momentum(lam, b, inv_d, m, cmu):
     """``m(k) = (1 − λ) Cμ(k)/d + λ m(k−1)`` (:class:`~rtlift.blocks.delivered.DeliveredMomentum`'s order)."""
     return b * (cmu * inv_d) + lam * m
@@ -147,8 +156,9 @@ def interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, m_in, b
     mc = _momentum(par[o + 3], par[o + 4], par[o + 5], m_conv[0], cmu)
     m_conv[0] = mc
     knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes = _gain_tables(par, o + 6)
-    slow = _table(knots, g, g_slopes, mc, False) * (c - hf) + _table(knots, gs, gs_slopes, u, False) * u
-    high = _table(knots, gh, gh_slopes, mc, False) * hf + slow
+    fast, slow_c, slow_u = _burst_terms(knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes, mc, u, c, hf)
+    high = fast + slow_c + slow_u
+    slow = slow_c + slow_u
     ow = 2 + n_taps + 5 * n_sec
     xs, fs, slopes, scratch = _wiener_table(par, ow, n)
     low = _direction_factor(_wiener(par, ow, xs, fs, slopes, scratch, x, u), u, par, sstate, slow)
@@ -202,8 +212,9 @@ def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, f
         mi = _burst_memory(lam_i, b_i, mi, c)
         u = _delivered(env[k], min(1.0, scale_i * mi), power, inv_chord, lgrid, lgain, lslopes)
         mc = _momentum(lam_c, b_c, inv_d_c, mc, c)
-        slow = _table(knots, g, g_slopes, mc, False) * (conv - hf) + _table(knots, gs, gs_slopes, u, False) * u
-        h = _table(knots, gh, gh_slopes, mc, False) * hf + slow
+        fast, slow_c, slow_u = _burst_terms(knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes, mc, u, conv, hf)
+        h = fast + slow_c + slow_u
+        slow = slow_c + slow_u
         lo = _direction_factor(_wiener(par, o_w, grid, values, slopes, scratch, x_local, u), u, par, sstate, slow)
         high[k] = h
         low[k] = lo

@@ -88,8 +88,9 @@ class InteractionConvolution(BlockChain):
         c = self.conv.step(u)
         hf = self.highpass.step(c)
         m = self.momentum.momentum(u)
-        self.slow = self.gain(m) * (c - hf) + self.gain_static(w) * w
-        return self.gain_h(m) * hf + self.slow
+        fast, slow_c, slow_u = self.gain_h(m) * hf, self.gain(m) * (c - hf), self.gain_static(w) * w
+        self.slow = slow_c + slow_u
+        return fast + slow_c + slow_u
 
     def reset(self) -> None:
         super().reset()
@@ -128,10 +129,11 @@ class InteractionConvolution(BlockChain):
         c = self.conv.simulate(u)
         hf = self.highpass.simulate(c)
         m = self.momentum.momentum_batch(u)
-        slow = self.gain.batch(m) * (c - hf) + self.gain_static.batch(w) * w
+        slow_c, slow_u = self.gain.batch(m) * (c - hf), self.gain_static.batch(w) * w
+        slow = slow_c + slow_u
         if slow.size:
             self.slow = float(slow[-1])
-        return self.gain_h.batch(m) * hf + slow, slow
+        return self.gain_h.batch(m) * hf + slow_c + slow_u, slow
 
     def params(self) -> dict[str, Any]:
         """The model file's ``convolution.interaction`` entry."""
