@@ -124,10 +124,12 @@ def test_warm_up_compiles_without_touching_the_state(rng):
     np.testing.assert_array_equal(obs.get_state(), before)
 
 
-def test_touching_the_working_set_between_steps_changes_nothing(rng):
+@pytest.mark.parametrize("structure", ["paper", "interaction"])
+def test_touching_the_working_set_between_steps_changes_nothing(rng, structure):
     """``Observer.touch`` (called while a spinning loop waits) only reads: the same estimates,
-    bit for bit, and the same state as a run without it."""
-    model = make_model(rng)
+    bit for bit, and the same state as a run without it; the interaction structure's step has
+    its own touch (its arguments are not the paper's)."""
+    model = make_model(rng) if structure == "paper" else with_effects(interaction_model(rng), True, (2,), 2)
     cmu, env, z = _inputs(rng, 300)
     plain, touched = Observer(model, CONFIGS["all_states"]), Observer(model.copy(), CONFIGS["all_states"])
     assert touched.compiled
