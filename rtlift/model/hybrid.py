@@ -117,16 +117,16 @@ class HybridModel(BlockChain):
         object.__setattr__(self, "_kernel", kernel)
         return kernel
 
-    def _input_state(self, stages: tuple[InputStage, ...], fade: bool = True) -> tuple[np.ndarray, ...] | None:
+    def _input_state(self, stages: tuple[InputStage, ...]) -> tuple[np.ndarray, ...] | None:
         """The compiled step's input-stage arrays when ``stages`` is at most one ``delay`` followed
-        (with ``fade``) by at most one ``actuator_fade``: the delay's rings and position, then (with
-        ``fade``) the fade's parameters and state (zeros, "no stage", without one); else None."""
+        by at most one ``actuator_fade``: the delay's rings and position, then the fade's
+        parameters and state (zeros, "no stage", without one); else None."""
         rest = list(stages)
         delay: tuple[np.ndarray, ...] = (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
         if rest and type(rest[0]) is Delay:
             delay = rest.pop(0).kernel_arrays()[1]
-        faded: tuple[np.ndarray, ...] = (np.zeros(5), np.zeros(1)) if fade else ()
-        if fade and rest and type(rest[0]) is ActuatorFade:
+        faded: tuple[np.ndarray, ...] = (np.zeros(5), np.zeros(1))
+        if rest and type(rest[0]) is ActuatorFade:
             (fpar,), (fstate,) = rest.pop(0).kernel_arrays()
             faded = (fpar, fstate)
         if rest:
