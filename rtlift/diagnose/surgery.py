@@ -88,9 +88,7 @@ def filter_chain(model: HybridModel) -> Callable[[np.ndarray], np.ndarray]:
 def wiener_parts(model: HybridModel, rec: Record) -> tuple[np.ndarray, np.ndarray]:
     """(Cμ_env after the input stages, y = C x) on a record, from rest."""
     model.reset()
-    cmu, env = rec.cmu, rec.cmu_envelope
-    for s in model.input_stages:
-        cmu, env = s.simulate(cmu, env)
+    _, env = model.inputs_simulate(rec.cmu, rec.cmu_envelope)
     y = model.wiener.lti.simulate(env)
     model.reset()
     return env, y
@@ -103,10 +101,7 @@ def burst_slow(model: HybridModel, rec: Record) -> np.ndarray:
     if type(model.convolution) is not InteractionConvolution:
         return np.zeros(rec.dcl.size)
     model.reset()
-    cmu, env = rec.cmu, rec.cmu_envelope
-    for s in model.input_stages:
-        cmu, env = s.simulate(cmu, env)
-    _, slow = model.convolution.simulate_parts(cmu, env)
+    _, slow = model.convolution.simulate_parts(*model.inputs_simulate(rec.cmu, rec.cmu_envelope))
     model.reset()
     return slow
 

@@ -285,15 +285,19 @@ class HybridModel(BlockChain):
         """:meth:`simulate` as a chain of the blocks' own vectorised ``simulate`` (numpy and
         scipy): the path of the models the compiled step does not cover, and the compiled
         batch's second judge."""
-        cmu = np.asarray(cmu, dtype=float)
-        env = np.asarray(cmu_envelope, dtype=float)
-        for s in self.input_stages:
-            cmu, env = s.simulate(cmu, env)
-        high, low = self.parts_simulate(cmu, env)
+        high, low = self.parts_simulate(*self.inputs_simulate(cmu, cmu_envelope))
         total = high + low
         for s in self.output_stages:
             total = s.simulate(total)
         return HybridOutput(total, high, low)
+
+    def inputs_simulate(self, cmu: np.ndarray, cmu_envelope: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(Cμ′, Cμ_env′): the inputs after the input stages (their batch twins), advancing their state."""
+        cmu = np.asarray(cmu, dtype=float)
+        env = np.asarray(cmu_envelope, dtype=float)
+        for s in self.input_stages:
+            cmu, env = s.simulate(cmu, env)
+        return cmu, env
 
     def copy(self) -> HybridModel:
         """An independent copy at rest: the same parameters, stages and settings, state arrays

@@ -31,9 +31,7 @@ def _open_loop(model: HybridModel, rec: Record) -> dict[str, np.ndarray]:
     """Per sample, by the model's own batch twins from rest: ``u`` = Cμ_env′ (after the input
     stages), the Wiener gain N(u) (``gain``, input-gain form only) and the open-loop model."""
     m = model.copy()
-    cmu, env = rec.cmu, rec.cmu_envelope
-    for s in m.input_stages:
-        cmu, env = s.simulate(cmu, env)
+    cmu, env = m.inputs_simulate(rec.cmu, rec.cmu_envelope)
     total = sum(m.parts_simulate(cmu, env))
     for s in m.output_stages:
         total = s.simulate(total)
