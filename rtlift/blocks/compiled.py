@@ -36,7 +36,7 @@ from numba import carray, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from rtlift.blocks.compiled_stages import _delayed, _direction_factor, _faded, _output_chain
+from rtlift.blocks.compiled_stages import _delayed, _direction_factor, _faded, _output_chain, _staged_inputs
 from rtlift.core.jit import njit_cached
 
 _COUNT_MAX = 128
@@ -69,7 +69,12 @@ def _segment(xs, v):
 @njit_cached(inline="always")
 def _table(xs, fs, slopes, v, extrapolate):
     """The piecewise-linear table of :class:`rtlift.blocks.wiener._Table` (bisect_right search)."""
-    j = _segment(xs, v)
+    return _table_at(xs, fs, slopes, v, extrapolate, _segment(xs, v))
+
+
+@njit_cached(inline="always")
+def _table_at(xs, fs, slopes, v, extrapolate, j):
+    """:func:`_table` in segment ``j`` (``_segment(xs, v)``, found once for tables on one grid)."""
     last = xs.shape[0] - 1
     if j < 0:
         if extrapolate:
@@ -259,9 +264,7 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, 
     grid, values, slopes, _ = _wiener_table(par, n_taps + o_wiener, n_x)
     _scatter_past(buf, pos[0], taps, high, n)
     if d_cmu.shape[0] > 0 or fpar[0] != 0.0:  # the staged inputs, in place of the outputs
-        for k in range(n):
-            c, e = _delayed(cmu[k], env[k], d_cmu, d_env, d_pos)
-            total[k], low[k] = _faded(c, e, fpar, sstate)
+        _staged_inputs(cmu, env, total, low, d_cmu, d_env, d_pos, fpar, sstate)
         cmu, env = total, low
     last = n - n_taps
     for k in range(n):

@@ -58,6 +58,39 @@ def _faded(cmu, env, fpar, fstate):
     return cmu * g, env * g
 
 
+@njit_cached(inline="always")
+def _staged_inputs(cmu, env, out_cmu, out_env, d_cmu, d_env, d_pos, fpar, fstate):
+    """:func:`_delayed` then :func:`_faded` over whole arrays, into ``out_cmu``/``out_env``
+    (the batch's input stages; ``out_*`` not the inputs), leaving the rings, their position and
+    the fade's clock as the same samples streamed would. The delay is copies, not a loop
+    through the ring: out(k) = ring((p + k) mod D) for k < D, in(k − D) after; the last D
+    inputs go to their slots (p + k) mod D (through the ring sample by sample, each store made
+    the next sample's position and ring be loaded again: ≈ 25 ns a sample on the benchmark
+    record, more than the rest of the paper's structure)."""
+    n = cmu.shape[0]
+    n_delay = d_cmu.shape[0]
+    if n_delay == 0:
+        out_cmu[:] = cmu
+        out_env[:] = env
+    else:
+        p = d_pos[0]
+        head = min(n, n_delay)
+        for k in range(head):
+            i = (p + k) % n_delay
+            out_cmu[k] = d_cmu[i]
+            out_env[k] = d_env[i]
+        out_cmu[head:] = cmu[:n - head]
+        out_env[head:] = env[:n - head]
+        for k in range(n - head, n):
+            i = (p + k) % n_delay
+            d_cmu[i] = cmu[k]
+            d_env[i] = env[k]
+        d_pos[0] = (p + n) % n_delay
+    if fpar[0] != 0.0:
+        for k in range(n):
+            out_cmu[k], out_env[k] = _faded(out_cmu[k], out_env[k], fpar, fstate)
+
+
 HYSTERESIS = 9
 """The hysteresis factor's parameters [on, m, g, w, λ, driver is "lift"] end this many floats
 before the end of the packed array (then n_max, the stage count, the tail's length)."""

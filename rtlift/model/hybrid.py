@@ -175,19 +175,20 @@ class HybridModel(BlockChain):
         delay = self._input_state(stages[:-1])
         if delay is None:
             return ()
-        from rtlift.blocks.compiled import pack_parameters
+        from rtlift.blocks.compiled import pack_parameters, state_slots
         from rtlift.blocks.compiled_interaction import interaction_simulate, interaction_step, pack_interaction
 
         m_par, (m_in,) = stages[-1].kernel_arrays()
         (taps, coef, m_conv_par, knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes), (buf, pos, z, m_conv) = \
             self.convolution.kernel_arrays()
         (A, B, C, form, xs, fs, slopes), (x,) = wiener
-        par, sstate = self._with_stages(pack_interaction(
-            pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes), m_par, m_conv_par, knots, gh, gh_slopes, g,
-            g_slopes, gs, gs_slopes, stages[-1].lift_arrays()))
+        base = pack_parameters(taps, coef, A, B, C, form, xs, fs, slopes)
+        own = pack_interaction(base, m_par, m_conv_par, knots, gh, gh_slopes, g, g_slopes, gs, gs_slopes,
+                               stages[-1].lift_arrays())
+        par, sstate = self._with_stages(own)
         *delay, fpar, _ = delay
         return (interaction_step, (par, *delay, fpar, sstate, m_in, buf, pos, z, m_conv, x), interaction_simulate,
-                ((0.0,) * z.size, (0.0,) * x.size))
+                (*state_slots(z, x), (0.0,) * (own.size - base.size)))
 
     @property
     def compiled(self) -> bool:
