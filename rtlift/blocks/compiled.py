@@ -226,6 +226,20 @@ def state_slots(z: np.ndarray, x: np.ndarray) -> tuple[tuple[float, ...], ...]:
     return (0.0,) * z.size, (0.0,) * x.size, (0.0,) * (2 + 5 * (z.size // 2) + x.size * (x.size + 2))
 
 
+@njit_cached(inline="always")
+def _recursions_on_stack(par, n_taps, p_slots):
+    """A stack copy of the recursions' parameters, ``par`` without φh and the table: [form,
+    table length, SOS rows, A, B, C] (``p_slots`` long, :func:`state_slots`). The batches read
+    them from it in their loops (:func:`hybrid_simulate`'s docstring); inlined, so the buffer
+    lives in the caller's frame."""
+    n_p = len(p_slots)
+    rec = carray(_stack_buffer(p_slots), (n_p,))
+    rec[0] = par[0]
+    rec[1] = par[1]
+    rec[2:] = par[2 + n_taps:n_taps + n_p]
+    return rec
+
+
 @njit_cached
 def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, sstate, buf, pos, z, x, z_slots,
                     x_slots, p_slots):
@@ -253,11 +267,7 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, 
     scratch = carray(_stack_buffer(x_slots), (n_x,))
     z_local[:] = z
     x_local[:] = x
-    n_p = len(p_slots)
-    rec = carray(_stack_buffer(p_slots), (n_p,))   # par without φh and the table: [form, n, SOS, A, B, C]
-    rec[0] = par[0]
-    rec[1] = par[1]
-    rec[2:] = par[2 + n_taps:n_taps + n_p]
+    rec = _recursions_on_stack(par, n_taps, p_slots)
     taps = par[2:2 + n_taps]
     o_hp = 2
     o_wiener = o_hp + 5 * (n_z // 2)

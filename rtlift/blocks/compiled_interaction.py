@@ -22,6 +22,7 @@ from numba import carray
 from rtlift.blocks.compiled import (
     _highpass,
     _push,
+    _recursions_on_stack,
     _scatter_past,
     _segment,
     _stack_buffer,
@@ -190,11 +191,7 @@ def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, f
     scratch = carray(_stack_buffer(x_slots), (n_x,))
     z_local[:] = z
     x_local[:] = x
-    n_p = len(p_slots)
-    rec = carray(_stack_buffer(p_slots), (n_p,))   # as in hybrid_simulate: [form, n, SOS, A, B, C]
-    rec[0] = par[0]
-    rec[1] = par[1]
-    rec[2:] = par[2 + n_taps:n_taps + n_p]
+    rec = _recursions_on_stack(par, n_taps, p_slots)
     taps = par[2:2 + n_taps]
     o_hp = 2
     o_w = o_hp + 5 * (n_z // 2)
