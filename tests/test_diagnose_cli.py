@@ -102,7 +102,9 @@ def test_a_lift_and_a_generic_report_have_the_same_keys_written_by_one_writer(fi
     assert list(a) == list(b)
     assert set(a["selection"]) == set(b["selection"]) == {"rule", "pool", "chosen", "combinations"}
     rows = [*a["selection"]["combinations"], *b["selection"]["combinations"]]
-    assert rows and all(set(c) == {"members", "parameters", "validation_rmse", "admissible", "why"} for c in rows)
+    assert rows and all(set(c) == {"members", "parameters", "validation_rmse", "level_free_rmse", "admissible", "why"}
+                        for c in rows)
+    assert all(c["level_free_rmse"] <= c["validation_rmse"] for c in rows)
     assert [c["members"] for c in b["selection"]["combinations"]] == [[n] for n in b["selection"]["pool"]]
     assert b["selection"]["pool"] == ["output_dynamics", "nonlinear_feedback", "saturation"]
     assert b["selection"]["chosen"] == [e["name"] for e in b["effects"] if e["accepted"]]
@@ -113,7 +115,7 @@ def test_a_lift_and_a_generic_report_have_the_same_keys_written_by_one_writer(fi
             assert set(scores) == {"corr", "nrmse", "rmse"}
     for d in (lift, gen):
         md = (d / "report.md").read_text()
-        assert "## Residual tests on" in md and "## Competing explanations" in md
+        assert "## Residual tests on" in md and "## Competing explanations" in md and "| level-free |" in md
         for fig in ("residual_time", "residual_spectrum", "residual_autocorr"):
             assert (d / "figures" / f"{fig}.png").stat().st_size > 1000 and f"figures/{fig}.png" in md
         assert set(json.loads((d / "residual_tests.json").read_text())) >= {"before", "after", "combinations"}

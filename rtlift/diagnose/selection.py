@@ -74,7 +74,7 @@ from rtlift.core.records import Record
 from rtlift.core.threads import one_blas_thread
 from rtlift.diagnose.catalog import CATALOG, EFFECT_NAMES, EFFECTS, Context, Fitted, predict, reestimate
 from rtlift.diagnose.diagnosis import REPORT_VERSION, DiagnoseOptions, Diagnosis, Trial
-from rtlift.diagnose.significance import combination, significant_gain
+from rtlift.diagnose.significance import combination, level_free_rmse, pooled_rmse, significant_gain
 from rtlift.diagnose.unexplained import unexplained
 from rtlift.model.hybrid import HybridModel
 from rtlift.residual.fingerprint import (
@@ -101,15 +101,8 @@ class _Judge:
     def errors(self, model: HybridModel) -> list[np.ndarray]:
         return [(r.dcl - predict(model, r).total)[k:] for r, k in zip(self.records, self.score_from, strict=True)]
 
-    @staticmethod
-    def pooled(errs: list[np.ndarray]) -> float:
-        return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
-
-    @staticmethod
-    def level_free(errs: list[np.ndarray]) -> float:
-        """The pooled RMSE with each record's own mean error taken out: what the choice between
-        admissible combinations compares (module docstring, 4)."""
-        return float(np.sqrt(np.mean(np.concatenate([e - np.mean(e) for e in errs]) ** 2)))
+    pooled = staticmethod(pooled_rmse)
+    level_free = staticmethod(level_free_rmse)
 
     def encompassing(self, node: _Node, rivals: list[_Node], search: _Search) -> float:
         """How well ``node`` holds against each rival that is not nested in it or around it
@@ -317,20 +310,20 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
             if not _compatible(combo):
                 continue
             node = search.node(combo)
-            rmse, count = judge.pooled(node.errors), node.n_params if not node.failed else None
+            count = node.n_params if not node.failed else None
             if node.failed:
-                row = combination(combo, rmse, count, False, f"not fitted: {node.failed}")
+                row = combination(combo, node.errors, count, False, f"not fitted: {node.failed}")
             elif node.on_bound:
-                row = combination(combo, rmse, count, False, f"on a bound: {node.on_bound}")
+                row = combination(combo, node.errors, count, False, f"on a bound: {node.on_bound}")
             else:
                 weak = [(m, search.earns(node, m, opt)) for m in combo]
                 lacking = [f"{m} ({why})" for m, (ok, why) in weak if not ok]
-                row = combination(combo, rmse, count, not lacking,
+                row = combination(combo, node.errors, count, not lacking,
                                   "every member lowers the error significantly" if not lacking else
                                   "does not earn its place: " + "; ".join(lacking))
                 if not lacking:
                     admissible_nodes.append(node)
-            table.append({**row, "level_free_rmse": judge.level_free(node.errors)})
+            table.append(row)
     lowest = min(judge.level_free(n.errors) for n in admissible_nodes)
     near = [n for n in admissible_nodes if judge.level_free(n.errors) <= lowest * (1 + opt.parsimony)]
 

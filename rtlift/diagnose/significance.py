@@ -2,8 +2,9 @@
 pass (:func:`significant_gain`: the relative RMSE gain, a Diebold–Mariano t over 1 s blocks, no
 record worse, ρ not lower; :mod:`rtlift.diagnose.selection`'s module docstring, step 4), and the
 rows of the report's table of the combinations compared (:func:`combination`,
-:func:`lowest_admissible`); the lift diagnosis and the generic one (:mod:`rtlift.sysid.diagnose`)
-share both.
+:func:`lowest_admissible`), with the two errors a row carries (:func:`pooled_rmse`,
+:func:`level_free_rmse`); the lift diagnosis and the generic one (:mod:`rtlift.sysid.diagnose`)
+share them.
 """
 
 from __future__ import annotations
@@ -16,14 +17,24 @@ from rtlift.core.metrics import scores
 from rtlift.diagnose.diagnosis import DiagnoseOptions
 
 
+def pooled_rmse(errs: list[np.ndarray]) -> float:
+    """The RMSE of the validation records' errors pooled."""
+    return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
+
+
+def level_free_rmse(errs: list[np.ndarray]) -> float:
+    """The pooled RMSE with each record's own mean error taken out: what the lift diagnosis's
+    choice between admissible combinations compares (:mod:`rtlift.diagnose.selection`, step 4)."""
+    return pooled_rmse([e - np.mean(e) for e in errs])
+
+
 def significant_gain(before: list[np.ndarray], after: list[np.ndarray], measured: np.ndarray, block: int,
                      opt: DiagnoseOptions) -> tuple[bool, str]:
     """Errors ``after`` against ``before`` per record (``measured`` the records' outputs, pooled):
     relative RMSE gain ≥ ``opt.min_gain``, a Diebold–Mariano t ≥ ``opt.min_t`` over ``block``-sample
     blocks of the squared-error differences, no record worse by more than 1 %, and ρ not lower by
     more than 0.005 (a change that shrinks the signal can lower RMSE while the fit gets worse)."""
-    pooled = lambda errs: float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))   # noqa: E731
-    rb, ra = pooled(before), pooled(after)
+    rb, ra = pooled_rmse(before), pooled_rmse(after)
     gain = 1.0 - ra / rb if rb > 0 else 0.0
     diffs = []
     for b, a in zip(before, after, strict=True):
@@ -41,12 +52,14 @@ def significant_gain(before: list[np.ndarray], after: list[np.ndarray], measured
     return ok, why
 
 
-def combination(members: tuple[str, ...] | list[str], validation_rmse: float, parameters: int | None,
+def combination(members: tuple[str, ...] | list[str], errors: list[np.ndarray], parameters: int | None,
                 admissible: bool, why: str) -> dict[str, Any]:
     """One row of the report's ``selection.combinations``: the members, their pooled validation
-    RMSE, the parameters they spend (``None``: not counted — a failed fit, a generic structure),
-    whether the row may be chosen and why."""
-    return {"members": list(members), "validation_rmse": validation_rmse, "parameters": parameters,
+    RMSE and its level-free twin (from their ``errors`` on the validation records), the parameters
+    they spend (``None``: not counted — a failed fit, a generic structure), whether the row may be
+    chosen and why."""
+    return {"members": list(members), "validation_rmse": pooled_rmse(errors),
+            "level_free_rmse": level_free_rmse(errors), "parameters": parameters,
             "admissible": admissible, "why": why}
 
 

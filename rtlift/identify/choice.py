@@ -15,7 +15,8 @@
 
 The diagnosis on it (issue 31, ``docs/results/bursts.md``): ``rtlift diagnose`` gets all 8 of the
 independent plant's development cases right with the interaction model identified from the full
-campaign, as with the hybrid, and 8 of 8 in the user's form (the hybrid 7). A ``hysteresis``
+campaign, as with the hybrid, and 8 of 8 in the user's form (as the hybrid since the diagnosis compares
+competing explanations on the level-free validation error). A ``hysteresis``
 factor on this structure is driven by the flow's whole slow lift, the Wiener part plus the burst
 part's slow term (:class:`rtlift.blocks.wiener._DirectionMemory`'s ``offset``).
 """

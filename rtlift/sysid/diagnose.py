@@ -52,7 +52,7 @@ from rtlift.core.records import SisoRecord
 from rtlift.core.registry import STRUCTURES
 from rtlift.core.threads import one_blas_thread
 from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial
-from rtlift.diagnose.significance import combination, lowest_admissible, significant_gain
+from rtlift.diagnose.significance import combination, lowest_admissible, pooled_rmse, significant_gain
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import TestResult, higher_order, input_crosscorr, whiteness
 from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions
@@ -180,7 +180,7 @@ def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRec
     # correlation time is the system's, unknown here; a lift record's 1 s blocks are 400 samples)
     block = max(50, sum(len(r) - k for r, k in zip(validate, vskip, strict=True)) // 40)
     before = [(r.y - outputs[r.name])[k:] for r, k in zip(validate, vskip, strict=True)]
-    rb = float(np.sqrt(np.mean(np.concatenate(before) ** 2)))
+    rb = pooled_rmse(before)
     trials: list[Trial] = []
     rows: list[dict[str, Any]] = []
     models: dict[str, SisoModel] = {}
@@ -197,8 +197,8 @@ def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRec
             candidate = models[name] = fit()
             after = [(r.y - predict(candidate, r, init(r.name)))[k:] for r, k in zip(validate, vskip, strict=True)]
             ok, why = significant_gain(before, after, measured, block, DiagnoseOptions())
-            ra = float(np.sqrt(np.mean(np.concatenate(after) ** 2)))
-            rows.append(combination((name,), ra, None, ok, why))
+            ra = pooled_rmse(after)
+            rows.append(combination((name,), after, None, ok, why))
             trials.append(Trial(name, False, _structure_params(candidate),
                                 f"{clip_evidence}; {HOW[name]} (best form: {candidate.structure}, "
                                 f"limit on the {candidate.limits()['where']}); {why}"
