@@ -137,10 +137,10 @@ def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
               f"chosen: {', '.join(sel['chosen']) or 'nothing'}.", "",
               "| combination | parameters | validation RMSE | level-free | admissible | why |",
               "|---|---|---|---|---|---|"]
-    for c in sorted(sel["combinations"], key=lambda c: c.get("level_free_rmse", c["validation_rmse"])):
+    for c in sorted(sel["combinations"], key=lambda c: c["level_free_rmse"]):
         count = c["parameters"] if c["parameters"] is not None or lift else "–"   # a structure's: not counted
-        free = f"{c['level_free_rmse']:{num}}" if "level_free_rmse" in c else "–"
-        lines.append(f"| {' + '.join(c['members'])} | {count} | {c['validation_rmse']:{num}} | {free} | "
+        lines.append(f"| {' + '.join(c['members'])} | {count} | {c['validation_rmse']:{num}} | "
+                     f"{c['level_free_rmse']:{num}} | "
                      f"{'yes' if c['admissible'] else 'no'} | {c['why']} |")
     lines += ["", "Evidence:", ""] + [f"- **{e['name']}** ({ENTRIES[e['name']].schema.meaning}): {e['evidence']}"
                                       for e in r["effects"]]
