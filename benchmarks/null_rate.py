@@ -297,9 +297,11 @@ def plan(seeds: int, first: int, types: list[str], twins: int, independent: Path
     return jobs
 
 
-def summarize(runs: list[dict], planned: int | None, seconds: float) -> None:
+def summarize(runs: list[dict], planned: int | None, seconds: float, failed: list[dict] | None = None) -> None:
     """The totals, per-group counts with each group's own upper bound, and the last-line JSON
-    (``planned`` None: runs pooled from several plans' files)."""
+    (``planned`` None: runs pooled from several plans' files). ``failed``: runs that raised
+    (a bench that could not be run, not a diagnosis): listed, not counted among the diagnoses."""
+    failed = failed or []
     n = len(runs)
     false = sum(len(r["effects"]) for r in runs)
     hit = sum(bool(r["effects"]) for r in runs)
@@ -316,7 +318,8 @@ def summarize(runs: list[dict], planned: int | None, seconds: float) -> None:
             b["structure"] += len(r["structure"])
     for b in by.values():
         b["upper_95"] = clopper_pearson(b["runs_with_false_effect"], b["runs"])[1]
-    how = "pooled from several files" if planned is None else f"{planned - n} planned runs not run"
+    how = ("pooled from several files" if planned is None
+           else f"{planned - n - len(failed)} planned runs not run, {len(failed)} failed")
     print(f"\n{n} clean diagnoses ({how}): {hit} with an accepted effect "
           f"({false} false effects in all, {false / max(n, 1):.2%} per diagnosis; two-sided 95 % Clopper-Pearson "
           f"interval on the share of diagnoses with one: {lo:.2%} to {hi:.2%}); "
@@ -333,7 +336,7 @@ def summarize(runs: list[dict], planned: int | None, seconds: float) -> None:
                       "false_effect_rate": false / n if n else None, "upper_95": hi, "lower_95": lo,
                       "interval": "two-sided 95 % Clopper-Pearson on runs_with_false_effect / clean_runs",
                       "planned_runs": planned, "twins_same": sum(t["same"] for t in twins), "twins": len(twins),
-                      "by": by, "seconds": round(seconds, 1)}))
+                      "by": by, "failed_runs": failed, "seconds": round(seconds, 1)}))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -385,19 +388,28 @@ def main(argv: list[str] | None = None) -> int:
     if args.model_cache and args.independent:
         _model(str(IP_DATA), args.model_cache, args.trains)
     runs: list[dict] = []
+    failed: list[dict] = []
     sink = open(args.jsonl, "a") if args.jsonl else None
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        pending = set()
+        pending: dict = {}
         queue = list(jobs)
         while queue or pending:
             while queue and len(pending) < args.workers and \
                     (args.budget is None or time.perf_counter() - t0 < args.budget):
-                pending.add(pool.submit(_run, queue.pop(0), args.model_cache))
+                job = queue.pop(0)
+                pending[pool.submit(_run, job, args.model_cache)] = job
             if not pending:
                 break
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for f in done:
-                r = f.result()
+                job = pending.pop(f)
+                try:
+                    r = f.result()
+                except Exception as exc:  # noqa: BLE001 - one failed run is reported, the others go on
+                    failed.append({**job, "error": f"{type(exc).__name__}: {exc}"[-400:]})
+                    print(f"{job['plant']:<11} {str(job['seed']):<22} {job['train']:<10} {job['naming']:<7} "
+                          f"FAILED: {failed[-1]['error']}", flush=True)
+                    continue
                 runs.append(r)
                 tw = r.get("twin")
                 print(f"{r['plant']:<11} {str(r['seed']):<22} {r['train']:<10} {r['naming']:<7} "
@@ -409,8 +421,8 @@ def main(argv: list[str] | None = None) -> int:
                     sink.flush()
     if sink:
         sink.close()
-    summarize(runs, len(jobs), time.perf_counter() - t0)
-    return 0
+    summarize(runs, len(jobs), time.perf_counter() - t0, failed)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -205,7 +205,7 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
         loop = ObserverLoop(observer, converter, link.seq_modulus, fs_hz=fs_hz, max_samples=n, time_steps=True,
                             tap=tap)
         t0, c0 = time.perf_counter(), time.process_time()
-        loop.run(stream, host_timeout_s=n / fs_hz + 10.0)
+        loop.run(stream, silence_s=10.0)
         r = runs[condition]
         r["wall"] += time.perf_counter() - t0
         r["cpu"] += time.process_time() - c0

@@ -111,6 +111,34 @@ def test_device_disappears_mid_run_and_reappears(tmp_path, record_property):
                                 f"summary; after replug: exit {code2}, received {s2['received']}, lost 0")
 
 
+def test_a_slow_device_is_waited_for_and_a_silent_one_ends_the_run(tmp_path, record_property):
+    """A device that streams at a fifth of its rate (its clock still says 400 Hz: the simulated
+    bench on a loaded machine) is waited for until ``--seconds`` of its samples are in, though
+    that takes twice the wall time a limit of ``--seconds`` + 5 s would allow. One that stops
+    streaming but keeps its port open ends the run 5 s later: exit 1, one line, the summary
+    holds what came."""
+    n = 2 * int(FS_HZ)
+    slow = SerialDaq(synthetic_stream(3), fs_hz=FS_HZ / 5, period_us=int(round(1e6 / FS_HZ)), max_samples=n)
+    summary = tmp_path / "summary.json"
+    with slow:
+        code, err = observe(slow, ["--serial", slow.path], tmp_path, "--seconds", "2", "--json", str(summary),
+                            timeout=60.0)
+    s = json.loads(summary.read_text())
+    assert code == 0 and s["end"] == "completed" and s["received"] == n and s["lost"] == 0, err
+    assert s["host_seconds"] > 2 + 5.0, s["host_seconds"]
+
+    stops = SerialDaq(synthetic_stream(4), max_samples=int(FS_HZ))
+    with stops:
+        code2, err2 = observe(stops, ["--serial", stops.path], tmp_path, "--seconds", "4", "--json", str(summary))
+    s2 = json.loads(summary.read_text())
+    assert code2 == 1 and not any("Traceback" in line for line in err2), err2
+    assert err2[-1] == "rtlift observe: the device fell silent before --seconds were done"
+    assert s2["end"] == "timeout" and s2["received"] == int(FS_HZ) and 1 + 5.0 < s2["host_seconds"] < 1 + 5.0 + 3.0
+    record_property("measured", f"slow device: {s['received']} samples in {s['host_seconds']:.1f} s, completed; "
+                                f"silent after 1 s: exit {code2} after {s2['host_seconds']:.1f} s, "
+                                f"received {s2['received']}")
+
+
 @pytest.mark.parametrize("kind", ["serial", "slcan"])
 def test_full_disk_for_the_log(tmp_path, kind, record_property):
     """The log's disk is full (/dev/full): the run stops with exit 2 and one line saying so,

@@ -66,3 +66,18 @@ def test_summary_bounds_each_training_type_on_its_own(capsys):
     cl, rnd = out["by"]["bench:closed_loop"], out["by"]["bench:random"]
     assert cl["runs"] == 30 and cl["upper_95"] == pytest.approx(1 - 0.025 ** (1 / 30))   # 11.6 %
     assert rnd["runs_with_false_effect"] == 1 and rnd["upper_95"] == pytest.approx(clopper_pearson(1, 20)[1])
+
+
+def test_a_failed_run_is_listed_and_not_counted_as_a_diagnosis(capsys):
+    import json
+
+    from benchmarks.null_rate import summarize
+
+    runs = [{"plant": "bench", "train": "random", "naming": "named", "effects": [], "structure": []}] * 3
+    failed = [{"plant": "bench", "seed": 7, "train": "closed_loop", "naming": "named",
+               "error": "RuntimeError: rtlift control exited 1"}]
+    summarize(runs, 5, 0.0, failed)
+    lines = capsys.readouterr().out.strip().splitlines()
+    out = json.loads(lines[-1])
+    assert out["clean_runs"] == 3 and out["planned_runs"] == 5 and out["failed_runs"] == failed
+    assert "1 planned runs not run, 1 failed" in "\n".join(lines)

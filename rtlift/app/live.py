@@ -196,26 +196,45 @@ class ObserverLoop:
             self._index += missed
         self._last_seq = None
 
-    def run(self, samples: Iterable[Sample | None], *, host_timeout_s: float | None = None,
+    def run(self, samples: Iterable[Sample | None], *, silence_s: float | None = None,
             seconds_down: Callable[[], float] | None = None) -> str:
-        """Consume samples until the source ends (``"ended"``), ``max_samples`` device samples
-        are done (``"completed"``) or ``host_timeout_s`` of host time passed (``"timeout"``),
-        not counting the time the device was gone while the link reconnected (``seconds_down``,
-        e.g. ``link.seconds_down``); ``None`` items (silence) only give the loop a chance to
-        check its time limit."""
-        start = time.perf_counter()
-        for sample in samples:
-            if sample is not None:
-                self.feed(sample)
-                if self.done:
-                    self.stats.end = "completed"
-                    return self.stats.end
-            if host_timeout_s is not None and (time.perf_counter() - start
-                                               - (seconds_down() if seconds_down else 0.0)) > host_timeout_s:
-                self.stats.end = "timeout"
-                return self.stats.end
-        self.stats.end = "ended"
+        """Consume samples until ``max_samples`` device samples are done (``"completed"``), the
+        source ends (``"ended"``) or the device fell silent (``"timeout"``, :func:`drive`)."""
+        self.stats.end = drive(samples, self.feed, lambda: self.done, silence_s=silence_s,
+                               seconds_down=seconds_down)
         return self.stats.end
+
+
+SILENCE_S = 5.0
+"""Host seconds without a sample, the link up, after which a live run with an end gives up."""
+
+
+def drive(samples: Iterable[Any], feed: Callable[[Any], None], is_done: Callable[[], bool], *,
+          silence_s: float | None = None, seconds_down: Callable[[], float] | None = None) -> str:
+    """Feed ``samples`` until ``is_done()`` (``"completed"``), the source ends (``"ended"``) or,
+    with ``silence_s``, no sample came for that many host seconds (``"timeout"``: the device fell
+    silent). Time the device was gone while the link reconnected (``seconds_down``, e.g.
+    ``link.seconds_down``) does not count. ``None`` items (a timed source's silence) only give
+    the check its chance: silence counts from the first one, so a run gives up ``silence_s``
+    plus the source's own timeout after its last sample. A device that streams behind its rate
+    (the simulated bench on a loaded machine) is waited for: a limit on the run's total time
+    would end it as "silent" while its samples still arrive."""
+    silent_since = None
+    down_then = 0.0
+    for sample in samples:
+        if sample is not None:
+            silent_since = None
+            feed(sample)
+            if is_done():
+                return "completed"
+        elif silence_s is not None:
+            now = time.perf_counter()
+            down = seconds_down() if seconds_down else 0.0
+            if silent_since is None:
+                silent_since, down_then = now, down
+            elif now - silent_since - (down - down_then) > silence_s:
+                return "timeout"
+    return "ended"
 
 
 def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,

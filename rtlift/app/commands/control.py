@@ -42,7 +42,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--model", required=True, metavar="MODEL.json", help="model file with observer settings")
     p.add_argument("--reference", required=True, metavar="SPEC",
                    help="steps:V@T,V@T,... | sine:mean=M,amp=A,hz=F | a CSV file with columns t, dcl_ref")
-    p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of tracking")
+    p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of tracking "
+                   "(a device that sends nothing for 5 s ends the run: exit 1)")
     p.add_argument("--feedback", choices=("on", "off"), default="on",
                    help="PI feedback on the observer's estimate (off: feedforward only)")
     p.add_argument("--kp", type=float, metavar="K",
@@ -64,10 +65,10 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.convert import Converter
     from firmware_io.links import open_link
     from firmware_io.logs import graceful_exit
-    from rtlift.app.closed_loop import SETTLE_S, ControlLoop
+    from rtlift.app.closed_loop import ControlLoop
     from rtlift.app.control import LiftController, gains_text
     from rtlift.app.link_options import link_config_from_args
-    from rtlift.app.live import ObserverLoop, summary, write_summary
+    from rtlift.app.live import SILENCE_S, ObserverLoop, drive, summary, write_summary
     from rtlift.app.reference import parse_reference
     from rtlift.app.view.arguments import start_view
     from rtlift.app.watch import attach
@@ -109,8 +110,9 @@ def run(args: argparse.Namespace) -> int:
         loop.tap = None if view is None else view.tap
         with graceful_exit():
             try:
-                loop.stats.end = _run(closed, link, None if args.seconds is None
-                                      else args.seconds + SETTLE_S + calibration.tare_seconds + 5.0)
+                loop.stats.end = drive(link.samples(0.25), closed.feed, lambda: closed.done,
+                                       silence_s=None if args.seconds is None else SILENCE_S,
+                                       seconds_down=lambda: link.seconds_down)
             except KeyboardInterrupt:
                 loop.stats.end = "interrupted"
                 code = 130
@@ -199,20 +201,6 @@ def _warm_up(observer, controller) -> None:
     observer.reset()
     controller.reset()
 
-
-
-def _run(closed, link, host_timeout_s: float | None) -> str:
-    """Feed the closed loop until done; the host timeout does not count the time the device
-    was gone while the link reconnected."""
-    start = time.perf_counter()
-    for sample in link.samples(0.25):
-        if sample is not None:
-            closed.feed(sample)
-            if closed.done:
-                return "completed"
-        if host_timeout_s is not None and time.perf_counter() - start - link.seconds_down > host_timeout_s:
-            return "timeout"
-    return "ended"
 
 
 def _fmt(v: float | None, spec: str) -> str:

@@ -33,7 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
     p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
     p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
-    p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of device time")
+    p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of device time "
+                   "(a device that sends nothing for 5 s ends the run: exit 1)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters and latency percentiles")
     add_watch_arguments(p)
     p.add_argument("--spin", nargs="?", const=True, default=False, type=_spin_window, metavar="WINDOW_MS",
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.links import open_link
     from firmware_io.logs import graceful_exit
     from rtlift.app.link_options import link_config_from_args
-    from rtlift.app.live import EstimateWriter, ObserverLoop, summary, write_summary
+    from rtlift.app.live import SILENCE_S, EstimateWriter, ObserverLoop, summary, write_summary
     from rtlift.app.view.arguments import start_view
     from rtlift.app.watch import attach
     from rtlift.model.domain import watch_domain
@@ -107,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         with graceful_exit():
             try:
                 end = loop.run(link.samples(0.25),
-                               host_timeout_s=None if args.seconds is None else args.seconds + 5.0,
+                               silence_s=None if args.seconds is None else SILENCE_S,
                                seconds_down=lambda: link.seconds_down)
             except KeyboardInterrupt:
                 loop.stats.end = "interrupted"
