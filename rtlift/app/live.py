@@ -237,6 +237,38 @@ def drive(samples: Iterable[Any], feed: Callable[[Any], None], is_done: Callable
     return "ended"
 
 
+def run_live(tool: str, stats: LoopStats, link: Any, feed: Callable[[Any], None], is_done: Callable[[], bool],
+             received: Callable[[], int], seconds: float | None) -> tuple[int, str | None]:
+    """One live run on an open link, as ``rtlift observe`` and ``rtlift control`` end it:
+    :func:`drive` (the silence limit only with ``seconds``) under
+    :func:`~firmware_io.logs.graceful_exit`; ``stats.end`` set to how it ended. Returns the exit
+    status and the one line for the user (None on a clean end): Ctrl-C 130, SIGTERM/SIGHUP the
+    signal's status, a vanished or silent device 1; any other exception propagates (``"error"``)."""
+    from firmware_io.logs import graceful_exit
+
+    code, message = 0, None
+    with graceful_exit():
+        try:
+            stats.end = drive(link.samples(0.25), feed, is_done, silence_s=None if seconds is None else SILENCE_S,
+                              seconds_down=lambda: link.seconds_down)
+        except KeyboardInterrupt:
+            stats.end, code = "interrupted", 130
+        except SystemExit as exc:
+            stats.end, code = "terminated", exc.code if isinstance(exc.code, int) else 143
+        except Exception:
+            stats.end = "error"
+            raise
+        else:
+            if stats.end == "ended" and link.disconnected:
+                stats.end, code = "disconnected", 1
+                message = f"{tool}: the device disappeared after {received()} samples; summary written"
+            elif stats.end == "timeout" and link.down:
+                code, message = 1, f"{tool}: the device was still gone when --seconds were done; summary written"
+            elif stats.end == "timeout":
+                code, message = 1, f"{tool}: the device fell silent before --seconds were done"
+    return code, message
+
+
 def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,
             **extra: Any) -> dict[str, Any]:
     """SUMMARY.json: the exact link counters, estimates written, latency percentiles, monitors."""

@@ -64,11 +64,10 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
     from firmware_io.links import open_link
-    from firmware_io.logs import graceful_exit
     from rtlift.app.closed_loop import ControlLoop
     from rtlift.app.control import LiftController, gains_text
     from rtlift.app.link_options import link_config_from_args
-    from rtlift.app.live import SILENCE_S, ObserverLoop, drive, summary, write_summary
+    from rtlift.app.live import ObserverLoop, run_live, summary, write_summary
     from rtlift.app.reference import parse_reference
     from rtlift.app.view.arguments import start_view
     from rtlift.app.watch import attach
@@ -108,32 +107,8 @@ def run(args: argparse.Namespace) -> int:
                           lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates,
                                    **(watch.counts() if watch else {})})
         loop.tap = None if view is None else view.tap
-        with graceful_exit():
-            try:
-                loop.stats.end = drive(link.samples(0.25), closed.feed, lambda: closed.done,
-                                       silence_s=None if args.seconds is None else SILENCE_S,
-                                       seconds_down=lambda: link.seconds_down)
-            except KeyboardInterrupt:
-                loop.stats.end = "interrupted"
-                code = 130
-            except SystemExit as exc:
-                loop.stats.end = "terminated"
-                code = exc.code if isinstance(exc.code, int) else 143
-            except Exception:
-                loop.stats.end = "error"
-                raise
-            else:
-                if loop.stats.end == "ended" and link.disconnected:
-                    loop.stats.end = "disconnected"
-                    code = 1
-                    message = (f"rtlift control: the device disappeared after {closed.received} "
-                               "samples; summary written")
-                elif loop.stats.end == "timeout" and link.down:
-                    code = 1
-                    message = "rtlift control: the device was still gone when --seconds were done; summary written"
-                elif loop.stats.end == "timeout":
-                    code = 1
-                    message = "rtlift control: the device fell silent before --seconds were done"
+        code, message = run_live("rtlift control", loop.stats, link, closed.feed, lambda: closed.done,
+                                 lambda: closed.received, args.seconds)
     finally:
         try:
             closed.switch_off()

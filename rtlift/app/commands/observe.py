@@ -62,9 +62,8 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
     from firmware_io.links import open_link
-    from firmware_io.logs import graceful_exit
     from rtlift.app.link_options import link_config_from_args
-    from rtlift.app.live import SILENCE_S, EstimateWriter, ObserverLoop, summary, write_summary
+    from rtlift.app.live import EstimateWriter, ObserverLoop, run_live, summary, write_summary
     from rtlift.app.view.arguments import start_view
     from rtlift.app.watch import attach
     from rtlift.model.domain import watch_domain
@@ -105,32 +104,8 @@ def run(args: argparse.Namespace) -> int:
                           lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates,
                                    **(watch.counts() if watch else {})})
         loop.tap = None if view is None else view.tap
-        with graceful_exit():
-            try:
-                end = loop.run(link.samples(0.25),
-                               silence_s=None if args.seconds is None else SILENCE_S,
-                               seconds_down=lambda: link.seconds_down)
-            except KeyboardInterrupt:
-                loop.stats.end = "interrupted"
-                code = 130
-            except SystemExit as exc:
-                loop.stats.end = "terminated"
-                code = exc.code if isinstance(exc.code, int) else 143
-            except Exception:
-                loop.stats.end = "error"
-                raise
-            else:
-                if end == "ended" and link.disconnected:
-                    loop.stats.end = "disconnected"
-                    code = 1
-                    message = (f"rtlift observe: the device disappeared after {loop.stats.samples} "
-                               "samples; summary written")
-                elif end == "timeout" and link.down:
-                    code = 1
-                    message = "rtlift observe: the device was still gone when --seconds were done; summary written"
-                elif end == "timeout":
-                    code = 1
-                    message = "rtlift observe: the device fell silent before --seconds were done"
+        code, message = run_live("rtlift observe", loop.stats, link, loop.feed, lambda: loop.done,
+                                 lambda: loop.stats.samples, args.seconds)
     finally:
         link.close()
         if writer is not None:
