@@ -182,6 +182,31 @@ def render_independent_plant_composed(data: dict) -> str:
                  rows)
 
 
+VARIANT_LABELS = {"delay8": "delay, 8 samples", "delay14": "delay, 14 samples", "delay36": "delay, 36 samples",
+                  "resonance18": "mode at 18 Hz, ζ 0.05", "mains50": "pickup at 50.03 Hz, 0.01, 3rd harmonic",
+                  "drift_fast": "drift +0.02, τ 5 s", "ramp": "ramp 5e-4 per s"}
+"""The variants table's words for ``benchmarks.independent_plant.VARIANTS``."""
+
+
+def _variant_cell(row: dict) -> str:
+    found = _composed_accepted(row) + ("" if not row["structure"] else f"; structure {listed(row['structure'])}")
+    detail = _parameters(row, detail=False)
+    return f"{yes_no(row['right'])}: {found}" + ("" if detail == "—" else f" ({detail})")
+
+
+def render_independent_plant_variants(hybrid: dict, hybrid_field: dict, trains: dict, trains_field: dict) -> str:
+    """One row per variant: right or not, and what was accepted, for the paper's hybrid and the
+    full campaign's model, each in both forms."""
+    runs = (hybrid, hybrid_field, trains, trains_field)
+    rows = []
+    for i, r in enumerate(hybrid["rows"]):
+        rows.append([VARIANT_LABELS.get(r["case"], r["case"])]
+                    + [_variant_cell(run["rows"][i]) for run in runs])
+    totals = ["right"] + [f"{sum(x['right'] for x in run['rows'])} of {len(run['rows'])}" for run in runs]
+    return table(["variant", "paper hybrid, development form", "paper hybrid, user's form",
+                  "full campaign, development form", "full campaign, user's form"], rows + [totals])
+
+
 # ---------------------------------------------------------------- effects on the bench
 
 def _g4(params: dict, keys) -> str:
@@ -331,6 +356,10 @@ SECTIONS: tuple[Section, ...] = (
     Section("independent_plant_field", ("independent_plant_field",), render_independent_plant_field),
     Section("independent_plant_composed", ("independent_plant_composed",), render_independent_plant_composed),
     Section("independent_plant_trains", ("independent_plant_trains",), render_independent_plant_field),
+    Section("independent_plant_variants", ("independent_plant_variants", "independent_plant_variants_field",
+                                           "independent_plant_variants_trains",
+                                           "independent_plant_variants_trains_field"),
+            render_independent_plant_variants),
     Section("independent_plant_trains_field", ("independent_plant_trains_field",), render_independent_plant_field),
     Section("effects_table", ("effects_table",), render_effects_table),
     Section("realdata", ("realdata",), render_realdata),

@@ -9,7 +9,10 @@ error the effect added is recovered (or, where it added < 10 %, the model is no 
 All eight cases are right and are asserted so, with four mixes composed from them (drift plus
 pickup, resonance plus drift, resonance plus pickup, hysteresis plus pickup) and a hysteresis of
 half the size; and in the README's user form (records renamed, training on ``random``), on the
-paper's hybrid and on the model identified with the trains.
+paper's hybrid and on the model identified with the trains. Parameters the set does not show,
+made from ``clean`` (``benchmarks.independent_plant --variants``): delays of 8 and 36 samples, a
+mode at 18 Hz and 50 Hz pickup on the hybrid; a positive drift and a ramp on the trains' model
+only (the hybrid misses both, docs/RESULTS.md says why).
 
 The hysteresis case became right when the diagnosis began to fit an effect that replaces the
 static map to what changed since identification: the training record repeats the campaign's
@@ -43,6 +46,7 @@ from benchmarks.independent_plant import (
     judge_case,
     run_cli,
     validate,
+    variant,
 )
 
 pytestmark = pytest.mark.skipif(not (DEFAULT_DATA / "campaign" / "static.csv").exists(),
@@ -279,3 +283,22 @@ def test_the_users_form_is_right_on_every_case_with_a_model_identified_with_the_
     fade f 0.816, delay 22 vs 22, resonance 31.46 vs 31.00 Hz."""
     row = run_field_case(trains_model, case)
     assert row["right"], row
+
+
+@pytest.mark.parametrize("name", ["delay8", "delay36", "resonance18", "mains50"])
+def test_other_parameters_of_the_same_plant_are_right_on_the_papers_hybrid(model, clean_rmse, name):
+    """Parameters the set does not show (``benchmarks.independent_plant --variants``): a delay of
+    8 or 36 samples, a mode at 18 Hz, 50 Hz pickup, each exactly recovered or nearly (measured:
+    delay 100 %, mode 17.79 Hz and 91–93 %, pickup 50.03 Hz and 91 %)."""
+    row, _ = run_case(model, clean_rmse, variant(DEFAULT_DATA, name, model.parent / "variants"))
+    assert row["right"], row
+
+
+@pytest.mark.parametrize("name", ["drift_fast", "ramp"])
+def test_a_positive_drift_is_found_with_the_full_campaigns_model(trains_model, trains_clean_rmse, name):
+    """A drift of +0.02 approached with τ 5 s, and a ramp of 5e-4 per second: found with the model
+    the full campaign identifies (its level misfit within 0.003 on every record type), while the
+    paper's hybrid misses both (its own level misfit on ``sine_k025``, −0.011, cancels a positive
+    drift there: docs/RESULTS.md). Measured: recovered 105 % and 99 %; the ramp 80 % on ``random``."""
+    row, _ = run_case(trains_model, trains_clean_rmse, variant(DEFAULT_DATA, name, trains_model.parent / "variants"))
+    assert row["accepted"] == ["zero_drift"] and row["right"], row
