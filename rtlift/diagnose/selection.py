@@ -324,13 +324,14 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
                 if not lacking:
                     admissible_nodes.append(node)
             table.append(row)
-    lowest = min(judge.level_free(n.errors) for n in admissible_nodes)
-    near = [n for n in admissible_nodes if judge.level_free(n.errors) <= lowest * (1 + opt.parsimony)]
+    level_free = {n.members: judge.level_free(n.errors) for n in admissible_nodes}
+    lowest = min(level_free.values())
+    near = [n for n in admissible_nodes if level_free[n.members] <= lowest * (1 + opt.parsimony)]
 
     def rank(node: _Node) -> tuple:
         kinds = [search.classify(node, m) for m in node.members]
         return (-judge.encompassing(node, near, search), -sum(k.is_effect for k in kinds),
-                -sum(min(abs(k.specific.z), 50.0) for k in kinds), node.n_params, judge.level_free(node.errors))
+                -sum(min(abs(k.specific.z), 50.0) for k in kinds), node.n_params, level_free[node.members])
     best = min(near, key=rank)
 
     # 5: effect or structure, and the trials as reported

@@ -97,8 +97,6 @@ def run(args: argparse.Namespace) -> int:
     tracking = None if args.seconds is None else int(round(args.seconds * fs))
     closed = ControlLoop(link, loop, controller, reference, calibration, fs, tracking)
     watch = attach(loop, args, model, "rtlift control", closed=closed)
-    code = 0
-    message = None
     view = None
     data = None
     t0 = time.perf_counter()

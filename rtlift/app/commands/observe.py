@@ -89,8 +89,6 @@ def run(args: argparse.Namespace) -> int:
     loop = None
     watch = None
     view = None
-    code = 0
-    message = None
     t0 = time.perf_counter()
     try:
         writer = EstimateWriter(args.out, {"model": args.model, "fs_hz": f"{model.fs_hz:g}"}) if args.out else None
