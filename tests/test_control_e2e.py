@@ -192,3 +192,49 @@ def test_an_unplug_with_reconnect_does_not_end_the_run_and_the_view_serves_it(tm
     assert s["samples_bridged"] >= 1                     # predicted through the gap, flagged
     with pytest.raises(OSError):
         urllib.request.urlopen(url, timeout=2)
+
+
+@pytest.mark.parametrize("how", ["sigterm", "sigint", "silent"])
+def test_the_actuator_is_switched_off_on_every_way_out(tmp_path, how):
+    """A run stopped mid-tracking — SIGTERM, Ctrl-C (SIGINT), or a device that stops sending
+    but keeps its port open (the run gives up after 5 s of silence) — switches the actuator off
+    (``enable`` false, envelope 0: applied by the device; on the silent one, waiting for the
+    firmware's next sample), writes its summary and ends with the status and the one line the
+    user expects."""
+    import signal
+    import time
+
+    stream = HilStream("random", seed=6, effects=[])
+    dev = SerialDaq(stream, max_samples=6 * FS if how == "silent" else None)
+    stream.control = dev.control
+    summary = tmp_path / "summary.json"
+    proc = subprocess.Popen([sys.executable, "-m", "rtlift", "control", "--serial", dev.path, "--model", str(MODEL),
+                             "--reference", REFERENCE, "--seconds", "30", "--json", str(summary)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stderr.readline()
+        assert "link open" in line, line + proc.stderr.read()
+        dev.start()
+        end = time.monotonic() + 30
+        while not dev.control.enabled and time.monotonic() < end:
+            time.sleep(0.05)
+        assert dev.control.enabled, "the controller never switched the actuator on"
+        if how != "silent":
+            time.sleep(0.5)
+            proc.send_signal(signal.SIGTERM if how == "sigterm" else signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        dev.stop()
+    want = {"sigterm": (143, "terminated"), "sigint": (130, "interrupted"), "silent": (1, "timeout")}[how]
+    s = json.loads(summary.read_text())
+    assert (proc.returncode, s["end"]) == want, err
+    assert "Traceback" not in err, err
+    if how == "silent":
+        # the firmware applies a command at its next sample, and this one samples no more: the
+        # off command must be the one waiting there (its own watchdog would cut the actuator too)
+        off = dev.control.pending
+        assert off is not None and not off.enable and off.envelope_cv == 0, "no off command reached the device"
+        assert err.strip().splitlines()[-1] == "rtlift control: the device fell silent before --seconds were done"
+    else:
+        assert not dev.control.enabled and dev.control.envelope_cv == 0, "the actuator was left on"

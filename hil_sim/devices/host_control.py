@@ -95,6 +95,11 @@ class HostControl:
         serve --protocol 1``): whatever the host writes is ignored, nothing is echoed."""
 
     @property
+    def pending(self) -> Command | None:
+        """The newest valid command received and not yet applied (it is, at the next sample)."""
+        return self._pending
+
+    @property
     def version(self) -> int:
         return 1 if self.applied is None else 2
 
