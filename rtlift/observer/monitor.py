@@ -68,7 +68,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -105,6 +105,54 @@ class MonitorConfig:
     hold_reference_s: float = 3.0
     hold_current_s: float = 2.0
     thresholds: Mapping[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
+
+
+START_RANGE = 20.0
+"""Without the model's lift range (a model file from before the monitor's own print), the start is
+taken as a step of 20 σ_fp: its transient's settling time is then 3 τ, the classic 95 % settle."""
+
+
+@dataclass(frozen=True)
+class Settle:
+    """How long after a step of the operating point the residual still carries the step's own
+    transient, from the model's own dynamics:
+
+        T(Δ) = L / f_s + τ_slow · ln(max(Δ, σ_fp) / σ_fp)
+
+    L the convolution kernel's length (the single-burst response: the model's memory of a burst),
+    τ_slow the slowest time constant of its linear blocks (the Wiener part's and the high-pass's
+    poles p: τ = −1 / (f_s ln|p|)), Δ the step's size in ΔCL: a transient of size Δ decaying at the
+    model's slowest rate has fallen under the residual's own RMSE σ_fp after T. The start of a run
+    (or a swap of the model) is a step of the model's lift range (``lift_range``: the largest
+    |ΔCL_m| on its identification records; else :data:`START_RANGE` σ_fp)."""
+
+    memory_s: float = 0.0
+    tau_s: float = 0.0
+    lift_range: float = math.nan
+
+    def seconds(self, size: float, scale: float) -> float:
+        return self.memory_s + self.tau_s * math.log(max(abs(size), scale) / scale)
+
+    def samples(self, size: float, scale: float, fs_hz: float) -> int:
+        return int(math.ceil(self.seconds(size, scale) * fs_hz))
+
+    def start_size(self, scale: float) -> float:
+        r = self.lift_range
+        return r if r is not None and math.isfinite(r) and r > 0 else START_RANGE * scale
+
+    @classmethod
+    def of_model(cls, model: Any, scale: float, lift_range: float | None = None) -> Settle:
+        from scipy.signal import sos2zpk
+
+        fs = float(model.fs_hz)
+        kernel = getattr(model.convolution, "kernel", None)
+        memory = 0.0 if kernel is None else len(kernel) / fs
+        poles = list(np.linalg.eigvals(np.atleast_2d(model.wiener.A)))
+        sos = getattr(model.highpass, "sos", None)
+        if sos is not None and np.size(sos):
+            poles += list(sos2zpk(np.asarray(sos, dtype=float))[1])
+        taus = [-1.0 / (fs * math.log(abs(p))) for p in poles if 0.0 < abs(p) < 1.0]
+        return cls(memory, max(taus, default=0.0), math.nan if lift_range is None else float(lift_range))
 
 
 LOOP_LIKE = ("sine", "random")
@@ -165,7 +213,8 @@ class DepartureMonitor:
     """
 
     def __init__(self, scale: float, fs_hz: float = FS_HZ, config: MonitorConfig | None = None,
-                 hold_scale: float = math.nan) -> None:
+                 hold_scale: float = math.nan, settle: Settle | None = None,
+                 operating_point: Mapping[str, Any] | None = None) -> None:
         if not (math.isfinite(scale) and scale > 0):
             raise ValueError(f"monitor scale (the fingerprint's residual RMSE) must be positive, got {scale!r}")
         self.scale = float(scale)
@@ -177,6 +226,16 @@ class DepartureMonitor:
         self.window_blocks = max(2, int(round(cfg.window_s / cfg.block_s)))
         self.trend_blocks = max(self.window_blocks, int(round(cfg.trend_window_s / cfg.block_s)))
         self.thresholds = {k: float(cfg.thresholds.get(k, math.inf)) for k in TESTS}
+        self.threshold_source = "the global constants (rtlift.observer.monitor.THRESHOLDS)"
+        self.settle = settle or Settle()
+        """How long a window holding the start or a step of the operating point is kept out of every test."""
+        op = operating_point or {}
+        self._op_m = np.asarray(op.get("m", ()), dtype=float)
+        self._op_e = np.asarray(op.get("e", ()), dtype=float)
+        """g(m): the model's own misfit against its lift, piecewise linear (:func:`operating_point_misfit`);
+        empty: none removed."""
+        self._steps = np.zeros(0)
+        self._step_sizes = np.zeros(0)
         if math.isnan(self.hold_scale):
             self.thresholds["hold"] = math.inf
         self._hold_blocks = tuple(max(1, int(round(x / cfg.block_s)))
@@ -204,7 +263,33 @@ class DepartureMonitor:
         if not math.isfinite(scale):
             raise ValueError("the model file has no residual fingerprint (identify it with rtlift identify)")
         cfg = config or MonitorConfig()
-        return cls(scale, model.fs_hz, cfg, fingerprint_hold_scale(model.fingerprint, cfg.block_s))
+        own = (model.fingerprint or {}).get("monitor") or {}
+        thresholds = own.get("thresholds")
+        if thresholds:
+            cfg = replace(cfg, thresholds={**THRESHOLDS, **{k: float(v) for k, v in thresholds.items()}})
+        mon = cls(scale, model.fs_hz, cfg, fingerprint_hold_scale(model.fingerprint, cfg.block_s),
+                  Settle.of_model(model, scale, own.get("lift_range")), own.get("operating_point"))
+        if thresholds:
+            mon.threshold_source = (f"the model's own identification records ({own.get('source', 'fingerprint')})")
+        return mon
+
+    def use_thresholds(self, thresholds: Mapping[str, float], source: str) -> None:
+        """Thresholds from elsewhere (``--monitor FILE``: a baseline run); tests not named keep theirs."""
+        for k, v in thresholds.items():
+            if k in self.thresholds and v is not None:
+                self.thresholds[k] = float(v)
+        if math.isnan(self.hold_scale):
+            self.thresholds["hold"] = math.inf
+        self.threshold_source = source
+
+    def set_steps(self, samples: Any, sizes: Any) -> None:
+        """The samples (the monitor's count) at which the operating point is commanded to step
+        (a controller's reference), and the steps' sizes (ΔCL): each window holding a step's
+        settling time (:class:`Settle`) is kept out of the tests."""
+        order = np.argsort(np.asarray(samples, dtype=float), kind="stable")
+        self._steps = np.asarray(samples, dtype=float)[order]
+        self._step_sizes = np.abs(np.asarray(sizes, dtype=float))[order]
+        self._next_step = int(np.searchsorted(self._steps, self._sample))
 
     def reset(self) -> None:
         """Windows, runs and the sample count cleared (a new run)."""
@@ -230,6 +315,11 @@ class DepartureMonitor:
         self._hold_start = 0            # block count at which the current hold began
         self._hold_ref: tuple[float, float] | None = None
         self._hold = 0.0                # the hold statistic after the last block (signed, σ_hold)
+        self._ok = np.zeros(self.trend_blocks, dtype=bool)   # a block outside every transient
+        # the start (or the swap) is a transient of the model's whole lift range
+        self._quiet_from = self._sample + self.settle.samples(self.settle.start_size(self.scale), self.scale,
+                                                              self.fs_hz)
+        self._next_step = int(np.searchsorted(self._steps, self._sample))
 
     # -- the hot path -------------------------------------------------------------------
     def step(self, dcl: float | None, model_dcl: float, innovation: float) -> None:
@@ -266,6 +356,13 @@ class DepartureMonitor:
     def _end_block(self) -> None:
         row = self._blocks[self._nb % self.trend_blocks]
         row[:] = self._acc
+        steps, k = self._steps, self._next_step
+        while k < steps.size and steps[k] < self._sample:      # a step commanded within this block
+            self._quiet_from = max(self._quiet_from, int(steps[k]) + self.settle.samples(
+                float(self._step_sizes[k]), self.scale, self.fs_hz))
+            k += 1
+        self._next_step = k
+        self._ok[self._nb % self.trend_blocks] = self._sample - self.block >= self._quiet_from
         self._acc = [0.0] * N_SUMS
         self._in_block = 0
         self._nb += 1
@@ -281,7 +378,8 @@ class DepartureMonitor:
             return
         settle, ref_n, cur_n = self._hold_blocks
         band = self.config.hold_band * self.scale
-        if row[0] <= 0:                               # no measurement: a hold cannot span it
+        if row[0] <= 0 or not self._ok[(self._nb - 1) % self.trend_blocks]:
+            # no measurement, or a transient (the start, a step, a swap): a hold cannot span it
             self._hold_start, self._hold_ref = self._nb, None
             return
         m = row[3] / row[0]
@@ -301,10 +399,25 @@ class DepartureMonitor:
         w = self._window_sums(cur_n)
         self._hold = (float(w[:, 1].sum() / w[:, 0].sum()) - ref[0]) / self.hold_scale
 
-    def _window_sums(self, blocks: int) -> np.ndarray:
+    def _window_sums(self, blocks: int, quiet: bool = True) -> np.ndarray:
+        """The last ``blocks`` blocks' sums, newest first (a copy); with ``quiet`` a block inside a
+        transient (the start, a step's settling time, a swap) is all zeros: no test sees it."""
         nb = min(self._nb, self.trend_blocks)
         idx = [(self._nb - 1 - i) % self.trend_blocks for i in range(min(blocks, nb))]
-        return self._blocks[idx]
+        w = self._blocks[idx]
+        if quiet:
+            w[~self._ok[idx]] = 0.0
+        return w
+
+    def _misfit_of(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per block of ``w`` with samples: its mean residual less the model's own misfit at its
+        operating point, e_b − g(m_b) (:func:`operating_point_misfit`), and m_b."""
+        ok = w[:, 0] > 0
+        n = w[ok, 0]
+        e, m = w[ok, 1] / n, w[ok, 3] / n
+        if self._op_m.size:
+            e = e - np.interp(m, self._op_m, self._op_e)
+        return e, m
 
     def statistics(self) -> dict[str, float]:
         """The six statistics over the current windows (module docstring)."""
@@ -317,28 +430,36 @@ class DepartureMonitor:
             em, mm = se / n, sm / n
             var_e = max(se2 / n - em * em, 0.0)
             var_m = max(sm2 / n - mm * mm, 0.0)
+            eb, mb = self._misfit_of(w)
+            nb = w[w[:, 0] > 0, 0]
+            ec = float(nb @ eb / nb.sum())        # the window's mean residual, g(m) removed
             if self._bias_ref is None:
-                self._bias_ref = em
-            out["bias"] = abs(em - self._bias_ref) / sc
+                self._bias_ref = ec
+            out["bias"] = abs(ec - self._bias_ref) / sc
             out["level"] = math.sqrt(var_e) / sc
             if math.sqrt(var_m) >= cfg.gain_excitation * sc:
                 g = (sem / n - em * mm) / var_m
+                if self._op_m.size:             # less the slope g(m) itself has over the window's blocks
+                    gm = np.interp(mb, self._op_m, self._op_e)
+                    dm = mb - nb @ mb / nb.sum()
+                    if dm @ (nb * dm) > 0:
+                        g -= float((nb * dm) @ gm / (dm @ (nb * dm)))
                 out["gain"] = abs(g)
                 self._gain_sign = g
             self._fit = self._block_slope(self._window_sums(self.trend_blocks))
-        m = self._ring.size
-        mean_nu = sn / m
-        var_nu = sn2 / m - mean_nu * mean_nu
-        if var_nu > 0:
-            out["whiteness"] = (snn / m - mean_nu * mean_nu) / var_nu
-            if self._since >= m:
-                out["line"] = self._line()
+        m = int(np.count_nonzero(w[:, 0] > 0)) * self.block
+        if m:
+            mean_nu = sn / m
+            var_nu = sn2 / m - mean_nu * mean_nu
+            if var_nu > 0:
+                out["whiteness"] = (snn / m - mean_nu * mean_nu) / var_nu
+                if self._since >= self._ring.size and self._sample - self._quiet_from >= self._ring.size:
+                    out["line"] = self._line()
         t = self._window_sums(self.trend_blocks)
         if len(t) >= self.trend_blocks:
-            nn = t[:, 0]
-            ok = nn > 0
+            ok = t[:, 0] > 0
             if ok.sum() >= 0.5 * len(t):
-                means = t[ok, 1] / nn[ok]
+                means, _ = self._misfit_of(t)
                 x = -np.arange(len(t), dtype=float)[ok] * self.config.block_s
                 xc = x - x.mean()
                 slope = float(xc @ (means - means.mean()) / (xc @ xc))
@@ -357,8 +478,7 @@ class DepartureMonitor:
         ok = w[:, 0] > 0
         if ok.sum() < 8:
             return ("unknown", 0.0)
-        e = w[ok, 1] / w[ok, 0]
-        m = w[ok, 3] / w[ok, 0]
+        e, m = self._misfit_of(w)
         t = -np.arange(len(w), dtype=float)[ok]
         X = np.column_stack([np.ones_like(t), t, m])
         coef, _, rank, _ = np.linalg.lstsq(X, e, rcond=None)
@@ -438,6 +558,11 @@ class DepartureMonitor:
 
         return {"scale": self.scale, "hold_scale": finite(self.hold_scale), "evaluations": self.evaluations,
                 "thresholds": {k: finite(v) for k, v in self.thresholds.items()},
+                "thresholds_from": self.threshold_source,
+                "settle": {"memory_s": self.settle.memory_s, "tau_s": self.settle.tau_s,
+                           "start_s": self.settle.seconds(self.settle.start_size(self.scale), self.scale),
+                           "steps": int(self._steps.size)},
+                "operating_point_misfit": bool(self._op_m.size),
                 "last": {k: float(v) for k, v in self.last.items()}}
 
 
