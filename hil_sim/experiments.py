@@ -39,6 +39,7 @@ from hil_sim.sensors import (
     STATUS_ADC_SATURATED,
     STATUS_BURST_ON,
     AeroNoise,
+    BalanceChain,
     SensorParams,
     coefficients,
     transducer,
@@ -119,6 +120,8 @@ class Bench:
         self.plant = TruthPlant(params, self.fs_hz)
         self.sensor = sensor or SensorParams()
         self.aero_noise = AeroNoise(self.sensor, aero_rng, self.fs_hz)
+        chain = BalanceChain(self.sensor, self.fs_hz)
+        self.chain = chain if chain else None
         self.stages: dict[str, list] = {"actuator": [], "force": [], "offset": []}
         for e, s in zip(effects, streams[2:], strict=True):
             if e.stage in self.stages:
@@ -141,7 +144,7 @@ class Bench:
             coeffs = stage.process(coeffs)
         for stage in self.stages["offset"]:
             coeffs[:, 0] += stage.process(t)
-        counts, saturated = transducer(coeffs, self.physics, self.sensor, self.sensor_rng)
+        counts, saturated = transducer(coeffs, self.physics, self.sensor, self.sensor_rng, self.chain)
         status = (np.where(act.envelope_volts > 0, STATUS_ACTUATOR_ENABLED, 0)
                   | np.where(saturated, STATUS_ADC_SATURATED, 0)
                   | np.where(act.burst, STATUS_BURST_ON, 0)).astype(np.uint8)
@@ -157,12 +160,15 @@ def bench_program(program: Program) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _setup(name: str, seed: int, effects: Iterable[Effect | str], calibration: Calibration | None,
-           gust: Gust | None = None, physics: BenchPhysics | None = None
+           gust: Gust | None = None, physics: BenchPhysics | None = None, plant_draw: int = 0
            ) -> tuple[tuple[np.ndarray, np.ndarray], Bench, dict[str, str]]:
+    from hil_sim.family import plant_draw as draw_plant
+
     if name not in EXPERIMENTS:
         raise UserError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise UserError(f"seed must be a non-negative integer, got {seed!r}")
+    drawn = draw_plant(plant_draw)
     effs = [as_effect(e) for e in effects]
     cal = calibration or Calibration()
     program = standard_program(name, cal.volts_from_cmu, int(seed), FS_HZ)
@@ -172,26 +178,33 @@ def _setup(name: str, seed: int, effects: Iterable[Effect | str], calibration: C
             "t_conv_s": f"{T_CONV_S:.6f}", "burst_samples": str(BURST_SAMPLES)}
     if gust:
         meta["gust"] = gust.spec()
-    return bench_program(program), Bench(int(seed), effs, cal, gust=gust, physics=physics), meta
+    if drawn.number:    # draw 0 is today's bench: its records are today's, byte for byte
+        meta["plant_draw"] = str(drawn.number)
+    bench = Bench(int(seed), effs, cal, plant=drawn.plant, sensor=drawn.sensor, gust=gust,
+                  physics=physics or drawn.physics)
+    return bench_program(program), bench, meta
 
 
 def run_experiment(name: str, seed: int = 0, effects: Iterable[Effect | str] = (),
                    calibration: Calibration | None = None, gust: Gust | None = None,
-                   physics: BenchPhysics | None = None) -> BenchRun:
+                   physics: BenchPhysics | None = None, plant_draw: int = 0) -> BenchRun:
     """One experiment of the standard campaign on the simulated bench (``gust``: a lift
     disturbance added to the truth, :mod:`hil_sim.gust`). ``physics`` is the rig (default: the
     paper's wing, :mod:`hil_sim.physics`); ``calibration`` the host's, which turns the program's Cμ
-    into drive volts and the counts into the record (default: the one describing the default rig)."""
-    (env, gate), bench, meta = _setup(name, seed, effects, calibration, gust, physics)
+    into drive volts and the counts into the record (default: the one describing the default rig).
+    ``plant_draw`` N is plant number N of the family (:func:`hil_sim.family.plant_draw`; 0 is our
+    bench); the record's metadata says ``plant_draw: N`` when N ≠ 0."""
+    (env, gate), bench, meta = _setup(name, seed, effects, calibration, gust, physics, plant_draw)
     t = np.arange(len(env)) / FS_HZ
     return bench.process(t, env, gate, meta)
 
 
 def daq_stream(name: str, seed: int = 0, effects: Iterable[Effect | str] = (),
                calibration: Calibration | None = None,
-               chunk_s: float = 1.0) -> Iterator[BenchRun]:
-    """One-second chunks forever: the experiment's program repeated, plant state continuing."""
-    (env, gate), bench, meta = _setup(name, seed, effects, calibration)
+               chunk_s: float = 1.0, plant_draw: int = 0) -> Iterator[BenchRun]:
+    """One-second chunks forever: the experiment's program repeated, plant state continuing
+    (``plant_draw``: as :func:`run_experiment`)."""
+    (env, gate), bench, meta = _setup(name, seed, effects, calibration, plant_draw=plant_draw)
     n = len(env)
     chunk = max(1, int(round(chunk_s * FS_HZ)))
     start = 0

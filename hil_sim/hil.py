@@ -25,6 +25,7 @@ taken at the chunk's start, so the version-1 stream is unchanged sample for samp
 ``truth`` keeps the plant's ΔCL of the last ``truth_seconds`` and ``envelope`` the envelope
 driving it (V) (bench truth for benchmarks and tests; the host never sees it). A ``gust``
 (:mod:`hil_sim.gust`) is added to the plant's ΔCL on the device clock and is part of ``truth``.
+``plant_draw`` N streams plant number N of the family (:mod:`hil_sim.family`; 0: our bench).
 """
 
 from __future__ import annotations
@@ -65,8 +66,9 @@ class HilStream:
 
     def __init__(self, experiment: str, seed: int = 0, effects: Iterable[Effect | str] = (),
                  calibration: Calibration | None = None, truth_seconds: float = 600.0,
-                 gust: Gust | None = None) -> None:
-        (self._env, self._gate), self.bench, self.meta = _setup(experiment, seed, effects, calibration, gust)
+                 gust: Gust | None = None, plant_draw: int = 0) -> None:
+        (self._env, self._gate), self.bench, self.meta = _setup(experiment, seed, effects, calibration, gust,
+                                                                plant_draw=plant_draw)
         self.control = None
         self.host_since: int | None = None
         """Sample index of the first host-controlled burst onset (``None``: not yet)."""

@@ -37,6 +37,11 @@ mechanisms (SI units; ``c`` the Cμ delivered by the actuators, burst-modulated)
    (``H_v`` has unit DC gain; its right-half-plane zero gives the initial dip.)
 
 ``ΔCL = (ΔCL_a + ΔCL_v)(1 + m_h h)`` (``m_h`` = 0 unless the hysteresis effect is on).
+
+Convective delay: the flow answers the actuators ``τ_d`` later (the burst's vortex convects
+from the slot to where it acts on the separated shear layer): all of the above is driven by
+``c(t − τ_d)`` (and the envelope by ``c_env(t − τ_d)``), delayed in whole samples. Our bench has
+``τ_d`` = 0; the plant family (:mod:`hil_sim.family`) draws it.
 The linear convolution of the isolated-burst response therefore over-predicts close
 burst trains and is nearly exact for bursts 7 t⁺ apart (the paper's observation), and the
 slow lift is close to (not exactly) a Wiener response of the envelope.
@@ -62,6 +67,7 @@ import numpy as np
 from scipy import signal
 
 from hil_sim import FS_HZ, T_CONV_S
+from hil_sim.effects import Delay
 
 
 @dataclass(frozen=True)
@@ -93,6 +99,8 @@ class PlantParams:
     """τ_L in t⁺: lag of the attached-flow circulation behind the attached fraction."""
     hysteresis: float = 0.0
     """m_h: relative static-gain difference falling vs rising Cμ (effect ``hysteresis``)."""
+    delay_tplus: float = 0.0
+    """τ_d in t⁺: convective delay from the actuators to the flow's answer (whole samples)."""
 
     @property
     def tau_s(self) -> float:
@@ -138,12 +146,19 @@ class TruthPlant:
         self.on = False
         self._zi = np.zeros(len(self._a) - 1)
         self._zl = np.zeros(1)
+        seconds = self.params.delay_tplus * T_CONV_S
+        self._delay = Delay({"seconds": seconds}, self.fs_hz) if round(seconds * self.fs_hz) else None
+        if self._delay is not None:    # at rest before the first sample: no actuation in the pipe
+            self._delay.buffer = np.zeros((self._delay.n, 2))
 
     def process(self, cmu: np.ndarray, cmu_envelope: np.ndarray) -> dict[str, np.ndarray]:
         """ΔCL of the chunk and its parts: keys ``dcl``, ``attached``, ``vortex``."""
         p = self.params
         c = np.asarray(cmu, dtype=float)
         env = np.asarray(cmu_envelope, dtype=float)
+        if self._delay is not None:    # c(t − τ_d), c_env(t − τ_d): delayed together, one buffer
+            delayed = self._delay.process(np.column_stack([c, env]))
+            c, env = delayed[:, 0], delayed[:, 1]
         n = len(c)
         dt = 1.0 / self.fs_hz
         inv_tau = 1.0 / p.tau_s

@@ -14,6 +14,16 @@ Equations (SI units; α the angle of attack, q_A = ½ ρ U∞² c b of the rig,
   ``res_nm`` N·m) and the transducer range (saturation sets status bit 1);
 - counts = round(BenchPhysics.counts(ft)), the transducer's firmware scaling.
 
+The chain of a plant of the family (:mod:`hil_sim.family`; our bench has none of these, a rigid
+balance, no filter, white turbulence):
+
+- turbulence coloured by a first-order low-pass at ``f_t`` (unit variance kept:
+  ``w_k = ρ w_{k−1} + √(1 − ρ²) e_k``, ρ = exp(−2π f_t / fs));
+- the balance's mode on the forces, ``ω²/(s² + 2ζωs + ω²)`` at ``f_m`` (the wing's mass on the
+  transducer's stiffness; bilinear, pre-warped, unit DC gain), before the electrical noise;
+- the DAQ's anti-alias filter, a 2nd-order Butterworth low-pass at ``f_aa``, after the
+  electrical noise and before the ADC.
+
 Numbers: CL₀ ≈ 0.7 and CD₀ ≈ 0.3 are the order of the normal force of a stalled thin
 wing at 20° (CN ≈ 0.75, CL = CN cos α, CD = CN sin α); σ_t, σ_e and σ_b together give
 σ(ΔCL) ≈ 0.004 in stalled flow (the brief's bench noise); the 7 Hz buffeting is the
@@ -61,6 +71,14 @@ class SensorParams:
     resolution_nm: float = 1.0 / 64000.0
     range_n: tuple[float, float, float] = (25.0, 25.0, 35.0)
     range_nm: float = 0.25
+    turbulence_corner_hz: float = 0.0
+    """f_t: corner of the turbulence's first-order colour (Hz); 0: white."""
+    balance_hz: float = 0.0
+    """f_m: the balance's mode (Hz); 0: a rigid balance."""
+    balance_damping: float = 0.05
+    """ζ of the balance's mode."""
+    filter_hz: float = 0.0
+    """f_aa: the DAQ's 2nd-order Butterworth anti-alias corner (Hz); 0: no filter."""
 
 
 def buffet_filter(params: SensorParams, fs_hz: float = FS_HZ) -> tuple[np.ndarray, np.ndarray]:
@@ -79,6 +97,9 @@ class AeroNoise:
         self.rng = rng
         self._b, self._a = buffet_filter(params, fs_hz)
         self._zi = np.zeros(len(self._a) - 1)
+        corner = params.turbulence_corner_hz
+        self._rho = math.exp(-2.0 * math.pi * corner / fs_hz) if corner else 0.0
+        self._zt = np.zeros(1)
 
     def process(self, attached: np.ndarray) -> np.ndarray:
         p = self.params
@@ -86,7 +107,38 @@ class AeroNoise:
         w = self.rng.standard_normal((n, 2))  # sample-major: chunking does not change the draws
         buffet, self._zi = signal.lfilter(self._b, self._a, w[:, 0], zi=self._zi)
         level = p.buffet_sigma * (1.0 - p.buffet_attached_reduction * np.asarray(attached))
-        return level * buffet + p.turbulence_sigma * w[:, 1]
+        turbulence = w[:, 1]
+        if self._rho:
+            rho = self._rho
+            turbulence, self._zt = signal.lfilter([math.sqrt(1.0 - rho * rho)], [1.0, -rho], turbulence,
+                                                  zi=self._zt)
+        return level * buffet + p.turbulence_sigma * turbulence
+
+
+def _lowpass(corner_hz: float, fs_hz: float):
+    """2nd-order Butterworth low-pass on every column, streaming, started in steady state (the
+    sensor_resonance effect's filter machinery with the Butterworth's coefficients)."""
+    from hil_sim.effects import SensorResonance
+
+    stage = SensorResonance.__new__(SensorResonance)
+    stage.b, stage.a = signal.butter(2, corner_hz, fs=fs_hz)
+    stage.zi = None
+    return stage
+
+
+class BalanceChain:
+    """The balance's mode (on the forces) and the DAQ's anti-alias filter (after the electrical
+    noise), streaming; either is absent when its frequency is 0 (module docstring)."""
+
+    def __init__(self, params: SensorParams, fs_hz: float = FS_HZ) -> None:
+        from hil_sim.effects import SensorResonance
+
+        self.mode = (SensorResonance({"frequency_hz": params.balance_hz, "damping_ratio": params.balance_damping},
+                                     fs_hz) if params.balance_hz else None)
+        self.filter = _lowpass(params.filter_hz, fs_hz) if params.filter_hz else None
+
+    def __bool__(self) -> bool:
+        return self.mode is not None or self.filter is not None
 
 
 def coefficients(dcl: np.ndarray, aero_noise: np.ndarray, params: SensorParams) -> np.ndarray:
@@ -98,14 +150,19 @@ def coefficients(dcl: np.ndarray, aero_noise: np.ndarray, params: SensorParams) 
 
 
 def transducer(coeffs: np.ndarray, physics: BenchPhysics, params: SensorParams,
-               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 3) CL CD CM → (counts (n, 6) int64, saturated (n,) bool): axes, noise, ADC."""
+               rng: np.random.Generator, chain: BalanceChain | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3) CL CD CM → (counts (n, 6) int64, saturated (n,) bool): axes, [balance mode], noise,
+    [anti-alias filter], ADC."""
     qa = physics.q_area
     ft = physics.forces(coeffs)
+    if chain is not None and chain.mode is not None:
+        ft = chain.mode.process(ft)
     n = len(ft)
     w = rng.standard_normal((n, 6))  # sample-major: chunking does not change the draws
     ft[:, :3] += params.electrical_sigma * qa * w[:, :3]
     ft[:, 3:] += params.electrical_sigma * qa * physics.chord_m * 0.1 * w[:, 3:]
+    if chain is not None and chain.filter is not None:
+        ft = chain.filter.process(ft)
     ft[:, :3] = np.round(ft[:, :3] / params.resolution_n) * params.resolution_n
     ft[:, 3:] = np.round(ft[:, 3:] / params.resolution_nm) * params.resolution_nm
     limits = np.array([*params.range_n, params.range_nm, params.range_nm, params.range_nm])

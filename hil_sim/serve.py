@@ -53,7 +53,8 @@ def serve_main(args: argparse.Namespace) -> int:
     if protocol not in (1, 2):
         raise UserError(f"bench serve: --protocol must be 1 or 2, got {protocol}")
     gust = parse_gust(getattr(args, "gust", None))
-    chunks = HilStream(experiment, seed=seed, effects=effects, gust=gust)
+    chunks = HilStream(experiment, seed=seed, effects=effects, gust=gust,
+                       plant_draw=int(getattr(args, "plant_draw", 0) or 0))  # hil_sim.family
     pace = FS_HZ * speed
     if getattr(args, "slcan", False):
         device = SlcanAdapter(chunks, faults=faults, seed=seed, fs_hz=pace, clock_hz=FS_HZ)
@@ -78,7 +79,9 @@ def serve_main(args: argparse.Namespace) -> int:
             print(device.path, flush=True)
             print(f"rtlift bench serve: {how} DAQ on {device.path}, protocol version {protocol}, "
                   f"experiment {experiment}, {FS_HZ:g} Hz at {speed:g}x real time"
-                  + (f", gust {gust.spec()}" if gust else "") + "; Ctrl-C stops",
+                  + (f", gust {gust.spec()}" if gust else "")
+                  + (f", plant draw {chunks.meta['plant_draw']}" if "plant_draw" in chunks.meta else "")
+                  + "; Ctrl-C stops",
                   file=sys.stderr, flush=True)
             while not stop.is_set() and not device.finished.is_set():
                 stop.wait(0.2)

@@ -56,6 +56,9 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--gust", metavar="F:A[,F:A...]",
                         help="lift disturbance Σ A sin(2π F t) added to the plant's true ΔCL (Hz:ΔCL)")
+    parser.add_argument("--plant-draw", type=int, default=0, metavar="N",
+                        help="plant number N of the family (hil_sim.family; 0, the default, is our bench; "
+                             "1-49 calibration, 100-199 reporting only)")
 
 
 def _record(args: argparse.Namespace) -> int:
@@ -67,11 +70,12 @@ def _record(args: argparse.Namespace) -> int:
         raise UserError(f"unknown experiment {args.experiment!r} (known: {', '.join(EXPERIMENTS)})")
     effects = [parse_effect(spec) for spec in args.effect]
     gust = parse_gust(args.gust)
-    run = run_experiment(args.experiment, seed=args.seed, effects=effects, gust=gust)
+    run = run_experiment(args.experiment, seed=args.seed, effects=effects, gust=gust, plant_draw=args.plant_draw)
     write_bench_record(run, args.out)
     names = ", ".join(e.spec() for e in effects) or "none"
     print(f"{args.experiment}: {len(run)} samples ({len(run) / run.fs_hz:.1f} s at "
-          f"{run.fs_hz:g} Hz), seed {args.seed}, effects {names}, gust {gust.spec() or 'none'} -> {args.out}")
+          f"{run.fs_hz:g} Hz), seed {args.seed}, plant draw {args.plant_draw}, effects {names}, "
+          f"gust {gust.spec() or 'none'} -> {args.out}")
     return 0
 
 

@@ -1,0 +1,116 @@
+"""The plant family (hil_sim.family, docs/BENCH.md "A family of plants"): draw 0 is our bench byte
+for byte, draws are reproducible and within their ranges, the calibration draws 1–49 stay
+physically plausible, and a draw streams and records as one plant."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from hil_sim import FS_HZ, T_CONV_S
+from hil_sim.experiments import daq_stream, run_experiment, write_bench_record
+from hil_sim.family import (
+    CALIBRATION_DRAWS,
+    RANGES,
+    REPORTING_DRAWS,
+    draws_line,
+    plant_draw,
+    single_burst,
+    static_lift,
+)
+from hil_sim.hil import HilStream
+from hil_sim.plant import PlantParams
+from hil_sim.sensors import SensorParams
+from rtlift.app.cli import main
+from rtlift.core.records import read_record
+
+TODAY = {
+    # sha256 of `rtlift bench record` CSVs written at commit 460a998, before the family existed
+    ("single_burst", 0): "9212d175bee8aa69b417e9d3be7afe582e6d97b24cbfa019ebc96efb06f3b92a",
+    ("train_T7", 3): "b53f533d73c996de9be96c1d9be77082ed1cb2739a19515fd5b52cd9a9a9fc0d",
+}
+
+
+@pytest.mark.parametrize("name,seed", sorted(TODAY))
+def test_draw_0_records_todays_bench_byte_for_byte(tmp_path, name, seed):
+    for i, run in enumerate((run_experiment(name, seed=seed), run_experiment(name, seed=seed, plant_draw=0))):
+        path = tmp_path / f"{i}.csv"
+        write_bench_record(run, path)
+        assert hashlib.sha256(path.read_bytes()).hexdigest() == TODAY[(name, seed)]
+
+
+def test_draw_0_is_the_default_parameters_and_the_protocol_sets_are_disjoint():
+    d = plant_draw(0)
+    assert d.plant == PlantParams() and d.sensor == SensorParams()
+    assert set(CALIBRATION_DRAWS) == set(range(1, 50)) and set(REPORTING_DRAWS) == set(range(100, 200))
+    assert draws_line(list(range(100, 120))) == "plant draws: 100-119 (reporting)"
+    assert draws_line([1, 2, 3, 7]) == "plant draws: 1-3,7 (calibration)"
+
+
+def test_draws_are_reproducible_distinct_within_their_ranges_and_spread_over_them():
+    values = np.array([[plant_draw(n).values()[k] for k in RANGES] for n in CALIBRATION_DRAWS])
+    assert plant_draw(7) == plant_draw(7) and plant_draw(7) != plant_draw(8)
+    lo = np.array([r.lo for r in RANGES.values()])
+    hi = np.array([r.hi for r in RANGES.values()])
+    assert np.all(values >= lo) and np.all(values <= hi)
+    # 49 uniform draws cover most of each range (the chance one covers < 70 % is < 1e-6)
+    spread = (values.max(axis=0) - values.min(axis=0)) / (hi - lo)
+    assert spread.min() > 0.7, dict(zip(RANGES, spread.round(2), strict=True))
+
+
+def test_calibration_draws_stay_physically_plausible():
+    """docs/BENCH.md's properties, noise-free, on every calibration draw (and draw 0 as the check
+    that the measure reads our bench as BENCH.md says)."""
+    rows = {}
+    for n in (0, *CALIBRATION_DRAWS):
+        p = plant_draw(n).plant
+        s = np.array([static_lift(p, c) for c in (0.0055, 0.011, 0.0165, 0.022)])
+        kernel = single_burst(p)
+        k = int(np.argmax(kernel))
+        tail = np.abs(kernel[int(7 * T_CONV_S * FS_HZ):]).max() / kernel[k]
+        slopes = np.diff(np.concatenate([[0.0], s]))
+        rows[n] = (s[-1], s[1] / s[-1], slopes[0] / slopes[-1], kernel[k], k / FS_HZ / T_CONV_S,
+                   kernel[:k].min(), tail)
+    full, half, slope, peak, t_peak, dip, tail = np.array(list(rows.values())).T
+    assert abs(full[0] - 0.218) < 0.003 and abs(peak[0] - 0.024) < 0.001   # our bench, BENCH.md
+    assert np.all((full > 0.12) & (full < 0.3)), full          # ΔCL at full Cμ, 8 Hz: 0.1–0.3
+    assert np.all((half > 0.5) & (half < 0.75)), half          # concave ...
+    assert np.all(slope > 1.2), slope                         # ... and saturating
+    assert np.all(np.diff(np.array([static_lift(plant_draw(n).plant, c) for n in (3, 31)
+                                    for c in (0.004, 0.008, 0.012)]).reshape(2, 3)) > 0)
+    assert np.all((peak > 0.01) & (peak < 0.05)), peak         # single burst at 60 V
+    assert np.all((t_peak > 0.8) & (t_peak < 2.2)), t_peak     # peak 1–2 t⁺ after the burst
+    assert np.all(dip < 0.0), dip                             # the initial dip
+    assert np.all(tail < 0.3), tail                           # a transient of a few t⁺
+
+
+def test_a_draw_streams_as_one_plant_and_its_record_says_its_draw(tmp_path):
+    run = run_experiment("train_T1p75", seed=2, plant_draw=7)
+    n = len(run)
+    chunks = daq_stream("train_T1p75", seed=2, plant_draw=7)
+    parts = [next(chunks) for _ in range(int(np.ceil(n / FS_HZ)))]
+    dcl = np.concatenate([p.dcl_true for p in parts])[:n]
+    counts = np.concatenate([p.counts for p in parts])[:n]
+    assert np.max(np.abs(dcl - run.dcl_true)) < 1e-12
+    assert np.max(np.abs(counts - run.counts)) <= 1      # filters' state carried: ≤ one count of rounding
+    stream = HilStream("train_T1p75", seed=2, plant_draw=7)
+    hil = np.concatenate([p.dcl_true for p, _ in zip(stream, range(40), strict=False)])
+    assert np.max(np.abs(hil - run.dcl_true[:len(hil)])) < 1e-12
+    rec = run.to_record()
+    assert rec.meta["plant_draw"] == "7"
+    other = run_experiment("train_T1p75", seed=2).to_record()
+    assert np.max(np.abs(rec.extra["dcl_true"] - other.extra["dcl_true"])) > 0.01   # another plant
+    noise = rec.dcl - rec.extra["dcl_true"]
+    assert 0.002 < noise.std() < 0.008 and np.corrcoef(rec.dcl, rec.extra["dcl_true"])[0, 1] > 0.9
+
+
+def test_cli_record_with_a_plant_draw_and_a_bad_draw(tmp_path, capsys):
+    out = tmp_path / "r.csv"
+    assert main(["bench", "record", "single_burst", "--plant-draw", "101", "--out", str(out)]) == 0
+    assert read_record(out).meta["plant_draw"] == "101"
+    assert "plant draw 101" in capsys.readouterr().out
+    assert main(["bench", "record", "single_burst", "--plant-draw", "-1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "plant draw must be a non-negative integer" in err[0]
