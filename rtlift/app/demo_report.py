@@ -92,6 +92,14 @@ def _fmt(v: Any, spec: str = ".4f") -> str:
     return "–" if v is None else format(v, spec)
 
 
+def _params(params: dict[str, Any], sep: str) -> str:
+    """An effect's parameters as ``k<sep>v, ...``, each value as the diagnosis report writes it
+    (numbers to 4 digits; strings, lists and mappings too: an output nonlinearity's ``form``)."""
+    from rtlift.diagnose.report import param_text
+
+    return ", ".join(f"{k}{sep}{param_text(v)}" for k, v in params.items())
+
+
 def results_table(summary: dict[str, Any]) -> str:
     """The short table printed at the end of the demo (plain text)."""
     v = summary["validation"]
@@ -110,8 +118,7 @@ def results_table(summary: dict[str, Any]) -> str:
               f"{_fmt(live['latency_p50_ms'], '.3f')} ms, p99 {_fmt(live['latency_p99_ms'], '.3f')} ms, "
               f"observer step p99 {_fmt(live['observer_step_p99_us'], '.1f')} us"]
     d = summary["diagnosis"]
-    found = ", ".join(e["name"] + " (" + ", ".join(f"{k}={x:.4g}" for k, x in e["params"].items()) + ")"
-                      for e in d["accepted"]) or "nothing"
+    found = ", ".join(f"{e['name']} ({_params(e['params'], '=')})" for e in d["accepted"]) or "nothing"
     lines += ["", f"undeclared effect injected: {d['injected']}", f"  diagnosis found: {found}"]
     for name, e in d["records"].items():
         lines.append(f"  {name:<20} RMSE {e['rmse_before']:.5f} -> {e['rmse_after']:.5f}")
@@ -172,7 +179,7 @@ def report_markdown(summary: dict[str, Any]) -> str:
            "sine_k025 and random):", ""]
     if d["accepted"]:
         for e in d["accepted"]:
-            md.append(f"- accepted **{e['name']}**: " + ", ".join(f"{k} = {x:.4g}" for k, x in e["params"].items()))
+            md.append(f"- accepted **{e['name']}**: {_params(e['params'], ' = ')}")
     else:
         md.append("- nothing accepted")
     md += ["", "| record | RMSE before | RMSE after |", "|---|---|---|"]

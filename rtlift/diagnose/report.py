@@ -88,15 +88,15 @@ def tests_json(diag: Diagnosis) -> dict[str, Any]:
             "after": one(diag.tests_after), "combinations": diag.rounds}
 
 
-def _value(v: Any) -> str:
+def param_text(v: Any) -> str:
     """A parameter as the report's table shows it: numbers to 4 digits, lists and mappings of
     them too; a list of records (a pickup's harmonics) as Python writes it."""
     if isinstance(v, float):
         return f"{v:.4g}"
     if isinstance(v, (list, tuple)) and not any(isinstance(x, dict) for x in v):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
+        return "[" + ", ".join(param_text(x) for x in v) + "]"
     if isinstance(v, dict):
-        return "{" + ", ".join(f"{k}: {_value(x)}" for k, x in v.items()) + "}"
+        return "{" + ", ".join(f"{k}: {param_text(x)}" for k, x in v.items()) + "}"
     return f"{v}"
 
 
@@ -129,7 +129,7 @@ def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
               "| effect | kind | accepted | parameters | validation RMSE before → after |",
               "|---|---|---|---|---|"]
     for e in r["effects"]:
-        params = ", ".join(f"{k}={_value(v)}" for k, v in e["params"].items())
+        params = ", ".join(f"{k}={param_text(v)}" for k, v in e["params"].items())
         lines.append(f"| {e['name']} | {e['kind']} | {'**yes**' if e['accepted'] else 'no'} | {params or '–'} | "
                      f"{e['validation_rmse_before']:{num}} → {e['validation_rmse_after']:{num}} |")
     sel = r["selection"]
