@@ -135,11 +135,11 @@ class ObserverLoop:
                     self.adapter.after_step(self._index, self._last_cmu, self._last_env, None)
                 if tap is not None:
                     tap.append((self._index, None, est.dcl, est.model_dcl, est.innovation, est.nis))
+                stats.estimates += 1
                 if writer is not None:
                     writer.write(self._index, self._index / self.fs_hz,
                                  (self._last_seq + i) % self.seq_modulus, None,
                                  self._last_cmu, self._last_env, None, est)
-                    stats.estimates += 1
         self._last_seq = sample.seq
         self._index += 1
         cmu, env, dcl = self.converter(sample)
@@ -167,9 +167,9 @@ class ObserverLoop:
         self._last_cmu, self._last_env = cmu, env
         if tap is not None:
             tap.append((self._index, dcl, est.dcl, est.model_dcl, est.innovation, est.nis))
+        stats.estimates += 1
         if writer is not None:
             writer.write(self._index, self._index / self.fs_hz, sample.seq, sample.t_us, cmu, env, dcl, est)
-            stats.estimates += 1
 
     def bridge(self, missed: int, known: bool) -> None:
         """The link came back after its device vanished (``link.on_gap``): ``missed`` samples
@@ -187,11 +187,11 @@ class ObserverLoop:
                 self.monitor.step(None, est.model_dcl, est.innovation)
             if self.tap is not None:
                 self.tap.append((self._index + i, None, est.dcl, est.model_dcl, est.innovation, est.nis))
+            stats.estimates += 1
             if writer is not None:
                 index = self._index + i
                 writer.write(index, index / self.fs_hz, (last + i) % self.seq_modulus if known else "", None,
                              self._last_cmu, self._last_env, None, est)
-                stats.estimates += 1
         if last is not None:
             self._index += missed
         self._last_seq = None
@@ -271,7 +271,7 @@ def run_live(tool: str, stats: LoopStats, link: Any, feed: Callable[[Any], None]
 
 def summary(link_counters: dict[str, int], stats: LoopStats, observer: Observer,
             **extra: Any) -> dict[str, Any]:
-    """SUMMARY.json: the exact link counters, estimates written, latency percentiles, monitors."""
+    """SUMMARY.json: the exact link counters, estimates made (written with ``--out``), latency percentiles, monitors."""
     p50, p99 = stats.latency_ms()
     out: dict[str, Any] = {
         "version": 1,

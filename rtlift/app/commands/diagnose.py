@@ -36,6 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--init-state", action="store_true",
                    help="generic records: every model runs from the state estimated on a record's unscored "
                         "samples (--skip) instead of from rest")
+    p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p.set_defaults(func=run)
 
 
@@ -57,14 +58,16 @@ def check_sources(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Parse, call :func:`rtlift.api.diagnose` (or :func:`~rtlift.api.diagnose_run`), print the summary."""
     from rtlift import api
+    from rtlift.app.progress import working
 
     check_sources(args)
-    if args.run is not None:
-        rep, augmented = api.diagnose_run(args.model, args.run, split=args.split, out=args.out, skip=args.skip,
+    with working("rtlift diagnose", "fitting candidate effects, judging them, writing the report", args.quiet):
+        if args.run is not None:
+            rep, augmented = api.diagnose_run(args.model, args.run, split=args.split, out=args.out,
+                                              skip=args.skip, init_state=args.init_state)
+        else:
+            rep, augmented = api.diagnose(args.model, args.train, args.validate, out=args.out, skip=args.skip,
                                           init_state=args.init_state)
-    else:
-        rep, augmented = api.diagnose(args.model, args.train, args.validate, out=args.out, skip=args.skip,
-                                      init_state=args.init_state)
     print("\n".join(summary(rep, args.model, args.out, api.is_generic(augmented))))
     return 0
 

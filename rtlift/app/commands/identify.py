@@ -50,6 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "auto, its first burst period re-estimated on the training record where that "
                         "lowers the held-out error (default)")
     p.add_argument("-o", "--out", required=True, metavar="MODEL.json", help="model file to write")
+    p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p.set_defaults(func=run)
 
 
@@ -81,11 +82,14 @@ def run(args: argparse.Namespace) -> int:
     if args.trains and args.structure == "paper":
         print("rtlift identify: note: --trains are not fitted by --structure paper (the paper's hybrid); "
               "leave --structure out to learn from them", file=sys.stderr)
+    from rtlift.app.progress import working
+
     t0 = time.perf_counter()
-    idf = identify(args.static, args.single_burst, args.train,
-                   trains=args.trains or (), structure=args.structure,
-                   order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time, kernel=args.kernel,
-                   out=args.out)
+    with working("rtlift identify", "identifying the model and tuning the observer", args.quiet):
+        idf = identify(args.static, args.single_burst, args.train,
+                       trains=args.trains or (), structure=args.structure,
+                       order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time,
+                       kernel=args.kernel, out=args.out)
     seconds = time.perf_counter() - t0
     if idf.provenance["structure"]["name"] == "interaction":
         print(interaction_summary(idf, args.out, seconds))
@@ -158,9 +162,11 @@ def summary(idf, out_path: str, seconds: float) -> str:
 def run_generic(args: argparse.Namespace) -> int:
     """``rtlift identify --record F --structure S``: a generic single-input record."""
     from rtlift.api import identify_record
+    from rtlift.app.progress import working
 
     t0 = time.perf_counter()
-    model = identify_record(args.record, structure=args.structure, order=args.order, out=args.out)
+    with working("rtlift identify", f"identifying a {args.structure} model", args.quiet):
+        model = identify_record(args.record, structure=args.structure, order=args.order, out=args.out)
     p = model.provenance
     lines = [f"identified {model.structure} model in {time.perf_counter() - t0:.1f} s -> {args.out}"]
     if "bla_order" in p:

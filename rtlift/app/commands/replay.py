@@ -328,5 +328,6 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 1
         print(f"rtlift replay: controller rerun: {control['replayed']} commands, identical to the "
-              f"{control['logged']} logged; tracking RMSE {control['tracking_rmse']}")
+              f"{control['logged']} logged; tracking RMSE "
+              + ("–" if control["tracking_rmse"] is None else f"{control['tracking_rmse']:.4g}"))
     return 0
