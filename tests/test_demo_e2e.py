@@ -32,8 +32,9 @@ def test_demo_runs_end_to_end_and_reports_every_stage(tmp_path):
     for name, paper in (("sine_k0125", 0.9596), ("sine_k025", 0.8654), ("random", 0.9277)):
         assert s["validation"][name]["hybrid"]["corr"] > paper
     live = s["live"]
-    assert live["link"]["lost"] == 0 and live["link"]["received"] == 8 * 400
-    assert live["rmse_vs_truth"]["observer"] < live["rmse_vs_truth"]["open_loop_model"]
+    assert live["link"]["lost"] == 0 and live["link"]["received"] >= 8 * 400
+    r = live["rmse_vs_truth"]
+    assert r["observer"] < r["open_loop_model"] and r["observer"] < 0.95 * r["measurement"]     # issue 44
     d = s["diagnosis"]
     assert [e["name"] for e in d["accepted"]][:1] == ["sensor_resonance"]
     assert abs(d["accepted"][0]["params"]["frequency_hz"] - 24.0) < 2.4          # ±10 %

@@ -218,64 +218,114 @@ def _validate(idf, records: dict[str, Record], out: str, validate_record, plot_v
     return table
 
 
+class _Tap:
+    """The link as a :class:`~rtlift.app.record.Recorder` sees it, every received sample handed to
+    ``feed`` first (the observer's loop) — one host thread, as in ``rtlift observe``."""
+
+    def __init__(self, link: Any, feed) -> None:
+        self._link = link
+        self._feed = feed
+
+    def recv(self, timeout: float | None = None):
+        s = self._link.recv(timeout)
+        if s is not None:
+            self._feed(s)
+        return s
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._link, name)
+
+
+def program_prefix(program, seconds: float):
+    """The first ``seconds`` of ``program`` (:class:`rtlift.core.programs.Program`), ended there
+    with the actuator off."""
+    from dataclasses import replace
+
+    keep = program.t < seconds
+    return replace(program, t=np.append(program.t[keep], seconds),
+                   envelope_v=np.append(program.envelope_v[keep], 0.0),
+                   burst_period_ms=np.append(program.burst_period_ms[keep], 0))
+
+
 def _live(model_path: str, opt: DemoOptions, out: str, prog: _Progress) -> dict[str, Any]:
-    """Bench on a pty at real-time 400 Hz → serial link → observer; estimate vs truth."""
+    """The bench on a pty at real-time 400 Hz, host-commanded as in stage 1 (``rtlift record``'s
+    settle, tare and the ``random`` program of seed + 2, which the model never saw), the observer
+    stepping on every sample the link delivers; estimate vs the bench's truth.
+
+    The plant is driven as during identification: by the host's commands, the envelope taking
+    effect at burst onsets (PROTOCOL.md). A version-1 stream (the device's own program, its
+    envelope changing at every sample) is an input the identified model was never fitted on; on
+    it the observer did worse than the raw measurement (issue 44)."""
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
     from firmware_io.links import open_link
+    from firmware_io.samples import STATUS_BURST_ON
     from hil_sim.devices import SerialDaq
-    from hil_sim.experiments import daq_stream
+    from hil_sim.hil import HilStream
     from rtlift.app.live import ObserverLoop
+    from rtlift.app.record import OFF_PERIOD_MS, SETTLE_S, Recorder
+    from rtlift.core.programs import standard_program
     from rtlift.model.modelfile import load_model
     from rtlift.observer import Observer
 
     model = load_model(model_path)
     n = int(round(opt.live_seconds * FS_HZ))
-    truth: list[np.ndarray] = []
-
-    def chunks():
-        for chunk in daq_stream("random", seed=opt.seed + 2):
-            truth.append(chunk.dcl_true)
-            yield chunk
-
     cal = Calibration()
     cols = np.full((n, 3), np.nan)          # measured ΔCL, observer ΔĈL, open-loop model
+    seqs = np.zeros(n, dtype=np.int64)
     observer = Observer.from_model(model)
     observer.warm_up()                      # compile before the link opens, not on its first sample
-    with SerialDaq(chunks(), max_samples=n) as device:
+    converter = Converter(cal, model.fs_hz)
+    measured: list[float | None] = [None]
+    applied = [0.0, 0]                      # the envelope driving the plant (Cμ), the last status
+
+    def convert(sample):
+        """Cμ, the envelope as applied, ΔCL. A version-2 device reports the envelope it was
+        commanded, which drives the plant only from the next burst onset on (PROTOCOL.md): held
+        from each onset (burst-on rising edge) to the next, as the records of stage 1 hold it
+        (:meth:`rtlift.app.record._Run.applied_cv`)."""
+        cmu, env, dcl = converter(sample)
+        if sample.status & STATUS_BURST_ON and not applied[1] & STATUS_BURST_ON:
+            applied[0] = env
+        applied[1] = sample.status
+        measured[0] = dcl                   # kept for the comparison
+        return cmu, applied[0], dcl
+
+    # the program ends ½ s after the observer's last sample (the protocol check and the first
+    # burst's alignment come before it)
+    program = program_prefix(standard_program("random", cal.volts_from_cmu, opt.seed + 2),
+                             opt.live_seconds - SETTLE_S - cal.tare_seconds + 0.5)
+    stream = HilStream("random", seed=opt.seed + 2)
+    with SerialDaq(stream, period_us=int(round(1e6 * PERIOD_S)), seed=opt.seed + 2) as device:
+        stream.control = device.control
         with open_link({"kind": "serial", "port": device.path, "calibration": cal,
                         "log": os.path.join(out, "live_frames.bin")}) as link:
-            converter = Converter(cal, model.fs_hz)
-            measured: list[float | None] = [None]
-
-            def convert(sample):                      # keep the measured ΔCL for the comparison
-                out = converter(sample)
-                measured[0] = out[2]
-                return out
-
             loop = ObserverLoop(observer, convert, link.seq_modulus, max_samples=n, time_steps=True)
-            device.start()
             est = observer.estimate
             with prog.bar(n, "observer live") as bar:
-                for s in link.samples(0.5):
-                    if s is None:
-                        if device.finished.is_set():
-                            break
-                        continue
+                def feed(s) -> None:
+                    if loop.done:
+                        return
                     loop.feed(s)
                     i = est.sample - 1
                     if 0 <= i < n:
                         cols[i] = (np.nan if measured[0] is None else measured[0], est.dcl, est.model_dcl)
+                        seqs[i] = s.seq
                     bar.update(1)
-                    if loop.done:
-                        break
+
+                device.start()
+                rec = Recorder(_Tap(link, feed), cal, meta={"link": "serial (simulated bench on a pty)"})
+                rec.check_protocol(OFF_PERIOD_MS)
+                result = rec.run(program, None)
             counters = link.counters.as_dict()
+    if not result.complete or not loop.done:
+        raise RuntimeError(f"demo: the live run over the pty did not complete ({result.reason or 'too short'})")
     p50, p99 = loop.stats.latency_ms()
     step_us = np.frombuffer(loop.stats.step_times, dtype=float) * 1e6
-    true = np.concatenate(truth)[:n]
-    return live_report(cols, true, counters, p50, p99, step_us, out)
-
-
+    idx, truth = stream.truth_array()
+    lookup = np.full(int(idx.max()) + 1, np.nan)
+    lookup[idx] = truth
+    return live_report(cols, lookup[seqs], counters, p50, p99, step_us, out)
 
 
 def tracking_reference(path: str) -> str:

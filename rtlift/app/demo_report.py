@@ -44,14 +44,10 @@ def tracking_figure(t: np.ndarray, ref: np.ndarray, traces: dict, rows: dict, pa
 def live_report(cols: np.ndarray, true: np.ndarray, counters: dict[str, int], p50: float | None,
                  p99: float | None, step_us: np.ndarray, out: str) -> dict[str, Any]:
     """RMSE of measurement, open-loop model and observer against the bench's truth; a figure."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from rtlift.app.figures import observer_figure
     from rtlift.core.metrics import rmse
 
-    skip = 1200                   # 2 s of tare (no ΔCL yet) and 1 s for the observer to settle
+    skip = 1200                   # settle and tare with the actuator off (3 s; no ΔCL for the first 2)
     ok = ~np.isnan(cols[:, 0])
     ok[:skip] = False
     meas, hat, model = cols[ok, 0], cols[ok, 1], cols[ok, 2]
@@ -67,24 +63,11 @@ def live_report(cols: np.ndarray, true: np.ndarray, counters: dict[str, int], p5
         "observer_step_p99_us": float(np.percentile(step_us, 99)) if step_us.size else None,
         "figure": "figures/live_observer.png",
     }
-    t = np.arange(len(cols)) / FS_HZ
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6.5))
-    windows = ((0, len(cols)), (len(cols) // 2, min(len(cols), len(cols) // 2 + 1200)))
-    for ax, (a, b) in zip(axes, windows, strict=True):
-        sl = slice(a, b)
-        ax.plot(t[sl], cols[sl, 0], color="0.7", lw=0.8, label="measured (σ ≈ 0.004)")
-        ax.plot(t[sl], cols[sl, 2], color="tab:orange", lw=1.0, ls="--", label="open-loop hybrid model")
-        ax.plot(t[sl], cols[sl, 1], color="tab:blue", lw=1.2, label="Kalman observer")
-        ax.plot(t[sl], true[sl], color="k", lw=0.9, label="bench truth (noise-free)")
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("ΔCL")
     r = result["rmse_vs_truth"]
-    axes[0].set_title(f"observer live at 400 Hz over a serial pty — RMSE vs truth: measured {r['measurement']:.4f}, "
-                      f"open loop {r['open_loop_model']:.4f}, observer {r['observer']:.4f}", fontsize=9)
-    axes[0].legend(fontsize=8, ncol=4, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "figures", "live_observer.png"), dpi=110)
-    plt.close(fig)
+    observer_figure(np.arange(len(cols)) / FS_HZ, cols[:, 0], cols[:, 1], cols[:, 2],
+                    os.path.join(out, "figures", "live_observer.png"),
+                    f"observer live at 400 Hz over a serial pty — RMSE vs truth: measured {r['measurement']:.4f}, "
+                    f"open loop {r['open_loop_model']:.4f}, observer {r['observer']:.4f}", FS_HZ, truth=true)
     return result
 
 
