@@ -59,11 +59,12 @@ MODELS = ("paper", "default")
 CORR_MARGIN, NRMSE_MARGIN, NRMSE_FLOOR = 0.02, 0.1, 0.5
 
 
-def bench_records(seed: int) -> tuple[dict[str, Record], dict[str, dict[str, float]]]:
-    """The records of every type, and the bench truth's scores against each (the ceiling)."""
+def bench_records(seed: int, plant_draw: int = 0) -> tuple[dict[str, Record], dict[str, dict[str, float]]]:
+    """The records of every type, and the bench truth's scores against each (the ceiling);
+    ``plant_draw``: plant N of the family (hil_sim.family; 0 our bench)."""
     from hil_sim.experiments import run_experiment
 
-    runs = {n: run_experiment(n, seed=seed) for n in RECORDS}
+    runs = {n: run_experiment(n, seed=seed, plant_draw=plant_draw) for n in RECORDS}
     records = {n: r.to_record(n) for n, r in runs.items()}
     return records, {n: scores(records[n].dcl, runs[n].dcl_true) for n in RECORDS}
 

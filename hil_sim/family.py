@@ -170,3 +170,29 @@ def single_burst(plant: PlantParams, cmu: float = 0.0022, tplus: float = 12.0) -
     c = np.zeros(n)
     c[:BURST_SAMPLES] = cmu
     return TruthPlant(plant).process(c, np.where(c > 0, cmu, 0.0))["dcl"]
+
+
+PROPERTY_CMUS = (0.0055, 0.011, 0.0165, 0.022)
+"""The static map's points :func:`properties` reads (Cμ, 8 Hz bursts): a quarter of full Cμ to full."""
+
+
+def properties(number: int) -> dict[str, float]:
+    """docs/BENCH.md's properties of plant ``number``, noise-free (the plant alone):
+
+    - ``full``: ΔCL at Cμ 0.022 (8 Hz bursts); ``half_over_full``: ΔCL(0.011)/ΔCL(0.022) (> ½:
+      concave); ``slope_ratio``: the static map's slope over its first quarter over that of its
+      last quarter (> 1: saturating);
+    - the single burst at Cμ 0.0022 (60 V): ``burst_peak`` (ΔCL), ``burst_peak_tplus`` (t⁺ after
+      the burst), ``burst_dip`` (the least ΔCL before the peak), ``burst_tail``: the largest
+      |ΔCL| 7 t⁺ and more after the burst over the peak."""
+    from hil_sim import FS_HZ, T_CONV_S
+
+    p = plant_draw(number).plant
+    s = np.array([static_lift(p, c) for c in PROPERTY_CMUS])
+    slopes = np.diff(np.concatenate([[0.0], s]))
+    kernel = single_burst(p)
+    k = int(np.argmax(kernel))
+    return {"full": float(s[-1]), "half_over_full": float(s[1] / s[-1]), "slope_ratio": float(slopes[0] / slopes[-1]),
+            "burst_peak": float(kernel[k]), "burst_peak_tplus": float(k / FS_HZ / T_CONV_S),
+            "burst_dip": float(kernel[:k].min()),
+            "burst_tail": float(np.abs(kernel[int(7 * T_CONV_S * FS_HZ):]).max() / kernel[k])}

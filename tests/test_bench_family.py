@@ -9,7 +9,7 @@ import hashlib
 import numpy as np
 import pytest
 
-from hil_sim import FS_HZ, T_CONV_S
+from hil_sim import FS_HZ
 from hil_sim.experiments import daq_stream, run_experiment, write_bench_record
 from hil_sim.family import (
     CALIBRATION_DRAWS,
@@ -17,7 +17,7 @@ from hil_sim.family import (
     REPORTING_DRAWS,
     draws_line,
     plant_draw,
-    single_burst,
+    properties,
     static_lift,
 )
 from hil_sim.hil import HilStream
@@ -63,27 +63,18 @@ def test_draws_are_reproducible_distinct_within_their_ranges_and_spread_over_the
 def test_calibration_draws_stay_physically_plausible():
     """docs/BENCH.md's properties, noise-free, on every calibration draw (and draw 0 as the check
     that the measure reads our bench as BENCH.md says)."""
-    rows = {}
-    for n in (0, *CALIBRATION_DRAWS):
-        p = plant_draw(n).plant
-        s = np.array([static_lift(p, c) for c in (0.0055, 0.011, 0.0165, 0.022)])
-        kernel = single_burst(p)
-        k = int(np.argmax(kernel))
-        tail = np.abs(kernel[int(7 * T_CONV_S * FS_HZ):]).max() / kernel[k]
-        slopes = np.diff(np.concatenate([[0.0], s]))
-        rows[n] = (s[-1], s[1] / s[-1], slopes[0] / slopes[-1], kernel[k], k / FS_HZ / T_CONV_S,
-                   kernel[:k].min(), tail)
-    full, half, slope, peak, t_peak, dip, tail = np.array(list(rows.values())).T
-    assert abs(full[0] - 0.218) < 0.003 and abs(peak[0] - 0.024) < 0.001   # our bench, BENCH.md
-    assert np.all((full > 0.12) & (full < 0.3)), full          # ΔCL at full Cμ, 8 Hz: 0.1–0.3
-    assert np.all((half > 0.5) & (half < 0.75)), half          # concave ...
-    assert np.all(slope > 1.2), slope                         # ... and saturating
-    assert np.all(np.diff(np.array([static_lift(plant_draw(n).plant, c) for n in (3, 31)
-                                    for c in (0.004, 0.008, 0.012)]).reshape(2, 3)) > 0)
-    assert np.all((peak > 0.01) & (peak < 0.05)), peak         # single burst at 60 V
-    assert np.all((t_peak > 0.8) & (t_peak < 2.2)), t_peak     # peak 1–2 t⁺ after the burst
-    assert np.all(dip < 0.0), dip                             # the initial dip
-    assert np.all(tail < 0.3), tail                           # a transient of a few t⁺
+    props = {n: properties(n) for n in (0, *CALIBRATION_DRAWS)}
+    col = {k: np.array([p[k] for p in props.values()]) for k in props[0]}
+    assert abs(col["full"][0] - 0.218) < 0.003 and abs(col["burst_peak"][0] - 0.024) < 0.001   # BENCH.md
+    assert np.all((col["full"] > 0.12) & (col["full"] < 0.3)), col["full"]    # ΔCL at full Cμ, 8 Hz: 0.1–0.3
+    assert np.all((col["half_over_full"] > 0.5) & (col["half_over_full"] < 0.75))   # concave ...
+    assert np.all(col["slope_ratio"] > 1.2), col["slope_ratio"]               # ... and saturating
+    low = np.array([static_lift(plant_draw(n).plant, c) for n in (3, 31) for c in (0.004, 0.008, 0.012)])
+    assert np.all(np.diff(low.reshape(2, 3)) > 0)                              # rising from the start
+    assert np.all((col["burst_peak"] > 0.01) & (col["burst_peak"] < 0.05))     # single burst at 60 V
+    assert np.all((col["burst_peak_tplus"] > 0.8) & (col["burst_peak_tplus"] < 2.2))   # 1–2 t⁺ after it
+    assert np.all(col["burst_dip"] < 0.0)                                      # the initial dip
+    assert np.all(col["burst_tail"] < 0.3), col["burst_tail"]                  # a transient of a few t⁺
 
 
 def test_a_draw_streams_as_one_plant_and_its_record_says_its_draw(tmp_path):
@@ -114,3 +105,36 @@ def test_cli_record_with_a_plant_draw_and_a_bad_draw(tmp_path, capsys):
     assert main(["bench", "record", "single_burst", "--plant-draw", "-1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "plant draw must be a non-negative integer" in err[0]
+
+
+def test_a_family_run_on_a_local_cluster_equals_the_serial_run_and_resumes(tmp_path):
+    """benchmarks/family.py's runner on a tiny task set (each draw's BENCH.md properties)."""
+    from distributed import LocalCluster
+
+    from benchmarks.family import run_tasks
+
+    tasks = [(n,) for n in (1, 2, 3, 4)]
+    serial = run_tasks(properties, tasks, tmp_path / "serial.jsonl", serial=True, progress=False)
+    assert serial[2] == properties(3) and serial[0]["full"] != serial[1]["full"]
+    on_cluster = tmp_path / "cluster.jsonl"
+    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0") as cluster:  # as --scheduler
+        at = cluster.scheduler_address
+        run_tasks(properties, tasks[:2], on_cluster, scheduler=at, progress=False)     # killed halfway ...
+        first = on_cluster.read_text().splitlines()
+        assert run_tasks(properties, tasks, on_cluster, scheduler=at, progress=False) == serial   # ... restarted
+    lines = on_cluster.read_text().splitlines()
+    assert len(lines) == 4 and lines[:2] == first       # the two finished tasks were not redone
+
+    calls = []
+
+    def counted(n: int) -> dict[str, float]:
+        calls.append(n)
+        return properties(n)
+
+    resumed = tmp_path / "resumed.jsonl"
+    run_tasks(counted, tasks[:2], resumed, serial=True, progress=False)
+    with open(resumed, "a") as f:
+        f.write('{"key": "[3]", "resu')                # the kill tore the third task's line
+    calls.clear()
+    assert run_tasks(counted, tasks, resumed, serial=True, progress=False) == serial
+    assert calls == [3, 4]
