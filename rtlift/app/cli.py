@@ -17,7 +17,7 @@ import traceback
 from rtlift.core.errors import NumericalError, UserError
 
 COMMANDS = ("demo", "bench", "record", "identify", "validate", "diagnose", "observe", "control", "design", "replay",
-            "data")
+            "data", "export", "plot")
 
 DESCRIPTION = ("Real-time lift estimation for a stalled wing with burst actuation: record experiments, "
                "identify a model, validate and diagnose it, and run the 400 Hz Kalman observer or the "
