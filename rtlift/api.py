@@ -115,21 +115,24 @@ def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any
 
 def identify_record(record: Any, *, structure: str = "wiener", order: int | None = None,
                     out: PathLike | None = None):
-    """A single-input model of one generic ``t,u,y`` record (``rtlift identify --record``), its
+    """A single-input model of one generic ``t,u,y`` record (``rtlift identify --record``), or of
+    several given as a list (``--record A --record B``: each its own run from rest, one cost), its
     ``.metrics`` holding the held-out and training RMSE; written to ``out`` when given."""
     from rtlift.model.siso_file import save_siso_model
-    from rtlift.sysid.identify import identify_siso
+    from rtlift.sysid.identify import MIN_FIT, MIN_HELD, identify_siso
 
     if structure not in GENERIC_STRUCTURES:
         raise UserError(f"structure {structure!r}: a generic record takes {', '.join(GENERIC_STRUCTURES)}")
     if order is not None and not 1 <= order <= 8:
         raise UserError(f"--order {order}: must be between 1 and 8")
-    rec = _generic(record, 500)
+    given = list(record) if isinstance(record, (list, tuple)) else [record]
+    recs = [_generic(r, MIN_FIT + MIN_HELD) for r in given]
     try:
-        model = identify_siso(rec, structure, order)
+        model = identify_siso(recs[0] if len(recs) == 1 else recs, structure, order)
     except ValueError as exc:
-        raise UserError(f"cannot identify from {record if isinstance(record, (str, os.PathLike)) else rec.name}: "
-                        f"{exc}") from None
+        names = ", ".join(str(r) if isinstance(r, (str, os.PathLike)) else rec.name
+                          for r, rec in zip(given, recs, strict=True))
+        raise UserError(f"cannot identify from {names}: {exc}") from None
     if out is not None:
         try:
             save_siso_model(model, out)

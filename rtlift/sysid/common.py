@@ -36,7 +36,15 @@ def _limited(model, limits: Limits):
 
 
 def _rmse(model: SisoModel | FeedbackModel, u: np.ndarray, y: np.ndarray, skip: int) -> float:
+    """RMSE of the free run from rest over (u, y), samples ``skip`` on."""
+    return _pooled_rmse(model, [(u, y, skip)])
+
+
+def _pooled_rmse(model: SisoModel | FeedbackModel, parts: list[tuple[np.ndarray, np.ndarray, int]]) -> float:
+    """RMSE pooled over several records (u, y, first scored sample), each a free run from rest."""
+    err = []
+    for u, y, start in parts:
+        model.reset()
+        err.append((model.simulate(u) - y)[start:])
     model.reset()
-    out = model.simulate(u)
-    model.reset()
-    return float(np.sqrt(np.mean((out - y)[skip:] ** 2)))
+    return float(np.sqrt(np.mean(np.concatenate(err) ** 2)))

@@ -194,7 +194,11 @@ def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRec
             candidates.append((SATURATION.name,
                                lambda: _best_saturated(train, validate, vskip, options, limits, init_state)))
         for name, fit in candidates:
-            candidate = models[name] = fit()
+            try:
+                candidate = models[name] = fit()
+            except ValueError as exc:        # a structure the data cannot be fitted in: said, not fatal
+                trials.append(Trial(name, False, {}, f"not fitted: {exc}", rb, rb, "structure", "not fitted"))
+                continue
             after = [(r.y - predict(candidate, r, init(r.name)))[k:] for r, k in zip(validate, vskip, strict=True)]
             ok, why = significant_gain(before, after, measured, block, DiagnoseOptions())
             ra = pooled_rmse(after)
@@ -260,4 +264,6 @@ def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[in
                                                     for r, k in zip(validate, skip, strict=True)]) ** 2)))
         if best is None or err < best[0]:
             best = (err, m)
+    if best is None:
+        raise ValueError("no form with the limit in place could be fitted")
     return best[1]

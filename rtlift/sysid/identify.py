@@ -1,4 +1,6 @@
-"""Identify a single-input W-block model (:mod:`.model`) from one generic record.
+"""Identify a single-input W-block model (:mod:`.model`) from generic records: one, or several
+experiments of one system (each its own run from rest, one cost pooled over them, each's last
+``holdout`` fraction held out).
 
 1. **Best linear approximation** (BLA): an output-error model y ≈ B(q)/A(q) u of order n
    (Ljung eq. 7.12), started from ARX least squares, refined by Levenberg–Marquardt with the
@@ -29,6 +31,18 @@
    With ``where="state"`` the limit acts inside the model instead (nonlinear feedback:
    :mod:`.feedback`; a store chain: :mod:`.store_chain`).
 
+5. **Integrating outputs** (no limit): the BLA of every order is also fitted on the differenced
+   output Δy(k) = y(k) − y(k − 1) (each run from rest) and run integrated, y = Δŷ/(1 − q⁻¹);
+   where the best such linear model has the lower held-out RMSE, the W-block model is also
+   fitted on Δy and closed by the integrator (G₂ = 1/(1 − q⁻¹), or G₂/(1 − q⁻¹)), and the one of
+   the two with the lower held-out RMSE is kept. A pole at z = 1 in a model fitted on y itself
+   is within the parametrisation's reach only to 1 − 10⁻⁷ and drifts over a long record.
+
+An order, a split or a knot count whose fit fails numerically (a non-finite start, a constant
+or non-finite G₁ output) is skipped and named in ``provenance["skipped"]``; on a short record the
+orders and knot counts beyond :data:`PER_COEFFICIENT` samples per coefficient are not tried and
+``provenance["notes"]`` says so.
+
 Refinement costs are evaluated on at most ``cost_samples`` samples of the estimation part
 (simulation over them, from rest; the first ``skip`` samples left out as the initial state is
 unknown); f is refitted on the whole estimation part at the end.
@@ -37,6 +51,7 @@ unknown); f is refitted on the whole estimation part at the end.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,7 +63,7 @@ from rtlift.core.records import SisoRecord
 from rtlift.core.threads import one_blas_thread
 from rtlift.identify.poles import denominator_from_theta, theta_from_poles
 from rtlift.model.siso import LIMITED, STRUCTURES, SaturatedModel, SisoModel, listed
-from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions, _limited, _rmse
+from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions, _limited, _pooled_rmse, _rmse
 from rtlift.sysid.feedback import identify_feedback
 from rtlift.sysid.store_chain import identify_store_chain
 
@@ -76,8 +91,49 @@ def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
 
 
 def _unit_dc(b: np.ndarray, a: np.ndarray) -> np.ndarray:
-    g = np.sum(b) / np.sum(a)
-    return b / g if abs(g) > 1e-12 else b
+    """b scaled to B(1)/A(1) = 1, the gain ambiguity's gauge (f carries the static gain). A block
+    with a pole at z = 1 to working precision (A(1) within rounding of 0: an integrator, or poles
+    pushed to the stability boundary) has no finite DC gain: b is returned as it is, the scale is
+    f's (its values are refitted by least squares for every G₁, so the cost does not see the gauge).
+    """
+    sa = float(np.sum(a))
+    if abs(sa) <= 1e-12 * float(np.sum(np.abs(a))):
+        return b
+    g = float(np.sum(b)) / sa
+    return b / g if np.isfinite(g) and abs(g) > 1e-12 else b
+
+
+INTEGRATOR = (np.array([1.0]), np.array([1.0, -(1.0 - 1e-12)]))
+"""1/(1 − ρq⁻¹), ρ = 1 − 10⁻¹²: the integrating variant's last block (module docstring, 5); the
+streaming filter takes poles inside the unit circle only, and this one leaks 0.1 % over 10⁹ samples."""
+
+
+class _Runs:
+    """Records run one after another, each from rest, under one cost: u and y concatenated,
+    ``bounds`` the first sample of each run and the end, the first ``skip`` samples of each run
+    unscored (its unknown initial state). One run: exactly the single-record arithmetic."""
+
+    def __init__(self, parts: list[tuple[np.ndarray, np.ndarray]], skip: int) -> None:
+        self.u = np.concatenate([u for u, _ in parts])
+        self.y = np.concatenate([y for _, y in parts])
+        self.bounds = np.cumsum([0] + [u.size for u, _ in parts])
+        self.skip = skip
+        self.pairs = list(zip(self.bounds[:-1], self.bounds[1:], strict=True))
+        self.rows: slice | np.ndarray = (slice(skip, None) if len(parts) == 1 else
+                                         np.concatenate([np.arange(lo + skip, hi) for lo, hi in self.pairs]))
+
+    def differenced(self) -> _Runs:
+        """The runs with y(k) − y(k − 1) for y, each run from rest (y(−1) = 0)."""
+        runs = _Runs.__new__(_Runs)
+        runs.__dict__.update(self.__dict__)
+        runs.y = np.concatenate([np.diff(self.y[lo:hi], prepend=0.0) for lo, hi in self.pairs])
+        return runs
+
+    def lfilter(self, b: np.ndarray, a: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """B(q)/A(q) v along axis 0, every run from rest."""
+        if len(self.pairs) == 1:
+            return signal.lfilter(b, a, v, axis=0)
+        return np.concatenate([signal.lfilter(b, a, v[lo:hi], axis=0) for lo, hi in self.pairs], axis=0)
 
 
 @dataclass
@@ -110,15 +166,22 @@ class _Dims:
         return np.concatenate(parts)
 
 
-def _simulate_basis(dims: _Dims, th: np.ndarray, u: np.ndarray, count: int):
-    """Φ of ``count`` knots at x's quantiles, filtered by G₂ (if any), and the knots."""
+def _simulate_basis(dims: _Dims, th: np.ndarray, runs: _Runs, count: int):
+    """Φ of ``count`` knots at x's quantiles, filtered by G₂ (if any), and the knots; every run
+    from rest. ValueError where x = G₁u is not finite or takes a single value (no map on it)."""
     b1, a1, b2, a2 = dims.build(th)
-    x = signal.lfilter(b1, a1, u)
+    x = runs.lfilter(b1, a1, runs.u)
+    if not np.all(np.isfinite(x)):
+        raise ValueError("the linear block's output is not finite")
     knots = np.unique(np.quantile(x, np.linspace(0.002, 0.998, count)))
+    if knots.size < 2:
+        knots = np.unique([x.min(), x.max()])
+        if knots.size < 2:
+            raise ValueError("the linear block's output is constant: no static map can be fitted on it")
     phi = _hats(x, knots)
     if b2 is not None:
         # column by column in Fortran order: the same numbers as on the row-major array, in half the time
-        phi = signal.lfilter(b2, a2, np.asfortranarray(phi), axis=0)
+        phi = runs.lfilter(b2, a2, np.asfortranarray(phi))
     return phi, knots
 
 
@@ -129,19 +192,20 @@ def _uncensored(y: np.ndarray, limits: Limits) -> np.ndarray:
     return (y > lo + tol) & (y < hi - tol)
 
 
-def _fit_values(phi: np.ndarray, y: np.ndarray, skip: int, limits: Limits = NO_LIMITS) -> np.ndarray:
-    """f's values c minimising ‖Φc − y‖ over the uncensored samples from ``skip`` on. By the
+def _fit_values(phi: np.ndarray, y: np.ndarray, rows: slice | np.ndarray,
+                limits: Limits = NO_LIMITS) -> np.ndarray:
+    """f's values c minimising ‖Φc − y‖ over the uncensored samples of ``rows`` (the scored
+    samples of :class:`_Runs`). By the
     normal equations (Cholesky of the column-scaled ΦᵀΦ, a few knots' columns, well conditioned
     as hat functions are): the refinements solve this thousands of times on tens of thousands of
     rows, where LAPACK's SVD-based least squares costs ~10× more (and ~100× on a loaded 2-core
     machine, its threads contending). Falls back to that least squares when ΦᵀΦ is not
     positive definite to working precision (a knot no sample reaches)."""
     if limits == NO_LIMITS:
-        a, b = phi[skip:], y[skip:]                      # views: no sample is censored
+        a, b = phi[rows], y[rows]                        # views for one run: no sample is censored
     else:
-        keep = _uncensored(y, limits)
-        keep[:skip] = False
-        a, b = phi[keep], y[keep]
+        keep = _uncensored(y, limits)[rows]
+        a, b = phi[rows][keep], y[rows][keep]
     g = a.T @ a
     scale = np.sqrt(np.diag(g))
     if np.all(scale > 0):
@@ -156,18 +220,33 @@ def _fit_values(phi: np.ndarray, y: np.ndarray, skip: int, limits: Limits = NO_L
     return c
 
 
-def fit_bla(u: np.ndarray, y: np.ndarray, n: int, skip: int, max_nfev: int = 300) -> tuple[np.ndarray, np.ndarray]:
-    """Output-error linear model of order n (numerator n + 1 taps): (b, a)."""
-    rows = np.arange(n, u.size)
+def _penalty(runs: _Runs) -> np.ndarray:
+    """The residual a refinement sees where a trial θ gives no finite model: far above any fit's."""
+    y = runs.y[runs.rows]
+    return np.full(y.size, 1e3 * (1.0 + float(np.max(np.abs(y)))))
+
+
+def fit_bla(runs: _Runs, n: int, max_nfev: int = 300) -> tuple[np.ndarray, np.ndarray]:
+    """Output-error linear model of order n (numerator n + 1 taps) over the runs, each from rest:
+    (b, a). Started from ARX least squares (each run's own regressors), its poles pulled inside
+    |z| ≤ 0.995; ValueError where the data give no finite start."""
+    u, y = runs.u, runs.y
+    rows = np.concatenate([np.arange(lo + n, hi) for lo, hi in runs.pairs])
+    if rows.size < 2 * n + 1:
+        raise ValueError(f"order {n}: {rows.size} samples for {2 * n + 1} coefficients")
     X = np.column_stack([-y[rows - k] for k in range(1, n + 1)] + [u[rows - k] for k in range(n + 1)])
     th, *_ = np.linalg.lstsq(X, y[rows], rcond=None)
+    if not np.all(np.isfinite(th)):
+        raise ValueError(f"order {n}: the least-squares start is not finite")
     a0 = np.concatenate([[1.0], th[:n]])
     a0 = np.poly(np.clip(np.abs(np.roots(a0)), 0, 0.995) * np.exp(1j * np.angle(np.roots(a0)))).real
     b0 = th[n:]
+    bad = _penalty(runs)
 
     def res(p: np.ndarray) -> np.ndarray:
         a = np.concatenate([[1.0], denominator_from_theta(p[:n], n)])
-        return (signal.lfilter(p[n:], a, u) - y)[skip:]
+        r = (runs.lfilter(p[n:], a, u) - y)[runs.rows]
+        return r if np.all(np.isfinite(r)) else bad
 
     sol = optimize.least_squares(res, np.concatenate([theta_from_poles(np.roots(a0)), b0]), x_scale="jac",
                                  max_nfev=max_nfev)
@@ -202,62 +281,181 @@ def _splits(b: np.ndarray, a: np.ndarray):
             yield tuple(np.real(np.poly(r)) if r.size else np.ones(1) for r in (z1, p1, z2, p2))
 
 
-def _refine(dims: _Dims, th0: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int, max_nfev: int,
-            knots: int, limits: Limits = NO_LIMITS) -> np.ndarray:
+def _refine(dims: _Dims, th0: np.ndarray, runs: _Runs, max_nfev: int, knots: int,
+            limits: Limits = NO_LIMITS) -> np.ndarray:
+    bad = _penalty(runs)
+
     def res(th: np.ndarray) -> np.ndarray:
-        phi, _ = _simulate_basis(dims, th, u, knots)
-        r = (np.clip(phi @ _fit_values(phi, y, skip, limits), *limits) - y)[skip:]
-        return r if np.all(np.isfinite(r)) else np.full(r.size, 1e3)
+        try:
+            phi, _ = _simulate_basis(dims, th, runs, knots)
+        except ValueError:
+            return bad
+        r = (np.clip(phi @ _fit_values(phi, runs.y, runs.rows, limits), *limits) - runs.y)[runs.rows]
+        return r if np.all(np.isfinite(r)) else bad
 
     return optimize.least_squares(res, th0, x_scale="jac", max_nfev=max_nfev, ftol=1e-10, xtol=1e-10).x
 
 
-def _model(dims: _Dims, th: np.ndarray, u: np.ndarray, y: np.ndarray, skip: int, fs: float, count: int,
-           limits: Limits = NO_LIMITS) -> SisoModel | SaturatedModel:
-    phi, knots = _simulate_basis(dims, th, u, count)
-    c = _fit_values(phi, y, skip, limits)
+def _model(dims: _Dims, th: np.ndarray, runs: _Runs, fs: float, count: int,
+           limits: Limits = NO_LIMITS, integrating: bool = False) -> SisoModel | SaturatedModel:
+    """The model of θ, f refitted on ``runs``; ``integrating``: fitted on the differenced output,
+    G₂ (or G₂ = 1) followed by the integrator 1/(1 − q⁻¹)."""
+    phi, knots = _simulate_basis(dims, th, runs, count)
+    c = _fit_values(phi, runs.y, runs.rows, limits)
+    if not np.all(np.isfinite(c)):
+        raise ValueError("the static map's values are not finite")
     b1, a1, b2, a2 = dims.build(th)
+    if integrating:
+        b2, a2 = (INTEGRATOR[0], INTEGRATOR[1]) if b2 is None else (b2, np.convolve(a2, INTEGRATOR[1]))
     g2 = None if b2 is None else HighPassFilter.from_ba(b2, a2)
     return _limited(SisoModel(HighPassFilter.from_ba(b1, a1), OutputNonlinearity(knots, c), g2, fs), limits)
 
 
+MIN_FIT = 40
+"""The fewest estimation samples of a record past its unscored start."""
+MIN_HELD = 10
+"""The fewest held-out samples of a record."""
+PER_COEFFICIENT = 4
+"""Estimation samples asked for per coefficient: an order n (2n + 1 coefficients of the linear
+model) or a count of knots (f's values) beyond the estimation samples / 4 is not tried on a
+short record. A rule of thumb fixed before any record was looked at, not tuned: it binds only
+below ~800 estimation samples (the default 96 knots), so no benchmark's result depends on it."""
+FAILS = (ValueError, ArithmeticError)
+"""What a fit that fails numerically raises (LinAlgError is a ValueError): that fit is skipped."""
+
+
+def _as_records(rec: SisoRecord | Sequence[SisoRecord]) -> list[SisoRecord]:
+    recs = [rec] if isinstance(rec, SisoRecord) else list(rec)
+    if not recs:
+        raise ValueError("no record given")
+    fs = recs[0].fs_hz
+    for r in recs[1:]:
+        if abs(r.fs_hz - fs) > 1e-6 * fs:
+            raise ValueError(f"{r.name} is sampled at {r.fs_hz:g} Hz, {recs[0].name} at {fs:g} Hz")
+    return recs
+
+
 @one_blas_thread
-def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None = None,
+def identify_siso(rec: SisoRecord | Sequence[SisoRecord], structure: str = "wiener", order: int | None = None,
                   options: SisoOptions | None = None, limits: Limits = NO_LIMITS,
                   where: str = "output") -> SisoModel:
-    """The model of ``structure`` for one record (module docstring), its output (or, for
-    nonlinear feedback, its state) clipped at ``limits`` if given (4); ValueError on unusable data."""
+    """The model of ``structure`` for one record or several (module docstring; several: each its
+    own run from rest, one cost, each's last ``holdout`` fraction held out), its output (or, for
+    nonlinear feedback, its state) clipped at ``limits`` if given (4); ValueError (one line) on
+    data it cannot be identified from. An order, a split or a knot count whose fit fails
+    numerically is skipped and named in ``provenance["skipped"]``; what a short record cannot
+    support is not tried and said in ``provenance["notes"]``."""
     opt = options or SisoOptions()
     if structure not in STRUCTURES:
         raise ValueError(f"unknown structure {structure!r}; expected one of {', '.join(STRUCTURES)}")
     if not (structure in LIMITED.get(where, ()) or where == "output" and limits == NO_LIMITS):
         raise ValueError(f"a limit where {where!r} is built for the output of {listed(LIMITED['output'])} and "
                          f"for the state of {listed(LIMITED['state'])}")
-    u, y, fs = rec.u, rec.y, rec.fs_hz
-    n_est = int(round((1.0 - opt.holdout) * u.size))
-    skip = min(opt.skip, n_est // 10)
-    if n_est - skip < 200 or u.size - n_est < 50:
-        raise ValueError(f"record too short ({u.size} samples)")
-    ue, ye = u[:n_est], y[:n_est]
-    cost = slice(0, min(n_est, opt.cost_samples))
-    if structure == "store_chain":
-        model = identify_store_chain(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits)
-        model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout)
+    recs = _as_records(rec)
+    fs = recs[0].fs_hz
+    n_ests = [int(round((1.0 - opt.holdout) * r.u.size)) for r in recs]
+    skip = min(opt.skip, min(n_ests) // 10)
+    for r, n_est in zip(recs, n_ests, strict=True):
+        if n_est - skip < MIN_FIT or r.u.size - n_est < MIN_HELD:
+            raise ValueError(f"record too short ({r.u.size} samples in {r.name}): at least {MIN_FIT} to fit "
+                             f"and {MIN_HELD} held out ({100 * opt.holdout:.0f} %) are needed")
+    name = ", ".join(r.name for r in recs)
+    if structure in ("store_chain", "nonlinear_feedback"):
+        if len(recs) > 1:
+            raise ValueError(f"{structure} is identified from one record; give one --record")
+        (r,), (n_est,) = recs, n_ests
+        ue, ye = r.u[:n_est], r.y[:n_est]
+        cost = slice(0, min(n_est, opt.cost_samples))
+        fit = identify_store_chain if structure == "store_chain" else identify_feedback
+        args = (ue[cost], ye[cost], r.u, r.y, n_est, skip, fs, opt, limits) + (
+            (where,) if structure == "nonlinear_feedback" else ())
+        model = fit(*args)
+        model.provenance.update(tool="rtlift identify --record", record=name, holdout_fraction=opt.holdout)
         model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
         return model
-    if structure == "nonlinear_feedback":
-        model = identify_feedback(ue[cost], ye[cost], u, y, n_est, skip, fs, opt, limits, where)
-        model.provenance.update(tool="rtlift identify --record", record=rec.name, holdout_fraction=opt.holdout)
-        model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
-        return model
-    orders = (order,) if order else opt.orders
+    with np.errstate(all="ignore"):      # non-finite trials are caught and skipped, not warned about
+        return _identify_w(recs, n_ests, skip, structure, order, opt, limits)
+
+
+def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure: str, order: int | None,
+                opt: SisoOptions, limits: Limits) -> SisoModel | SaturatedModel:
+    """:func:`identify_siso` for the W-block structures (module docstring, 1–4)."""
+    fs = recs[0].fs_hz
+    est = _Runs([(r.u[:n], r.y[:n]) for r, n in zip(recs, n_ests, strict=True)], skip)
+    share = max(opt.cost_samples // len(recs), 1)
+    cost = _Runs([(r.u[:min(n, share)], r.y[:min(n, share)]) for r, n in zip(recs, n_ests, strict=True)], skip)
+    held_parts = [(r.u, r.y, n) for r, n in zip(recs, n_ests, strict=True)]
+    fit_parts = [(r.u[:n], r.y[:n], skip) for r, n in zip(recs, n_ests, strict=True)]
+    budget = (est.u.size - skip * len(recs)) // PER_COEFFICIENT
+    notes, skipped = [], {}
+    orders = (order,) if order else tuple(n for n in opt.orders if 2 * n + 1 <= budget)
+    knots = min(opt.knots, budget)
+    more = tuple(k for k in opt.more_knots if k <= budget)
+    dropped = [] if order else [str(n) for n in opt.orders if n not in orders]
+    left_out = [f"order{'s' if len(dropped) > 1 else ''} {', '.join(dropped)}"] if dropped else []
+    if knots < opt.knots or len(more) < len(opt.more_knots):
+        left_out.append(f"f on more than {max(knots, 2)} knots")
+    orders = orders or (1,)
+    if left_out:
+        notes.append(f"{est.u.size - skip * len(recs)} estimation samples: {' and '.join(left_out)} cannot be "
+                     f"estimated from so few (at least {PER_COEFFICIENT} samples per coefficient); not tried")
+    knots = max(knots, 2)
+    # the integrating variant (module docstring, 5): fitted on the differenced output, run integrated
+    variants = (False, True) if limits == NO_LIMITS else (False,)
+    runs = {False: (cost, est), True: (cost.differenced(), est.differenced())}
     bla = {}
-    for n in orders:
-        b, a = fit_bla(ue[cost], ye[cost], n, skip)
-        lin = SisoModel(HighPassFilter.from_ba(b, a), OutputNonlinearity([0.0, 1.0], [0.0, 1.0]), None, fs)
-        bla[n] = (b, a, _rmse(lin, u, y, skip if n_est == 0 else n_est))
-    n = min(bla, key=lambda k: bla[k][2])      # the split needs every pole the data supports
-    b, a, bla_holdout = bla[n]
+    for n, integrating in itertools.product(orders, variants):
+        try:
+            b, a = fit_bla(runs[integrating][0], n)
+            lin = SisoModel(HighPassFilter.from_ba(b, a), OutputNonlinearity([0.0, 1.0], [0.0, 1.0]),
+                            HighPassFilter.from_ba(*INTEGRATOR) if integrating else None, fs)
+            held = _pooled_rmse(lin, held_parts)
+            if not np.isfinite(held):
+                raise ValueError("its held-out error is not finite")
+            bla[n, integrating] = (b, a, held)
+        except FAILS as exc:
+            skipped[f"order {n}{' integrating' if integrating else ''}"] = str(exc)
+    if not bla:
+        raise ValueError("no linear model could be fitted (" + "; ".join(f"{k}: {v}" for k, v in skipped.items())
+                         + ")")
+    # the plain model always; the integrating one too where its linear model is the better held out
+    best_bla = min(bla, key=lambda k: bla[k][2])
+    tried = [k for k in ((min((k for k in bla if not k[1]), key=lambda k: bla[k][2], default=None)), best_bla)
+             if k is not None]
+    best = None
+    for n, integrating in dict.fromkeys(tried):
+        b, a, bla_holdout = bla[n, integrating]
+        found = _w_stage(structure, b, a, *runs[integrating], held_parts, fs, knots, more, opt, limits, integrating,
+                         skipped)
+        if found is not None and (best is None or found[0] < best[0]):
+            best = (*found, n, bla_holdout, integrating)
+    if best is None:
+        raise ValueError(f"no {structure} model could be fitted (" + "; ".join(f"{k}: {v}" for k, v in skipped.items())
+                         + ")")
+    held, model, knots, starts, n, bla_holdout, integrating = best
+    model.provenance = {"tool": "rtlift identify --record", "record": ", ".join(r.name for r in recs),
+                        "structure": structure, "bla_order": n, "bla_holdout_rmse": bla_holdout,
+                        "holdout_fraction": opt.holdout, "splits_refined": starts, "knots": knots}
+    if integrating:
+        model.provenance["integrating"] = ("fitted on the differenced output, run integrated: its held-out error "
+                                           "was the lower")
+    if len(recs) > 1:
+        model.provenance["records"] = [r.name for r in recs]
+    if skipped:
+        model.provenance["skipped"] = skipped
+    if notes:
+        model.provenance["notes"] = notes
+    model.metrics = {"holdout_rmse": held, "train_rmse": _pooled_rmse(model, fit_parts)}
+    return model
+
+
+def _w_stage(structure: str, b: np.ndarray, a: np.ndarray, cost: _Runs, est: _Runs, held_parts: list, fs: float,
+             knots: int, more: tuple[int, ...], opt: SisoOptions, limits: Limits, integrating: bool,
+             skipped: dict[str, str]) -> tuple[float, SisoModel | SaturatedModel, int, int] | None:
+    """The W-block model from the linear model B/A (module docstring, 2–3): (held-out RMSE, model,
+    knots, starts refined), or None where every start failed (each failure named in ``skipped``)."""
+    n = a.size - 1
+    tag = " integrating" if integrating else ""
     if structure == "wiener":
         starts = [(_Dims(n, b.size - 1, 0, 0), (b, a, None, None))]
     else:
@@ -267,27 +465,36 @@ def identify_siso(rec: SisoRecord, structure: str = "wiener", order: int | None 
             if b1[0] == 0 or b2[0] == 0:
                 continue
             th = _Dims.theta(b1, a1, b2, a2)
-            phi, _ = _simulate_basis(dims, th, ue[cost], opt.knots)
-            r = (np.clip(phi @ _fit_values(phi, ye[cost], skip, limits), *limits) - ye[cost])[skip:]
-            starts.append((float(np.sum(r**2)), dims, (b1, a1, b2, a2)))
+            try:
+                phi, _ = _simulate_basis(dims, th, cost, knots)
+            except FAILS:
+                continue
+            r = (np.clip(phi @ _fit_values(phi, cost.y, cost.rows, limits), *limits) - cost.y)[cost.rows]
+            if np.all(np.isfinite(r)):
+                starts.append((float(np.sum(r**2)), dims, (b1, a1, b2, a2)))
         starts = [(d, bb) for _, d, bb in sorted(starts, key=lambda s: s[0])[:opt.keep]]
     best = None
-    for dims, (b1, a1, b2, a2) in starts:
-        th = _refine(dims, _Dims.theta(b1, a1, b2, a2), ue[cost], ye[cost], skip, opt.max_nfev, opt.knots, limits)
-        model = _model(dims, th, ue, ye, skip, fs, opt.knots, limits)
-        held = _rmse(model, u, y, n_est)
-        if best is None or held < best[0]:
-            best = (held, model, dims, th, opt.knots)
-    for count in opt.more_knots:      # the best one's f on finer knots, refined jointly again from there
+    for i, (dims, (b1, a1, b2, a2)) in enumerate(starts):
+        try:
+            th = _refine(dims, _Dims.theta(b1, a1, b2, a2), cost, opt.max_nfev, knots, limits)
+            model = _model(dims, th, est, fs, knots, limits, integrating)
+            held = _pooled_rmse(model, held_parts)
+        except FAILS as exc:
+            skipped[f"order {n}{tag} start {i + 1}"] = str(exc)
+            continue
+        if np.isfinite(held) and (best is None or held < best[0]):
+            best = (held, model, dims, th, knots)
+    if best is None:
+        return None
+    for count in more:      # the best one's f on finer knots, refined jointly again from there
         held0, _, dims, th0, _ = best
-        th = _refine(dims, th0, ue[cost], ye[cost], skip, opt.more_knots_nfev, count, limits)
-        model = _model(dims, th, ue, ye, skip, fs, count, limits)
-        held = _rmse(model, u, y, n_est)
+        try:
+            th = _refine(dims, th0, cost, opt.more_knots_nfev, count, limits)
+            model = _model(dims, th, est, fs, count, limits, integrating)
+            held = _pooled_rmse(model, held_parts)
+        except FAILS as exc:
+            skipped[f"order {n}{tag} {count} knots"] = str(exc)
+            continue
         if held < held0:
             best = (held, model, dims, th, count)
-    held, model, _, _, knots = best
-    model.provenance = {"tool": "rtlift identify --record", "record": rec.name, "structure": structure,
-                        "bla_order": n, "bla_holdout_rmse": bla_holdout, "holdout_fraction": opt.holdout,
-                        "splits_refined": len(starts), "knots": knots}
-    model.metrics = {"holdout_rmse": held, "train_rmse": _rmse(model, ue, ye, skip)}
-    return model
+    return best[0], best[1], best[4], len(starts)

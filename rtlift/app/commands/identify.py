@@ -22,8 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--static", metavar="F", help="slow static sweep record")
     p.add_argument("--single-burst", metavar="F", help="isolated single bursts record")
     p.add_argument("--train", metavar="F", help="training record (the paper: sine_k0125)")
-    p.add_argument("--record", metavar="F",
-                   help="a generic single-input record (columns t,u,y) instead of the lift campaign")
+    p.add_argument("--record", metavar="F", action="append",
+                   help="a generic single-input record (columns t,u,y) instead of the lift campaign; repeat it "
+                        "for several experiments of one system (each its own run from rest, one cost)")
     p.add_argument("--trains", nargs="+", metavar="F",
                    help="burst-train records (train_T1p75, train_T3p5, train_T7): with them the "
                         "interaction structure is identified (it learns burst-burst interaction from them), "
@@ -171,7 +172,15 @@ def run_generic(args: argparse.Namespace) -> int:
     lines = [f"identified {model.structure} model in {time.perf_counter() - t0:.1f} s -> {args.out}"]
     if "bla_order" in p:
         lines.append(f"  best linear approximation: order {p['bla_order']}, held-out RMSE {p['bla_holdout_rmse']:.5g}")
+    if "integrating" in p:
+        lines.append(f"  integrating: {p['integrating']}")
     lines.append(f"  held-out RMSE {model.metrics['holdout_rmse']:.5g} (last {100 * p['holdout_fraction']:.0f} % "
-                 f"of the record), training RMSE {model.metrics['train_rmse']:.5g}")
+                 f"of {'each' if len(args.record) > 1 else 'the'} record), training RMSE "
+                 f"{model.metrics['train_rmse']:.5g}")
     print("\n".join(lines))
+    for note in p.get("notes", []):
+        print(f"rtlift identify: note: {note}", file=sys.stderr)
+    if p.get("skipped"):
+        print("rtlift identify: note: skipped, fit failed numerically: "
+              + "; ".join(f"{k} ({v})" for k, v in p["skipped"].items()), file=sys.stderr)
     return 0
