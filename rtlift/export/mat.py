@@ -3,8 +3,11 @@
 
 Variables (names as in the paper and :mod:`rtlift.observer`):
 
-- ``A``, ``B`` (n×1), ``C`` (1×n), ``D`` (1×1, 0): the Wiener LTI, x(k) = A x(k−1) + B u(k),
-  y(k) = C x(k) + D u(k) (the paper's timing: x(k) already holds u(k));
+- ``A``, ``B`` (n×1), ``C`` (1×n), ``D`` (1×1): the Wiener LTI in MATLAB's (and scipy's)
+  standard form, s(k+1) = A s(k) + B u(k), y(k) = C s(k) + D u(k), so that ``ss(A, B, C, D, Ts)``
+  gives the model's y. The model's own timing (the paper's) is x(k) = A x(k−1) + B u(k),
+  y(k) = C_paper x(k): the same system with s(k) = x(k−1), C = C_paper A, D = C_paper B;
+  ``C_paper`` is written too;
 - ``static_map_form`` (``input_gain``: ΔCL_L = N(Cμ_env)·y, or ``output``: ΔCL_L = f(y)),
   ``static_map_x`` (the Cμ_env grid, or the y grid) and ``static_map_f`` (N, or f) — linear
   between the points;
@@ -44,7 +47,8 @@ def model_matrices(model: HybridModel) -> dict[str, Any]:
     highpass = model.convolution.highpass if interaction else model.highpass
     out: dict[str, Any] = {
         "A": np.asarray(w.A, float), "B": np.asarray(w.B, float).reshape(n, 1),
-        "C": np.asarray(w.C, float).reshape(1, n), "D": np.zeros((1, 1)),
+        "C": (w.C @ w.A).reshape(1, n), "D": np.array([[float(w.C @ w.B)]]),
+        "C_paper": np.asarray(w.C, float).reshape(1, n),
         "static_map_form": form, "static_map_x": np.asarray(x, float), "static_map_f": np.asarray(f, float),
         "kernel": np.asarray(model.convolution.kernel, float), "phi": float(model.convolution.phi),
         "highpass_sos": np.asarray(highpass.sos, float), "fs_hz": float(model.fs_hz),
