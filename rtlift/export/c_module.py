@@ -316,7 +316,7 @@ def _read_template() -> str:
     return resources.files("rtlift.export").joinpath("templates/observer.c.in").read_text(encoding="utf-8")
 
 
-def export_c(model: HybridModel, out_dir: str | Path, precision: str = "double", gain: str = "steady",
+def export_c(model: HybridModel, out_dir: str | Path, precision: str = "double", gain: str = "full",
              prefix: str = "lift_observer", config: ObserverConfig | None = None, source: str = "model",
              vector_samples: int = 4000) -> CExport:
     """Write ``prefix.h``, ``prefix.c``, ``prefix_test.c`` and ``prefix_vectors.txt`` into ``out_dir``

@@ -68,7 +68,7 @@ def bound_observer(model: HybridModel, config: ObserverConfig | None = None) -> 
     naming what has no compiled step (the C module is that step's translation)."""
     obs = Observer.from_model(model) if config is None else Observer(model, config)
     if not obs.compiled:
-        raise ExportError(f"cannot export to C: {_uncompiled_part(obs.model)} has no compiled step")
+        raise ExportError(f"cannot export to C: {_uncompiled_part(obs.model)}")
     return obs
 
 
@@ -76,14 +76,12 @@ def _uncompiled_part(model: HybridModel) -> str:
     """What of ``model`` the compiled step does not take, named."""
     for st in model.output_stages:
         if not type(st).compiled_form:
-            return f"the output stage '{st.name}'"
-    for st in model.input_stages:
-        if st.name not in ("delay", "actuator_fade", "delivered_envelope"):
-            return f"the input stage '{st.name}'"
+            return f"the output stage '{st.name}' has no compiled step"
     if model.wiener.kernel_arrays() is None:
-        return f"the Wiener nonlinearity {type(model.wiener.nonlinearity).__name__}"
-    return (f"this structure ({type(model.convolution).__name__} with input stages "
-            f"{[st.name for st in model.input_stages]})")
+        return f"the Wiener nonlinearity {type(model.wiener.nonlinearity).__name__} has no compiled step"
+    names = [st.name for st in model.input_stages]
+    return (f"the input stages {names} have no compiled step (it takes at most one 'delay', then at most "
+            f"one 'actuator_fade', then the interaction structure's 'delivered_envelope')")
 
 
 MODEL_ARGUMENTS = {

@@ -59,7 +59,7 @@ def run_c(args: argparse.Namespace) -> int:
     print(f"wrote {out.header}, {out.source}, {out.test}, {out.vectors}")
     print(f"{args.precision} precision, {args.gain} gain: {out.macs} multiply-adds per step "
           f"(model {out.macs_model}, filter {out.macs_filter})")
-    print(f"check: cc -std=c99 -O2 {out.prefix}.c {out.prefix}_test.c -lm -o {out.prefix}_test "
+    print(f"check: cd {args.out} && cc -std=c99 -O2 {out.prefix}.c {out.prefix}_test.c -lm -o {out.prefix}_test "
           f"&& ./{out.prefix}_test {out.prefix}_vectors.txt")
     return 0
 
