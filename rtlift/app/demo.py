@@ -24,8 +24,10 @@ from __future__ import annotations
 import json
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -77,8 +79,9 @@ def record_through_link(names: tuple[str, ...], seed: int, effects: tuple[str, .
                         progress: _Progress) -> tuple[dict[str, Record], dict[str, int]]:
     """Experiments recorded as ``rtlift record`` records them (:class:`rtlift.app.record.Recorder`):
     the bench served as a protocol-version-2 HIL device on a real pty (``rtlift bench serve``'s
-    device), the host commanding each program over the serial link, at ``speedup`` × real time
-    (the device's clock stays 400 Hz).
+    device), the host commanding each program over the serial link, at up to ``speedup`` × real
+    time (the device's clock stays 400 Hz), the device's clock held to the host's
+    (:class:`Lockstep`): the same seed gives the same records, bit for bit, however busy the host.
 
     The records' ``dcl`` is what the host computed from the transducer counts on the wire; the
     bench's noise-free truth is added as ``extra["dcl_true"]`` (matched by device sample index).
@@ -93,16 +96,22 @@ def record_through_link(names: tuple[str, ...], seed: int, effects: tuple[str, .
     cal = Calibration()
     stream = HilStream("random", seed=seed, effects=effects)
     records: dict[str, Record] = {}
-    with SerialDaq(stream, fs_hz=FS_HZ * speedup, period_us=int(round(1e6 * PERIOD_S)), seed=seed) as device:
+    clock = Lockstep()
+    with SerialDaq(clock.samples(stream), fs_hz=FS_HZ * speedup, period_us=int(round(1e6 * PERIOD_S)),
+                   seed=seed) as device:
+        clock.device = device
         stream.control = device.control
-        with open_link({"kind": "serial", "port": device.path, "calibration": cal}) as link:
-            device.start()
-            rec = Recorder(link, cal, meta={"link": "serial (simulated bench on a pty)", "seed": str(seed),
-                                            "effects": ";".join(effects) or "none"},
-                           progress=lambda total, name: progress.bar(total, f"recording {name}"))
-            rec.check_protocol(OFF_PERIOD_MS)
-            results = [rec.run(standard_program(name, cal.volts_from_cmu, seed), None) for name in names]
-            counters = dict(link.counters.as_dict())
+        try:
+            with open_link({"kind": "serial", "port": device.path, "calibration": cal}) as link:
+                device.start()
+                rec = Recorder(clock.link(link), cal, meta={"link": "serial (simulated bench on a pty)",
+                                                            "seed": str(seed), "effects": ";".join(effects) or "none"},
+                               progress=lambda total, name: progress.bar(total, f"recording {name}"))
+                rec.check_protocol(OFF_PERIOD_MS)
+                results = [rec.run(standard_program(name, cal.volts_from_cmu, seed), None) for name in names]
+                counters = dict(link.counters.as_dict())
+        finally:
+            clock.close()
     idx, truth = stream.truth_array()
     lookup = np.full(int(idx.max()) + 1, np.nan)
     lookup[idx] = truth
@@ -219,21 +228,86 @@ def _validate(idf, records: dict[str, Record], out: str, validate_record, plot_v
 
 
 class _Tap:
-    """The link as a :class:`~rtlift.app.record.Recorder` sees it, every received sample handed to
-    ``feed`` first (the observer's loop) — one host thread, as in ``rtlift observe``."""
+    """The link as a :class:`~rtlift.app.record.Recorder` sees it: ``asking()`` runs each time the
+    host asks for a sample, ``got(sample)`` on each sample it gets (before the Recorder sees it)."""
 
-    def __init__(self, link: Any, feed) -> None:
+    def __init__(self, link: Any, got=None, asking=None) -> None:
         self._link = link
-        self._feed = feed
+        self._got = got
+        self._asking = asking
 
     def recv(self, timeout: float | None = None):
+        if self._asking is not None:
+            self._asking()
         s = self._link.recv(timeout)
-        if s is not None:
-            self._feed(s)
+        if s is not None and self._got is not None:
+            self._got(s)
         return s
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._link, name)
+
+
+class Lockstep:
+    """The simulated device's clock held to the host's: sample k leaves the device only once the
+    host has handled the k samples before it and asked for the next, so every command it wrote
+    meanwhile is read before sample k (and applied there). The records then do not depend on the
+    host's speed or load: at 10× real time a host late by a few ms on a busy machine used to
+    miss burst onsets (``commands_late`` up to 110 in one record, the first burst 9 or 108 samples
+    after its command), so each run of one seed recorded a different plant input, identified a
+    different model and could accept different effects (issue 44). The device still paces at
+    most at its ``fs_hz``.
+
+    ``link(link)`` wraps the host's link; ``samples(chunks)`` the device's source (one sample per
+    chunk); ``device`` is set once the device exists; ``close()`` releases a waiting device."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._got = 0
+        self._handled = 0
+        self._closed = False
+        self.device: Any = None
+
+    def link(self, link: Any) -> _Tap:
+        return _Tap(link, got=self._count, asking=self._asking)
+
+    def _asking(self) -> None:
+        with self._cond:
+            self._handled = self._got
+            self._cond.notify_all()
+
+    def _count(self, sample: Any) -> None:
+        self._got += 1
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def _wait(self, k: int) -> bool:
+        """Wait until the host has handled ``k`` samples, then read what it wrote; ``False`` once closed."""
+        with self._cond:
+            while self._handled < k and not self._closed:
+                self._cond.wait(0.1)
+            if self._closed:
+                return False
+        self.device._serve_input()      # the emulator's own reader (hil_sim.devices.pty_device), on its thread
+        return True
+
+    def samples(self, chunks: Any) -> Any:
+        from hil_sim.hil import FIELDS
+
+        it = iter(chunks)
+        k = 0
+        while self._wait(k):
+            chunk = next(it, None)       # after the wait: the bench reads the commands at each onset
+            if chunk is None:
+                return
+            for i in range(len(chunk.t)):
+                if i and not self._wait(k):
+                    return
+                yield SimpleNamespace(**{f: getattr(chunk, f)[i:i + 1] for f in FIELDS})
+                k += 1
 
 
 def program_prefix(program, seconds: float):
@@ -314,7 +388,7 @@ def _live(model_path: str, opt: DemoOptions, out: str, prog: _Progress) -> dict[
                     bar.update(1)
 
                 device.start()
-                rec = Recorder(_Tap(link, feed), cal, meta={"link": "serial (simulated bench on a pty)"})
+                rec = Recorder(_Tap(link, got=feed), cal, meta={"link": "serial (simulated bench on a pty)"})
                 rec.check_protocol(OFF_PERIOD_MS)
                 result = rec.run(program, None)
             counters = link.counters.as_dict()
