@@ -11,7 +11,7 @@ import pytest
 from rtlift.app.cli import main
 from rtlift.core.records import read_siso_record
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[1] / "rtlift" / "data" / "benchmarks"
 
 
 def exported(name: str, out: Path) -> tuple:
@@ -54,3 +54,10 @@ def test_list_names_every_benchmark_and_a_bad_name_is_one_line(tmp_path, capsys)
     assert main(["data", "export", "silver", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "silverbox" in err and not (tmp_path / "x").exists()
+
+
+def test_list_from_a_missing_folder_is_one_line_and_no_header(tmp_path, capsys):
+    """Before: the table's header was printed, then the error."""
+    assert main(["data", "list", "--data", str(tmp_path / "nonexistent")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "not found" in err

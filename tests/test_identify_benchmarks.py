@@ -13,7 +13,7 @@ import pytest
 
 from rtlift.identify.pem import fit_wiener
 
-WH = Path(__file__).resolve().parents[1] / "data"          # vendored (data/README.md)
+WH = Path(__file__).resolve().parents[1] / "rtlift" / "data" / "benchmarks"   # vendored (its README.md)
 
 
 @pytest.fixture(scope="module")

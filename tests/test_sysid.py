@@ -27,7 +27,7 @@ from rtlift.sysid.diagnose import clip_levels, diagnose_siso
 from rtlift.sysid.identify import identify_siso
 from rtlift.sysid.initial import initial_state, steady_state
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[1] / "rtlift" / "data" / "benchmarks"
 
 
 def random_model(rng: np.random.Generator, hammerstein: bool) -> SisoModel:

@@ -1,12 +1,17 @@
-"""The measured nonlinear benchmarks vendored in the repository's ``data/`` (``data/README.md``)
+"""The measured nonlinear benchmarks vendored in the package's ``rtlift/data/benchmarks/`` (its
+``README.md``: provenance, licences, checksums; installed with the package, so found from any install)
 and their official splits: the one place that knows how each ``.npz`` is cut into estimation and
 test data (``benchmarks/realdata.py`` and ``rtlift data export`` read them from here).
 
-Official rules (``data/README.md``): WH2009 ``full[5200:184000]``, estimation the first 100 000
+Official rules (that ``README.md``): WH2009 ``full[5200:184000]``, estimation the first 100 000
 samples, test the next 78 800, in mV; Silverbox test "arrow full" ``data[100:40575]``,
 estimation the first 75 % of the multisine section ``data[40650:127400]``; Cascaded Tanks the
-estimation and test records of 1024 samples each, in V. Every benchmark is scored by free-run
-simulation from rest with the first ``STATE_INIT_SAMPLES`` test samples unscored.
+estimation and test records of 1024 samples each, in V; Silverbox's Schroeder test the one
+Schroeder-phase multisine period of ``Schroeder80mV`` (1024 samples from 0-based sample 10584,
+after the 50 samples before it), estimation as Silverbox's; WH with process noise the 10
+estimation-example and 2 fade-out runs (8192 samples each, each its own run) for estimation, the
+random-phase multisine and the sine sweep of the test set (16384 each), in mV. Every benchmark is
+scored by free-run simulation from rest with the first ``STATE_INIT_SAMPLES`` test samples unscored.
 """
 
 from __future__ import annotations
@@ -20,8 +25,8 @@ import numpy as np
 from rtlift.core.errors import UserError
 from rtlift.core.records import SisoRecord, write_siso_record
 
-DATA_DIR = Path(__file__).resolve().parents[2] / "data"
-"""The repository's ``data/`` (a checkout or an editable install)."""
+DATA_DIR = Path(__file__).resolve().parents[1] / "data" / "benchmarks"
+"""``rtlift/data/benchmarks/``: package data, there in a checkout and in every install."""
 STATE_INIT_SAMPLES = 50
 """Test samples left unscored by every benchmark's rules (a state-initialisation window)."""
 
@@ -41,7 +46,13 @@ BENCHMARKS = {b.name: b for b in (
               "mV", 1e3),
     Benchmark("cascaded_tanks", "cascaded_tanks.npz", "two water tanks in cascade with overflow, Ts = 4 s",
               "V", 1.0),
+    Benchmark("silverbox_schroeder", "silverbox_schroeder.npz",
+              "Silverbox, tested on its Schroeder-phase multisine period (estimation as silverbox)", "mV", 1e3),
+    Benchmark("wh_process_noise", "wh_process_noise.npz",
+              "Wiener-Hammerstein circuit with process noise (2017), 78.125 kHz, 12 runs", "mV", 1e3),
 )}
+"""The vendored benchmarks; the first three were looked at while the structures were grown, the
+last two (issue 48) were not."""
 
 
 def _load(name: str, data_dir: str | os.PathLike | None) -> np.lib.npyio.NpzFile:
@@ -51,25 +62,63 @@ def _load(name: str, data_dir: str | os.PathLike | None) -> np.lib.npyio.NpzFile
     try:
         return np.load(path)
     except FileNotFoundError:
-        raise UserError(f"{path}: not found (the benchmarks are vendored in a checkout's data/; "
-                        "give the folder that holds them with --data)") from None
+        raise UserError(f"{path}: not found (give the folder that holds the .npz files with --data, or leave "
+                        "--data out for the ones installed with rtlift)") from None
+
+
+Parts = list[tuple[str, np.ndarray, np.ndarray]]
+"""Named (u, y) runs, each its own experiment from rest."""
+
+
+def estimation(name: str, data_dir: str | os.PathLike | None = None) -> tuple[float, Parts]:
+    """(fs, the official estimation runs) — read without the test data (``benchmarks/realdata.py``
+    freezes every choice on these before :func:`tests` is called)."""
+    if name == "silverbox_schroeder":
+        return estimation("silverbox", data_dir)
+    d = _load(name, data_dir)
+    if name == "wh2009":
+        lo, hi = (int(v) for v in d["official_slice"])
+        n = int(d["n_train"])
+        return float(d["fs"]), [("estimation", d["u"][lo:lo + n], d["y"][lo:lo + n])]
+    if name == "silverbox":
+        ms_u, ms_y = d["V1"][40650:127400], d["V2"][40650:127400]
+        n = int(round(0.75 * ms_u.size))
+        return float(d["fs"]), [("estimation", ms_u[:n], ms_y[:n])]
+    if name == "wh_process_noise":
+        runs = [(f"estimation_{k}", d["u_est"][:, k], d["y_est"][:, k]) for k in range(d["u_est"].shape[1])]
+        runs += [(f"estimation_fadeout_{k}", d["u_fadeout"][:, k], d["y_fadeout"][:, k])
+                 for k in range(d["u_fadeout"].shape[1])]
+        return float(d["fs"]), runs
+    return 1.0 / float(d["Ts"]), [("estimation", d["u_est"], d["y_est"])]
+
+
+def tests(name: str, data_dir: str | os.PathLike | None = None) -> Parts:
+    """The official test records (each scored by free run from rest, the first
+    :data:`STATE_INIT_SAMPLES` unscored)."""
+    d = _load(name, data_dir)
+    if name == "wh2009":
+        lo, hi = (int(v) for v in d["official_slice"])
+        n = int(d["n_train"])
+        return [("test", d["u"][lo + n:hi], d["y"][lo + n:hi])]
+    if name == "silverbox":
+        return [("test", d["V1"][100:40575], d["V2"][100:40575])]
+    if name == "silverbox_schroeder":
+        return [("test", d["V1"], d["V2"])]
+    if name == "wh_process_noise":
+        return [(f"test_{kind}", d["u_test"][:, k], d["y_test"][:, k]) for k, kind in enumerate(("multisine", "sweep"))]
+    return [("test", d["u_test"], d["y_test"])]
 
 
 def splits(name: str, data_dir: str | os.PathLike | None = None
            ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, str]:
-    """(fs, u_est, y_est, u_test, y_test, unit scale, unit) by the benchmark's official rules."""
-    d = _load(name, data_dir)
+    """(fs, u_est, y_est, u_test, y_test, unit scale, unit) of a benchmark with one estimation run
+    and one test record, by its official rules."""
+    fs, est = estimation(name, data_dir)
+    test = tests(name, data_dir)
+    if len(est) != 1 or len(test) != 1:
+        raise ValueError(f"{name} has {len(est)} estimation runs and {len(test)} test records")
     b = BENCHMARKS[name]
-    if name == "wh2009":
-        lo, hi = (int(v) for v in d["official_slice"])
-        u, y, n = d["u"][lo:hi], d["y"][lo:hi], int(d["n_train"])
-        return float(d["fs"]), u[:n], y[:n], u[n:], y[n:], b.scale, b.unit
-    if name == "silverbox":
-        u, y = d["V1"], d["V2"]
-        ms_u, ms_y = u[40650:127400], y[40650:127400]
-        n = int(round(0.75 * ms_u.size))
-        return float(d["fs"]), ms_u[:n], ms_y[:n], u[100:40575], y[100:40575], b.scale, b.unit
-    return 1.0 / float(d["Ts"]), d["u_est"], d["y_est"], d["u_test"], d["y_test"], b.scale, b.unit
+    return fs, est[0][1], est[0][2], test[0][1], test[0][2], b.scale, b.unit
 
 
 def as_record(fs: float, u: np.ndarray, y: np.ndarray, name: str, **meta: str) -> SisoRecord:
@@ -79,20 +128,23 @@ def as_record(fs: float, u: np.ndarray, y: np.ndarray, name: str, **meta: str) -
 
 
 def export(name: str, out: str | os.PathLike, data_dir: str | os.PathLike | None = None) -> list[Path]:
-    """Write the official estimation and test splits of ``name`` as ``OUT/NAME_estimation.csv``
-    and ``OUT/NAME_test.csv`` (``t,u,y`` records); the paths written."""
-    fs, ue, ye, ut, yt, _, unit = splits(name, data_dir)
+    """Write the official estimation runs and test records of ``name`` as ``OUT/NAME_<part>.csv``
+    (``t,u,y`` records: ``NAME_estimation.csv`` and ``NAME_test.csv`` for a benchmark with one of
+    each); the paths written."""
+    fs, est = estimation(name, data_dir)
+    test = tests(name, data_dir)
+    unit = BENCHMARKS[name].unit
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     written = []
-    for split, u, y, note in (("estimation", ue, ye, "fit on it"),
-                              ("test", ut, yt, f"free run from rest, the first {STATE_INIT_SAMPLES} samples "
-                                               f"unscored (rtlift validate --skip {STATE_INIT_SAMPLES})")):
-        path = out / f"{name}_{split}.csv"
-        rec = as_record(fs, u, y, path.stem, benchmark=name, split=split, rmse_quoted_in=unit, scoring=note)
+    scoring = (f"free run from rest, the first {STATE_INIT_SAMPLES} samples unscored "
+               f"(rtlift validate --skip {STATE_INIT_SAMPLES})")
+    for part, u, y, note in [(p, u, y, "fit on it") for p, u, y in est] + [(p, u, y, scoring) for p, u, y in test]:
+        path = out / f"{name}_{part}.csv"
+        rec = as_record(fs, u, y, path.stem, benchmark=name, split=part, rmse_quoted_in=unit, scoring=note)
         try:
             write_siso_record(path, rec)
         except OSError as exc:

@@ -142,8 +142,10 @@ def residual_tests(model: SisoModel, rec: SisoRecord, start: int,
     ``output``: its free run over the record, when already computed."""
     yhat = predict(model, rec) if output is None else output
     e, u, s = rec.y - yhat, rec.u, start
-    tests = {"whiteness": whiteness(e[s:]), "input_crosscorr": input_crosscorr(e[s:], u[s:], label="u")}
-    for t in higher_order(e[s:], u[s:], yhat[s:]):
+    most = max(1, (e.size - s) // 4)      # lags up to a quarter of the residual (the defaults from 320 samples on)
+    tests = {"whiteness": whiteness(e[s:], min(40, most)),
+             "input_crosscorr": input_crosscorr(e[s:], u[s:], min(80, most), label="u")}
+    for t in higher_order(e[s:], u[s:], yhat[s:], min(40, most)):
         tests[t.name] = t
     return tests
 
