@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from rtlift.app.demo_report import report_markdown, results_table
 
 
@@ -61,3 +63,19 @@ def test_report_md_lists_every_accepted_effect_with_its_parameters():
 def test_nothing_accepted_reads_as_nothing():
     assert "diagnosis found: nothing" in results_table(_summary([]))
     assert "- nothing accepted" in report_markdown(_summary([]))
+
+
+def test_the_closed_loop_figure_draws_both_runs_against_the_reference(tmp_path):
+    import matplotlib.image
+
+    from rtlift.app.demo_report import tracking_figure
+
+    t = np.arange(1600) / 400.0
+    ref = np.where(t < 2.0, 0.06, 0.13)
+    traces = {fb: (t, ref * k + 0.004 * np.sin(40 * t), np.where(t < 2.0, 60.0, 120.0) * k)
+              for fb, k in (("off", 0.8), ("on", 1.0))}
+    rows = {"off": {"rmse_truth": 0.0186}, "on": {"rmse_truth": 0.0067}}
+    path = tmp_path / "closed_loop.png"
+    tracking_figure(t, ref, traces, rows, str(path))
+    img = matplotlib.image.imread(path)[..., :3]
+    assert img.shape[1] == 1100 and np.mean(np.any(img < 0.9, axis=-1)) > 0.03     # 10 in at 110 dpi, drawn on

@@ -14,31 +14,15 @@ __all__ = ["live_report", "report_markdown", "results_table", "tracking_figure"]
 
 
 def tracking_figure(t: np.ndarray, ref: np.ndarray, traces: dict, rows: dict, path: str) -> None:
-    import matplotlib
+    """The closed-loop section's figure: the bench's truth of both runs (``traces``: feedback
+    ``"off"``/``"on"`` → t, truth, envelope V) against the reference."""
+    from rtlift.app.figures import control_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from rtlift.app.hil_tracking import lowpass
-
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True, height_ratios=(2, 1))
     style = {"off": ("tab:orange", "feedforward only"), "on": ("tab:blue", "feedforward + feedback")}
-    for fb, (tt, truth, env) in traces.items():
-        color, label = style[fb]
-        top.plot(tt, truth, color=color, lw=0.4, alpha=0.35)
-        top.plot(tt, lowpass(truth), color=color, lw=1.4,
-                 label=f"bench truth, {label} (RMSE {rows[fb]['rmse_truth']:.4f})")
-        bottom.step(tt, env, where="post", color=color, lw=1.0, label=label)
-    top.plot(t, ref, color="k", lw=1.2, ls="--", label="reference")
-    top.set_ylabel("ΔCL (1 Hz low-pass bold)")
-    top.legend(fontsize=8, loc="upper left")
-    top.set_title("closed loop on the bench: undeclared actuator fade to 75 %", fontsize=9)
-    bottom.set_ylabel("commanded envelope (V)")
-    bottom.set_xlabel("t from the start of tracking (s)")
-    bottom.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    runs = [(f"{label}: bench truth (RMSE {rows[fb]['rmse_truth']:.4f})", color, tt, truth, tt, env)
+            for fb, (tt, truth, env) in traces.items() for color, label in [style[fb]]]
+    control_figure(t, ref, runs, path, "closed loop on the bench: undeclared actuator fade to 75 %", FS_HZ,
+                   xlabel="t from the start of tracking (s)")
 
 
 def live_report(cols: np.ndarray, true: np.ndarray, counters: dict[str, int], p50: float | None,

@@ -6,8 +6,8 @@ after the fact (matplotlib's Agg backend: no display needed).
 - :func:`innovation_figure`: the innovation ν = z − ŷ with its ±2σ band, where
   σ² = S = ν²/NIS is the innovation variance the filter predicted (NIS = ν²/S), and the NIS
   against the χ²₁ 95 % bound (3.84) with its 1 s running mean (1 for a consistent filter);
-- :func:`control_figure`: a closed-loop run, the reference beside the estimate (raw and
-  low-passed at 1 Hz, as ``rtlift control`` scores it), and the commanded envelope (V).
+- :func:`control_figure`: closed-loop runs, the reference beside each run's ΔCL (raw and
+  low-passed at 1 Hz, as ``rtlift control`` scores it), and the commanded envelopes (V).
 """
 
 from __future__ import annotations
@@ -93,27 +93,29 @@ def innovation_figure(t: np.ndarray, innovation: np.ndarray, nis: np.ndarray, pa
     plt.close(fig)
 
 
-def control_figure(t: np.ndarray, estimate: np.ndarray, reference: np.ndarray, t_cmd: np.ndarray,
-                   envelope_v: np.ndarray, path: str, title: str, fs_hz: float) -> None:
-    """A closed-loop run: ΔĈL (faint) and low-passed at 1 Hz (bold) with the reference (dashed)
-    above; the commanded envelope (V, held from each command to the next) below."""
+def control_figure(t: np.ndarray, reference: np.ndarray, runs: list[tuple], path: str, title: str,
+                   fs_hz: float, xlabel: str = "t (s)") -> None:
+    """Closed-loop runs against the reference (dashed) above, each run's ΔCL faint and low-passed
+    at 1 Hz (bold, as ``rtlift control`` scores it); their commanded envelopes (V, held from each
+    command to the next) below. ``runs``: ``(label, color, t, ΔCL, t of the envelope, envelope V)``."""
     from rtlift.app.hil_tracking import lowpass
 
     plt = _pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True, height_ratios=(2, 1))
-    ok = np.isfinite(estimate)
-    top.plot(t, estimate, color="tab:blue", lw=0.4, alpha=0.35)
-    if ok.sum() > 20:
-        low = np.full(len(estimate), np.nan)
-        low[ok] = lowpass(estimate[ok], fs_hz)
-        top.plot(t, low, color="tab:blue", lw=1.4, label="estimate ΔĈL (1 Hz low-pass bold)")
+    for label, color, tt, y, t_env, env in runs:
+        ok = np.isfinite(y)
+        top.plot(tt, y, color=color, lw=0.4, alpha=0.35)
+        if ok.sum() > 20:
+            low = np.full(len(y), np.nan)
+            low[ok] = lowpass(y[ok], fs_hz)
+            top.plot(tt, low, color=color, lw=1.4, label=label)
+        bottom.step(t_env, env, where="post", color=color, lw=1.0, label=label.split(":")[0])
     top.plot(t, reference, color="k", lw=1.2, ls="--", label="reference")
-    top.set_ylabel("ΔCL")
+    top.set_ylabel("ΔCL (1 Hz low-pass bold)")
     top.legend(fontsize=8, loc="upper left")
     top.set_title(title, fontsize=9)
-    bottom.step(t_cmd, envelope_v, where="post", color="tab:blue", lw=1.0, label="commanded envelope")
-    bottom.set_ylabel("envelope (V)")
-    bottom.set_xlabel("t (s)")
+    bottom.set_ylabel("commanded envelope (V)")
+    bottom.set_xlabel(xlabel)
     bottom.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

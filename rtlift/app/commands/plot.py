@@ -155,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
     if ctl is not None:
         ref, t_cmd, env = ctl
         p = out / f"{name}_control.png"
-        control_figure(t, cols["dcl_hat"], ref, t_cmd, env, str(p), f"{title}; reference and commands", fs)
+        control_figure(t, ref, [("estimate ΔĈL", "tab:blue", t, cols["dcl_hat"], t_cmd, env)], str(p),
+                       f"{title}; reference and commands", fs)
         written.append(p)
     print(f"rtlift plot: {', '.join(str(w) for w in written)}")
     return 0
