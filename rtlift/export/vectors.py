@@ -30,7 +30,9 @@ def vector_inputs(model: HybridModel, spec: FilterSpec, n: int) -> tuple[np.ndar
     env = spec.cmu_ref * (0.625 + 0.325 * np.sin(2.0 * np.pi * k / 1000.0))
     cmu = np.where(k % 40 < 4, env, 0.0)
     rng = np.random.default_rng(0)
-    dcl = model.copy().simulate(cmu, env).total + 1e-3 * k / max(n, 1) + rng.normal(0.0, math.sqrt(spec.R), n)
+    own = model.copy()
+    lift = np.array([own.step(c, e)[0] for c, e in zip(cmu.tolist(), env.tolist(), strict=True)])
+    dcl = lift + 1e-3 * k / max(n, 1) + rng.normal(0.0, math.sqrt(spec.R), n)
     dcl[k % 97 == 50] = np.nan
     dcl[n // 2] += 0.5
     cmu[3 * n // 4] = np.nan
