@@ -27,7 +27,7 @@ from rtlift.api import load
 from rtlift.blocks.delay import Delay
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.export.c_module import DOUBLE_TOLERANCE, SINGLE_TOLERANCE, export_c, reference_observer
-from rtlift.export.filter_spec import bound_observer, filter_spec
+from rtlift.export.filter_spec import ExportError, bound_observer, filter_spec, steady_radius
 from rtlift.observer import ObserverConfig
 from testkit.synthetic import OUTPUT_STAGES, interaction_model, make_model, with_effects
 
@@ -213,7 +213,11 @@ def test_any_combination_of_effects_exports_equal_to_the_python_observer(seed, s
     cfg = EVERY_STATE if config == "every_state" else PLAIN
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
-        export_c(model, out, "double", gain, "obs", cfg, vector_samples=1000)
+        try:
+            export_c(model, out, "double", gain, "obs", cfg, vector_samples=1000)
+        except ExportError as exc:          # a fixed gain that diverges for part of f: refused, not written
+            assert gain == "steady" and "diverges" in str(exc) and not (out / "obs.c").exists()
+            return
         rows = np.loadtxt(out / "obs_vectors.txt")
         c = _c_run(_build(out, "obs"), "obs", rows[:, 0], rows[:, 1], rows[:, 2])
     ref = rows[:, 3:]
@@ -270,6 +274,29 @@ def test_a_model_without_a_compiled_step_is_refused_in_one_line(tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert err.startswith("rtlift: error: cannot export to C:") and "delay" in err and "\n" not in err
     assert not (tmp_path / "c").exists()
+
+
+def test_a_steady_gain_that_diverges_somewhere_on_the_map_is_refused(tmp_path, capsys):
+    """A textbook f(y) whose slope spans 40 … 1100: the gain fixed at the operating point
+    lets the error grow where the slope is steep (spectral radius > 1), so ``--gain steady`` is
+    refused in one line; ``--gain full`` exports it."""
+    from rtlift.app.cli import main
+    from rtlift.model.modelfile import save_model
+
+    rng = np.random.default_rng(4)
+    model = make_model(rng, kernel_len=300, order=3, output_form=True)
+    model.input_stages = (Delay(2 / FS, FS),)
+    model = with_effects(model, True, (0, 1, 2, 3), 2)
+    path = tmp_path / "m.json"
+    save_model(model, path, observer=EVERY_STATE.to_dict())
+    assert main(["export", "c", "--model", str(path), "--out", str(tmp_path / "s"), "--gain", "steady"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "diverges where the Wiener gain is" in err and "use --gain full" in err and "\n" not in err
+    obs = bound_observer(model, EVERY_STATE)
+    spec = filter_spec(bound_observer(model, ObserverConfig(R=1e-2, q_x=1e-12, q_bias=1e-12, p0_bias=1e-4)),
+                       "steady")                      # a slow filter (large R): stable over the whole map
+    assert steady_radius(obs.model, spec.F, spec.K, spec.h_fixed, spec.n_wiener, obs.layout.C)[0] < 1.0
+    assert main(["export", "c", "--model", str(path), "--out", str(tmp_path / "f"), "--gain", "full"]) == 0
 
 
 @pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None,

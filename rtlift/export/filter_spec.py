@@ -12,7 +12,10 @@ for them) are left out, and K, S come from the discrete algebraic Riccati equati
 at the nominal row H = [g₀ C, 1, h_s, e₁ᵀ], g₀ the Wiener gain at the operating point: N(Cμ_ref)
 (paper form) or f′(y₀) at y₀ = C (I − A)⁻¹ B Cμ_ref (textbook form), Cμ_ref the table's largest
 Cμ_env (the model's own). The step then predicts ξ⁻ = F ξ + G u and updates ξ = ξ⁻ + K ν with
-the row of the sample for ẑ⁻ (as the full filter), without a covariance.
+the row of the sample for ẑ⁻ (as the full filter), without a covariance. A fixed gain that
+lets the error grow, |eig((I − K H_g) F)| ≥ 1, for a gain g the Wiener part can take (the
+paper's N over its grid, f′ on each segment of f, times the hysteresis factor's extremes) is
+refused: its module would diverge there.
 """
 
 from __future__ import annotations
@@ -117,7 +120,8 @@ def filter_spec(obs: Observer, gain: str = "full") -> FilterSpec:
     keep = np.array([i for i in range(lay.dim_x) if i not in drop])
     F, G, Qk = lay.F[np.ix_(keep, keep)], lay.G[keep], Q[np.ix_(keep, keep)]
     h = lay.h_fixed[keep].copy()
-    h[:lay.n_wiener] = nominal_gain(obs.model, lay.cmu_ref) * lay.C
+    g0 = nominal_gain(obs.model, lay.cmu_ref)
+    h[:lay.n_wiener] = g0 * lay.C
     try:
         P = solve_discrete_are(F.T, h.reshape(-1, 1), Qk, np.array([[cfg.R]]))
     except (np.linalg.LinAlgError, ValueError) as exc:
@@ -127,9 +131,44 @@ def filter_spec(obs: Observer, gain: str = "full") -> FilterSpec:
     K = P @ h / S
     if not (np.all(np.isfinite(K)) and S > 0):
         raise ExportError("--gain steady: the Riccati solution is not finite; use --gain full")
+    radius, g = steady_radius(obs.model, F, K, h, lay.n_wiener, lay.C)
+    if radius >= 1.0:
+        raise ExportError(f"--gain steady: the fixed gain diverges where the Wiener gain is {g:.4g} (spectral "
+                          f"radius {radius:.3g} of (I - K H) F; the gain was fixed at {g0:.4g}); "
+                          "use --gain full")
     n = len(keep)
     return FilterSpec(n, lay.n_wiener, lay.bias, -1, n, 0, 0, lay.max_period, F, G, lay.h_fixed[keep],
                       lay.h_lift[keep], Qk, None, K, S, **common)
+
+
+def wiener_gain_range(model: HybridModel) -> np.ndarray:
+    """Every gain g(k) the measurement row's Wiener part can take, sampled: N over its grid
+    (piecewise linear: between its values) or f′ on each segment of f, times the hysteresis
+    factor's extremes g_h and g_h (1 + m) (h(k) ∈ [0, 1])."""
+    nl = model.wiener.nonlinearity
+    if hasattr(nl, "gain_at"):
+        values = np.asarray(nl.gain, float)
+        gains = np.union1d(values, np.linspace(values.min(), values.max(), 65))
+    else:
+        gains = np.diff(nl.f) / np.diff(nl.y)
+    if hasattr(nl, "memory_arrays"):
+        m, g = nl.memory_arrays()[0][:2]
+        gains = np.concatenate([gains * g, gains * g * (1.0 + m)])
+    return gains
+
+
+def steady_radius(model: HybridModel, F: np.ndarray, K: np.ndarray, h: np.ndarray, n: int,
+                  C: np.ndarray) -> tuple[float, float]:
+    """(the largest spectral radius of the steady filter's error recursion e(k) = (I − K H_g) F e(k−1)
+    over the gains g of :func:`wiener_gain_range`, H_g the nominal row with g C; that g)."""
+    eye = np.eye(F.shape[0])
+    worst = (0.0, float("nan"))
+    for g in wiener_gain_range(model):
+        row = h.copy()
+        row[:n] = g * C
+        r = float(np.max(np.abs(np.linalg.eigvals((eye - np.outer(K, row)) @ F))))
+        worst = max(worst, (r, float(g)))
+    return worst
 
 
 def nominal_gain(model: HybridModel, cmu_ref: float) -> float:
