@@ -2,11 +2,13 @@
 
 The model is tests/data/bench_model.json (identified on the simulated bench in the paper's
 structure; the paper's own printed model has an LTI pole at exactly z = 1, no static map to
-linearise). Margins are python-control's; the closed-loop gust run is ``rtlift control``'s loop
-in process on the bench (a few seconds of plant time)."""
+linearise). Margins are read from every crossover up to Nyquist and held against the |S| they
+imply and against python-control's interpolated (FRD) margins; the closed-loop gust run is
+``rtlift control``'s loop in process on the bench (a few seconds of plant time)."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -15,7 +17,19 @@ import numpy as np
 import pytest
 
 from rtlift.app.control import ControlConfig, LiftController, config_from_gains_text, gains_text
-from rtlift.app.control_design import Gains, design_loop, lifted_plant
+from rtlift.app.control_design import (
+    Design,
+    Gains,
+    Targets,
+    Uncertainty,
+    check_point,
+    design_cache_path,
+    design_loop,
+    lifted_plant,
+    rejection_limit,
+    report_doc,
+    uncertainty_from_model,
+)
 from rtlift.app.hil_tracking import InProcessTracking
 from rtlift.model.modelfile import load_model
 
@@ -27,9 +41,23 @@ def model():
     return load_model(MODEL)
 
 
+POOR = Gains(1.62, 0.48, -0.73, 0.55, 0.19)
+"""Gains found by a random draw in the search box: stable on the bench model's lifted plant, but
+a phase margin near 23 deg and |S| near +13 dB."""
+
+
 @pytest.fixture(scope="module")
 def design(model):
-    return design_loop(model)
+    return design_loop(model, limit=False)
+
+
+@pytest.fixture(scope="module")
+def poor(design):
+    """A one-point design with the :data:`POOR` gains on the design's middle lifted plant."""
+    pt = design.points[len(design.points) // 2]
+    bad = check_point(pt.cmu, pt.dcl, np.asarray(pt.plant), np.asarray(pt.plant_point), POOR, design.dt,
+                      np.asarray(pt.observer), pt.fs_hz, design.uncertainty)
+    return Design([bad], design.dt, design.period, design.margin, design.targets, design.uncertainty)
 
 
 def test_the_lifted_plant_has_unit_dc_gain_in_lift_units_and_one_period_of_delay(model):
@@ -40,15 +68,149 @@ def test_the_lifted_plant_has_unit_dc_gain_in_lift_units_and_one_period_of_delay
     assert q.sum() == pytest.approx(1.0, abs=0.05)
 
 
-def test_the_design_meets_its_margins_by_python_control(design):
+def test_the_design_meets_every_target_at_every_operating_point(design):
+    """Every target at the scheduled points and half-way between them (interpolated gains); both
+    stability checks; the 6 dB band the model predicts with the observer in the loop."""
+    t = design.targets
+    assert design.violations() == []
+    assert sum(not p.designed for p in design.points) >= 2
     for pt in design.points:
-        gm, pm, _, _, _, _ = ct.stability_margins(pt.loop(design.dt))
-        assert 20 * math.log10(gm) >= 6.0 - 0.05
-        assert pm >= 45.0 - 0.5
+        m = pt.margins
+        assert pt.stable and m.pm_deg >= t.pm_deg and min(m.gm_db, m.gm_low_db) >= t.gm_db
+        assert max(m.peak_s_db, m.peak_gust_db) <= t.peak_db and m.robust < 1.0
         assert np.all(np.abs(ct.feedback(pt.loop(design.dt), 1).poles()) < 1.0)
-        s = np.abs(pt.sensitivity(np.geomspace(0.01, 3.99, 800), design.dt))
-        assert 20 * math.log10(s.max()) <= design.targets.peak_db + 0.05
-        assert pt.f6_hz >= 0.35            # 6 dB of rejection predicted up to at least 0.35 Hz
+        assert pt.f6_hz >= 0.30            # predicted with the observer's lag (0.32-0.38 Hz on this model)
+
+
+def test_every_crossover_found_is_one_and_python_control_s_interpolated_margins_agree(design, poor):
+    """|L| = 1 at each gain crossover, ∠L = 180° at each phase crossover (z = −1 included), and every
+    crossover python-control's FRD method finds below Nyquist is one of ours. (Its default
+    polynomial method on these discrete loops reports crossovers where |L| is 0.3 and ∠L −137°:
+    python-control issue 523's kind; the design no longer reads it.)"""
+    for pt in [*design.points, *poor.points]:
+        L = pt.loop(design.dt)
+        m = pt.margins
+        for f, pm in m.gain_crossovers:
+            v = L(np.exp(2j * np.pi * f * design.dt))
+            assert abs(v) == pytest.approx(1.0, abs=2e-3)
+            assert 180 - abs(math.degrees(np.angle(v))) == pytest.approx(pm, abs=0.2)
+        for f, db in m.phase_crossovers:
+            v = L(np.exp(2j * np.pi * f * design.dt))
+            assert v.real < 0 and abs(v.imag) <= 2e-3 * abs(v)
+            assert 20 * math.log10(abs(v)) == pytest.approx(db, abs=0.02)
+        assert m.phase_crossovers[-1][0] == pytest.approx(0.5 / design.dt)   # L(−1) < 0 on this plant
+        gm, pm, _, wpc, wgc, _ = ct.stability_margins(L, returnall=True, method="frd")
+        ours_g = [f for f, _ in m.gain_crossovers]
+        ours_p = [f for f, _ in m.phase_crossovers]
+        for w in np.atleast_1d(wgc):
+            assert min(abs(w / (2 * np.pi) - f) for f in ours_g) < 0.01
+        for w in np.atleast_1d(wpc):
+            assert min(abs(w / (2 * np.pi) - f) for f in ours_p) < 0.01
+
+
+def test_the_margins_and_the_sensitivity_peak_agree(design, poor):
+    """At a gain crossover |1 + L| = 2 sin(PM/2); at a phase crossover |1 + L| = |1 − |L||: the
+    largest |S| python-control computes on its own grid (to Nyquist) is at least what each
+    margin implies, and equals the design's peak to 0.05 dB."""
+    for pt in [*design.points, *poor.points]:
+        f = np.linspace(1e-3, 0.5 / design.dt, 20001)
+        L = ct.frequency_response(pt.loop(design.dt), 2 * np.pi * f).complex.ravel()
+        peak = 20 * np.log10(np.max(np.abs(1 / (1 + L))))
+        m = pt.margins
+        assert peak == pytest.approx(m.peak_s_db, abs=0.05)
+        for _, pm in m.gain_crossovers:
+            assert peak >= -20 * math.log10(2 * math.sin(math.radians(pm) / 2)) - 0.01
+        for _, db in m.phase_crossovers:
+            assert peak >= -20 * math.log10(abs(1 - 10 ** (db / 20))) - 0.01
+    m = poor.points[0].margins
+    assert poor.points[0].stable and m.pm_deg < 30 and m.peak_s_db > 10
+
+
+def test_a_missed_target_is_one_line_each_and_rtlift_design_exits_1(poor, tmp_path, capsys, monkeypatch):
+    from rtlift.app import control_design
+    from rtlift.app.cli import main
+
+    monkeypatch.setattr(control_design, "design_loop", lambda model, targets: poor)
+    out = tmp_path / "d"
+    code = main(["design", "--model", str(MODEL), "--out", str(out)])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 1
+    assert err and all(line.startswith("rtlift design: target missed: ") for line in err)
+    (fc, pm), = poor.points[0].margins.gain_crossovers
+    assert any(f"phase margin {pm:.1f} deg < 45 deg" in line and f"gain crossover at {fc:.2f} Hz" in line
+               for line in err)
+    doc = json.loads((out / "report.json").read_text())
+    assert [f"rtlift design: target missed: {v}" for v in doc["summary"]["violations"]] == err
+    md = (out / "report.md").read_text()
+    assert all(v in md for v in doc["summary"]["violations"])
+
+
+def test_rtlift_control_refuses_a_design_that_misses_a_target_unless_told(model, poor, tmp_path, capsys):
+    """A saved design is checked again from its plants and gains (a report edited to claim 90 deg
+    is refused as well); ``--accept-design-warnings`` takes it."""
+    from rtlift.app.cli import main
+    from rtlift.app.commands.control import control_config
+
+    doc = report_doc(poor, str(MODEL))
+    doc["points"][0]["pm_deg"] = 90.0
+    doc["summary"]["violations"] = []
+    path = tmp_path / "poor.json"
+    path.write_text(json.dumps(doc))
+    code = main(["control", "--serial", "/dev/null", "--model", str(MODEL), "--reference", "steps:0.1@0",
+                 "--design", str(path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "--accept-design-warnings" in err[0]
+    assert "the design misses a target: " in err[0] and "more; rtlift design lists them" in err[0]
+    config, _ = control_config(model, True, None, None, str(path), accept_warnings=True)
+    assert config.schedule[0][1] == pytest.approx(POOR.kp)
+
+
+def test_the_design_is_cached_beside_the_model_keyed_by_its_content(model, design, tmp_path):
+    from rtlift.app.commands.control import control_config
+
+    copy = tmp_path / "m.json"
+    copy.write_bytes(MODEL.read_bytes())
+    cache = design_cache_path(str(copy))
+    assert Path(cache).parent == tmp_path and Path(cache).name.startswith("m.design-")
+    Path(cache).write_text(json.dumps(report_doc(design, str(copy))))
+    config, source = control_config(model, True, None, None, None, model_path=str(copy))
+    assert source["source"] == f"cached design {cache}"
+    np.testing.assert_allclose(config.schedule, design.schedule(), rtol=1e-12)
+    copy.write_bytes(MODEL.read_bytes() + b" ")
+    assert design_cache_path(str(copy)) != cache       # another model's bytes: another design
+    assert design_cache_path(str(copy), Targets(peak_db=3.0)) != design_cache_path(str(copy))
+
+
+def test_the_limit_bounds_the_design_and_falls_with_one_more_period_of_delay(design):
+    """Any causal controller: at least the band the design reaches (the design is one of them; the
+    limit's grid is 6 % coarse), and less with the plant one burst period later."""
+    pt = design.scheduled[0]
+    p, q = np.asarray(pt.plant), np.asarray(pt.plant_point)
+    args = {"f_o": pt.observer_response, "unc": design.uncertainty}
+    lim = rejection_limit(p, q, design.dt, design.targets.peak_db, **args)
+    later = rejection_limit(np.r_[0.0, p[:-1]], np.r_[0.0, q[:-1]], design.dt, design.targets.peak_db, **args)
+    assert lim >= pt.f6_hz / 1.07
+    assert later < 0.8 * lim
+
+
+def test_the_observer_passes_a_slow_disturbance_whole_and_lags_a_fast_one(design):
+    pt = design.scheduled[0]
+    assert np.sum(pt.observer) == pytest.approx(1.0, abs=0.01)
+    fo = pt.observer_response(np.array([0.05, 1.0, 4.0]))
+    assert abs(fo[0]) == pytest.approx(1.0, abs=0.01)
+    assert np.all(np.abs(fo) <= 1.01) and np.degrees(np.angle(fo[1])) < -5.0
+
+
+def test_the_uncertainty_weight_comes_from_the_model_file_when_it_is_larger():
+    class M:
+        provenance = {"wiener": {"dc_gain": 2.0, "uncertainty": {"dc_gain_std": 0.3}}}
+
+    u = uncertainty_from_model(M())
+    assert u.gain == pytest.approx(0.3) and "model file" in u.source
+    M.provenance = {"wiener": {"dc_gain": 2.0, "uncertainty": {"dc_gain_std": 0.01}}}
+    assert uncertainty_from_model(M()).gain == Uncertainty().gain
+    w = Uncertainty(0.2, 0.01).weight(np.array([0.0, 4.0]))
+    assert w[0] == pytest.approx(0.2) and w[1] == pytest.approx(0.2 + 1.2 * abs(1 - np.exp(-2j * np.pi * 0.04)))
 
 
 def test_a_lead_lag_of_zero_and_no_fast_path_is_the_hand_set_pi(model):
@@ -81,7 +243,9 @@ def test_the_prediction_uses_the_loop_python_control_checks(design):
     f = np.array([0.1, 0.35, 1.0])
     z = np.exp(2j * np.pi * f * design.dt)
     L = pt.loop(design.dt)
-    np.testing.assert_allclose(pt.sensitivity(f, design.dt), 1 / (1 + L(z)), rtol=1e-9)
+    np.testing.assert_allclose(pt.loop_response(f, design.dt), L(z), rtol=1e-9)
+    np.testing.assert_allclose(pt.sensitivity(f, design.dt), 1 - pt.observer_response(f) * L(z) / (1 + L(z)),
+                               rtol=1e-9)
     g = Gains(0.5, design.dt / 0.25)
     assert g.kx == 0.0 and g.response(np.array([1e6 + 0j]))[0] == pytest.approx(0.5 + design.dt / 0.25, rel=1e-5)
 

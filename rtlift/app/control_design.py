@@ -20,9 +20,40 @@ units ``Σ p_j`` ≈ 1 at every operating point; what changes
 with Cμ is the shape (the burst convolution is linear in Cμ while the map's slope falls 2–5×
 over its range), hence a gain schedule over Cμ.
 
-The observer is left out of the loop gain: with the model as plant its estimate responds to
-the envelope exactly as the model does, and a lift disturbance passes into the estimate
-through the bias state, whose bandwidth (≈ 9 Hz on the bench model) is far above the loop's.
+The observer in the loop. What is fed back is the observer's estimate, not the lift. With the
+model as plant the estimate follows the envelope exactly as the model does (the innovation is
+zero), so the loop gain L is the model's; a lift disturbance d reaches the estimate through the
+observer's own closed loop (its bias state), F_o(e^{jω/f_s}) = Σ h_o[n] e^{−jωn/f_s}, measured by
+:func:`observer_impulse`. With est = P u + F_o d, u = −K est and the lift y = d + P u:
+
+    y/d = S_o = 1 − F_o T,   T = L/(1 + L)     (S_o = S = 1/(1 + L) when F_o = 1)
+
+so the margins are L's and the predicted gust map (peak, f₆) is S_o's. On the bench model F_o is
+0.99 at −6.6° at 0.35 Hz and 0.94 at −18° at 1 Hz: a slower disturbance path than the bias
+state's 9 Hz suggested, and the reason the design's f₆ is now predicted 0.32–0.38 Hz, not
+0.43–0.52 Hz (the bench measured 0.35–0.36 Hz).
+
+Margins (:func:`loop_margins`). Every gain crossover (|L| = 1) and every phase crossover
+(∠L = ±180°, Re L < 0) of L(e^{jωT}) on a 5000-point grid from 2 mHz to Nyquist *inclusive*
+(z = −1, where L is real: on these loops it is the binding phase crossover), interpolated
+linearly; the phase margin is the smallest over gain crossovers, the gain margin the smallest
+over phase crossovers both ways (up for |L| < 1, down for |L| > 1). They are consistent with the
+|S| peak by construction of the geometry: |1 + L| = 2 sin(PM/2) at a gain crossover and
+|1 − |L|| at a phase crossover. python-control's ``stability_margins`` is not used: on these
+discrete loops its default polynomial method reports crossovers where |L| is 0.3 or ∠L −137°
+(the kind of python-control issue 523), which is how a design could state a 12° margin beside
+a +3.9 dB |S| peak.
+
+Robust to the model's error (:class:`Uncertainty`): the true lifted plant is taken as
+P (1 + Δ W), |Δ| ≤ 1, W(ω) = w₀ + (1 + w₀)|1 − e^{−jωδ}| (a gain error w₀ and a delay error δ);
+robust stability is max |W T| < 1 (small gain), a target of its own. w₀ is the larger of a floor
+(the bench model's measured 1.5 dB loop-gain error, provisional) and twice the Wiener LTI's
+DC-gain standard deviation from the identification's covariance, when the model file has it.
+
+The limit (:func:`rejection_limit`): the widest band of |S_o| ≤ 0.5 *any* causal linear
+controller on the two lifted measurements reaches under the same |S|, |S_o| and |W T| bounds —
+a linear programme over the Youla parameter (docs/DESIGN.md derives it and the delay and Bode
+bounds it refines).
 
 The feedback, in ΔCL per ΔCL, is PI with a first-order lead–lag on the mean error, plus a
 gain K_x on the latest estimate's departure from the mean (no integral on it, so its ripple
@@ -36,12 +67,17 @@ model predicts at |S| ≤ 3 dB goes from ≈ 0.19 Hz (mean only, one lead–lag)
 
 chosen by a seeded global search (``scipy.optimize.differential_evolution``, then Nelder–Mead
 from its best and from the neighbouring point's gains) for the widest
-disturbance-rejection bandwidth — the highest frequency f₆ below which the predicted
-sensitivity |S| = |1/(1 + L)| stays ≤ 0.5 (6 dB of suppression) — subject to a stable
-closed loop, gain margin ≥ ``gm_db``, phase margin ≥ ``pm_deg``, max |S| ≤ ``peak_db``
-(the amplification allowed anywhere) and a bounded controller gain at 4 Hz (no burst-to-burst
-chatter of the envelope). The search evaluates the loop on a frequency grid;
-python-control (``stability_margins``, ``feedback(...).poles()``) checks the result.
+disturbance-rejection bandwidth — the highest frequency f₆ below which the predicted gust map
+|S_o| stays ≤ 0.5 (6 dB of suppression) — subject to a stable closed loop, gain margin ≥
+``gm_db`` both ways, phase margin ≥ ``pm_deg``, max |S| and max |S_o| ≤ ``peak_db`` (the
+amplification allowed anywhere), max |W T| < 1 and a bounded controller gain at 4 Hz (no
+burst-to-burst chatter of the envelope); a shortfall is penalised far above any band it could
+buy. The search reads the margins on an 800-point grid; the check on the 5000-point one, with
+the closed-loop poles from the characteristic polynomial and from python-control
+(``feedback(...).poles()``). The check runs at every scheduled point and half-way between
+neighbours with the gains the controller interpolates there; a half-way point that misses a
+target is designed and joins the schedule. A target still missed is a line of
+:meth:`Design.violations`: ``rtlift design`` exits 1, ``rtlift control`` refuses the design.
 """
 
 from __future__ import annotations
@@ -64,8 +100,6 @@ LIFT_PERIODS = 16
 peak after 1.2 s)."""
 SCHEDULE_FRACTIONS = (0.15, 0.5, 0.85)
 """Operating points of the gain schedule, as fractions of the static map's ΔCL range."""
-F_GRID = np.geomspace(0.01, 3.99, 500)
-"""Frequencies (Hz) on which the search evaluates the loop (up to the 4 Hz Nyquist rate)."""
 BOUNDS = ((0.0, 4.0), (0.1, 2.0), (-0.9, 0.95), (0.0, 0.95), (-1.0, 3.0))
 """Search box of (K_p, K_i, a, b, K_x). K_i ≥ 0.1 (T_i ≤ 1.25 s) keeps the integral fast enough
 for slow drifts (an actuator fade). The lag pole b stays on the positive axis: a pole near
@@ -78,9 +112,30 @@ NYQUIST_GAIN_MAX = 2.0
 the envelope's burst-to-burst chatter from the estimate's noise."""
 
 
+GAIN_ERROR_FLOOR = 0.19
+"""Smallest relative loop-gain error w₀ the uncertainty weight assumes (module docstring, "Robust to
+the model's error"): 1.5 dB, the bench model's measured over-prediction of the bench's loop gain
+(plant draw 0, seeds 11 and 12, docs/results/control.md). Provisional: to be re-set on the plant
+family's calibration draws 1–49."""
+DELAY_ERROR_S = 0.01
+"""δ: the loop delay the model may miss (s): one burst, the resolution of the onset latching and
+of the identified dead time's choice among near-equal candidates. Provisional like the floor."""
+OBSERVER_TAPS = 4000
+"""Length of the observer's impulse response from the measurement to the estimate (10 s at 400 Hz),
+continued by a geometric tail fitted to its last quarter: the bench model's observer passes 99.98 %
+of a step within 1 s, plant draw 101's only 81 % within 10 s (a slow bias state)."""
+LIMIT_TAPS = 24
+"""FIR length (burst periods, 3 s) of each Youla parameter in the limit's search."""
+LIMIT_SIDES = 12
+"""Sides of the polygon that stands for a circle |x| ≤ r in the limit's linear programme (outer:
+the bound is optimistic by at most 1/cos(π/12) − 1 = 3.5 %, 0.3 dB)."""
+
+
 @dataclass(frozen=True)
 class Targets:
-    """Design targets: gain margin (dB), phase margin (deg), largest predicted |S| anywhere (dB).
+    """Design targets: gain margin (dB, both ways: the loop gain may rise or fall by that much),
+    phase margin (deg), largest predicted |S| anywhere (dB, both the loop's 1/(1 + L) and the
+    gust's map with the observer), and robust stability max |W T| < 1 with W the uncertainty weight.
 
     ``peak_db`` 4: the goal is at most 3 dB of amplification of the *measured* lift, and the
     bench-identified model over-predicts the bench's loop gain by about 1.5 dB at ΔCL 0.08
@@ -91,6 +146,38 @@ class Targets:
     gm_db: float = 6.0
     pm_deg: float = 45.0
     peak_db: float = 4.0
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """Multiplicative uncertainty of the lifted plant, P_true = P (1 + Δ W), |Δ| ≤ 1: a relative
+    gain error ``gain`` (w₀) and an unmodelled delay ``delay_s`` (δ):
+
+        |(1 + w₀) e^{−jωδ} − 1| ≤ W(ω) = w₀ + (1 + w₀) |1 − e^{−jωδ}|
+
+    Robust stability of the loop for every such plant ⇔ |W(ω) T(ω)| < 1 at every ω (small gain),
+    T = L/(1 + L)."""
+
+    gain: float = GAIN_ERROR_FLOOR
+    delay_s: float = DELAY_ERROR_S
+    source: str = "floor"
+
+    def weight(self, f_hz: np.ndarray) -> np.ndarray:
+        """W(2πf) (dimensionless)."""
+        return self.gain + (1.0 + self.gain) * np.abs(1.0 - np.exp(-2j * np.pi * np.asarray(f_hz) * self.delay_s))
+
+
+def uncertainty_from_model(model: Any) -> Uncertainty:
+    """The weight from the model file: w₀ = max(floor, 2 σ(G₀)/|G₀|) with σ(G₀) the Wiener LTI's DC-gain
+    standard deviation the identification stored (``provenance.wiener.uncertainty.dc_gain_std``,
+    the PEM's asymptotic covariance), else the floor alone; δ = :data:`DELAY_ERROR_S`."""
+    w = (getattr(model, "provenance", None) or {}).get("wiener") or {}
+    std, g0 = (w.get("uncertainty") or {}).get("dc_gain_std"), w.get("dc_gain")
+    if isinstance(std, (int, float)) and isinstance(g0, (int, float)) and g0 and math.isfinite(std):
+        rel = 2.0 * abs(std / g0)
+        if rel > GAIN_ERROR_FLOOR:
+            return Uncertainty(rel, DELAY_ERROR_S, "2 sigma of the Wiener DC gain (model file)")
+    return Uncertainty(GAIN_ERROR_FLOOR, DELAY_ERROR_S, "floor (bench model's measured gain error)")
 
 
 @dataclass(frozen=True)
@@ -125,9 +212,78 @@ class Gains:
         return float(abs(self.response(np.array([-1.0 + 0j]))[0] - self.kx) + abs(self.kx))
 
 
+@dataclass(frozen=True)
+class Margins:
+    """Every crossover of L(e^{jωT}) on [0, Nyquist] and what it bounds (:func:`loop_margins`).
+
+    ``gain_crossovers`` (f Hz, phase margin deg) where |L| = 1, PM = 180° − |∠L|;
+    ``phase_crossovers`` (f Hz, 20 log₁₀|L| dB) where ∠L = ±180° (Im L = 0, Re L < 0; z = −1
+    included). ``pm_deg`` the smallest PM (180 with no gain crossover); ``gm_db`` the smallest
+    upward margin −20 log₁₀|L| over phase crossovers with |L| < 1, ``gm_low_db`` the smallest
+    downward one 20 log₁₀|L| over those with |L| > 1 (∞ with none). ``peak_s_db`` max |1/(1+L)|
+    and where; ``peak_gust_db`` max |S_o| (the gust's map with the observer, module docstring),
+    ``f6_hz`` where |S_o| first exceeds 0.5; ``robust`` max |W T|."""
+
+    gain_crossovers: tuple[tuple[float, float], ...]
+    phase_crossovers: tuple[tuple[float, float], ...]
+    pm_deg: float
+    gm_db: float
+    gm_low_db: float
+    peak_s_db: float
+    peak_s_hz: float
+    peak_gust_db: float
+    f6_hz: float
+    robust: float
+    robust_hz: float
+
+
+def _crossings(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices k and fractions w ∈ [0, 1) where ``x`` changes sign between k and k + 1 (linear)."""
+    pos = x >= 0.0
+    k = np.flatnonzero(pos[:-1] != pos[1:])
+    return k, x[k] / (x[k] - x[k + 1])
+
+
+def loop_margins(f: np.ndarray, L: np.ndarray, s_gust: np.ndarray | None = None,
+                 w: np.ndarray | None = None) -> Margins:
+    """:class:`Margins` of the loop response ``L`` on the grid ``f`` (Hz, increasing, the last
+    point Nyquist where L is real); crossings interpolated linearly between grid points.
+    ``s_gust`` the gust's map (default 1/(1 + L)); ``w`` the uncertainty weight on ``f``."""
+    f = np.asarray(f, dtype=float)
+    mag = np.abs(L)
+    k, t = _crossings(mag - 1.0)
+    lc = L[k] + t * (L[k + 1] - L[k])
+    gain_x = tuple((float(f[i] + ti * (f[i + 1] - f[i])), float(180.0 - abs(math.degrees(np.angle(c)))))
+                   for i, ti, c in zip(k, t, lc, strict=True))
+    k, t = _crossings(L.imag[:-1])
+    lc = L[k] + t * (L[k + 1] - L[k])
+    phase_x = [(float(f[i] + ti * (f[i + 1] - f[i])), float(20.0 * math.log10(abs(c.real))))
+               for i, ti, c in zip(k, t, lc, strict=True) if c.real < 0]
+    if L[-1].real < 0:                                   # z = −1: L real there
+        phase_x.append((float(f[-1]), float(20.0 * math.log10(abs(L[-1].real)))))
+    s = np.abs(1.0 / (1.0 + L))
+    sg = s if s_gust is None else np.abs(s_gust)
+    wt = np.zeros_like(s) if w is None else np.abs(w * L / (1.0 + L))
+    up = [-db for _, db in phase_x if db < 0]
+    down = [db for _, db in phase_x if db >= 0]
+    i, j = int(np.argmax(s)), int(np.argmax(wt))
+    return Margins(gain_x, tuple(phase_x), min((pm for _, pm in gain_x), default=180.0),
+                   min(up, default=math.inf), min(down, default=math.inf),
+                   float(20.0 * math.log10(s[i])), float(f[i]), float(20.0 * math.log10(sg.max())),
+                   _first_crossing(f, sg, 0.5), float(wt[j]), float(f[j]))
+
+
+def analysis_grid(dt: float, n: int = 5000) -> np.ndarray:
+    """Frequencies (Hz) for the check: log-spaced from 2 mHz to 0.5 Hz, then linear to Nyquist
+    1/(2T) inclusive (where every crossover near Nyquist lies)."""
+    nyq = 0.5 / dt
+    return np.r_[np.geomspace(0.002, 0.5, n // 5, endpoint=False), np.linspace(0.5, nyq, n - n // 5)]
+
+
 @dataclass
 class PointDesign:
-    """The design at one operating point: the lifted plant, the gains, python-control's margins."""
+    """One operating point: the lifted plant, the gains in force there, the observer's response,
+    every margin (:class:`Margins`) and the computed limit of the band."""
 
     cmu: float
     dcl: float
@@ -136,12 +292,40 @@ class PointDesign:
     plant_point: list[float]
     """q_j: the latest value."""
     gains: Gains
-    gm_db: float
-    pm_deg: float
-    crossover_hz: float
-    peak_s_db: float
-    f6_hz: float
+    observer: list[float]
+    """h_o: the estimate's impulse response to the measurement at 400 Hz (empty: the observer
+    left out, F_o = 1)."""
+    fs_hz: float
+    margins: Margins
     stable: bool
+    designed: bool = True
+    """False: a check between two scheduled points with the interpolated gains."""
+    limit_f6_hz: float | None = None
+    observer_tail: float = 0.0
+    """r: h̄[n] = h̄[N−1] r^{n−N+1} beyond the stored N taps (0: none)."""
+    observer_period: int = 0
+    """P: ``observer`` is h_o averaged over P samples, h̄ (0: h_o itself)."""
+
+    @property
+    def gm_db(self) -> float:
+        return self.margins.gm_db
+
+    @property
+    def pm_deg(self) -> float:
+        return self.margins.pm_deg
+
+    @property
+    def peak_s_db(self) -> float:
+        return max(self.margins.peak_s_db, self.margins.peak_gust_db)
+
+    @property
+    def f6_hz(self) -> float:
+        return self.margins.f6_hz
+
+    @property
+    def crossover_hz(self) -> float:
+        """The highest gain crossover (0 with none)."""
+        return max((fc for fc, _ in self.margins.gain_crossovers), default=0.0)
 
     def loop(self, dt: float) -> Any:
         """L(Z) = C P_A + K_x (P_X − P_A) (python-control)."""
@@ -152,44 +336,131 @@ class PointDesign:
         z = np.exp(2j * np.pi * np.asarray(f_hz, dtype=float) * dt)
         return self.gains.loop_response(z, np.asarray(self.plant), np.asarray(self.plant_point))
 
+    def observer_response(self, f_hz: np.ndarray) -> np.ndarray:
+        """F_o at the frequencies ``f_hz`` (:func:`observer_response`; 1 where the observer is left out)."""
+        return observer_response(self.observer, self.fs_hz, f_hz, self.observer_tail, self.observer_period)
+
     def sensitivity(self, f_hz: np.ndarray, dt: float) -> np.ndarray:
-        """Predicted S(e^{jωT}) = 1/(1 + L) at the frequencies ``f_hz`` (complex)."""
-        return 1.0 / (1.0 + self.loop_response(f_hz, dt))
+        """Predicted map from a lift gust to the lift, S_o = 1 − F_o L/(1 + L) (complex)."""
+        L = self.loop_response(f_hz, dt)
+        return 1.0 - self.observer_response(f_hz) * L / (1.0 + L)
+
+
+def observer_response(h: list[float] | np.ndarray, fs_hz: float, f_hz: np.ndarray, tail: float = 0.0,
+                      period: int = 0) -> np.ndarray:
+    """F_o at ``f_hz`` from h̄, the ``N`` stored taps ``h`` at ``fs_hz`` (h_o averaged over ``period``
+    samples: its part locked to the burst phase, which never decays, is removed exactly), and their
+    geometric tail of ratio r = ``tail``; ζ = e^{−j2πf/f_s}, M(ζ) = (1/P) Σ_{k<P} ζᵏ:
+
+        F_o(ζ) = [Σ_{n<N} h̄[n] ζⁿ + h̄[N−1] r ζᴺ/(1 − r ζ)] / M(ζ)     (1 for an empty ``h``)
+
+    (below the burst rate |M| ≥ 0.63)."""
+    f_hz = np.asarray(f_hz, dtype=float)
+    h = np.asarray(h, dtype=float)
+    if h.size == 0:
+        return np.ones(f_hz.shape, dtype=complex)
+    zeta = np.exp(-2j * np.pi * f_hz / fs_hz)
+    out = np.polyval(h[::-1], zeta)
+    if tail:
+        out = out + h[-1] * tail * zeta ** h.size / (1.0 - tail * zeta)
+    if period > 1:
+        out = out / (np.polyval(np.ones(period), zeta) / period)
+    return out
 
 
 @dataclass
 class Design:
-    """The gain-scheduled design: one :class:`PointDesign` per operating point, in Cμ order."""
+    """The gain-scheduled design: its scheduled points and the checks between them, in Cμ order."""
 
     points: list[PointDesign]
     dt: float
     period: int
     margin: int
     targets: Targets = field(default_factory=Targets)
+    uncertainty: Uncertainty = field(default_factory=Uncertainty)
+
+    @property
+    def scheduled(self) -> list[PointDesign]:
+        return [p for p in self.points if p.designed]
 
     def schedule(self) -> tuple[tuple[float, float, float, float, float, float], ...]:
         """``(Cμ, K_p, T_i s, a, b, K_x)`` rows for :class:`~rtlift.app.control.ControlConfig`."""
         return tuple((p.cmu, p.gains.kp, self.dt / p.gains.ki, p.gains.a, p.gains.b, p.gains.kx)
-                     for p in self.points)
+                     for p in self.scheduled)
 
     def nearest(self, dcl: float) -> PointDesign:
-        """The operating point nearest a ΔCL level."""
-        return min(self.points, key=lambda p: abs(p.dcl - dcl))
+        """The scheduled operating point nearest a ΔCL level."""
+        return min(self.scheduled, key=lambda p: abs(p.dcl - dcl))
+
+    def violations(self) -> list[str]:
+        """One line per target missed at an operating point: the target, the value, what binds it."""
+        t, out = self.targets, []
+        for p in self.points:
+            m = p.margins
+            at = f"at ΔCL {p.dcl:.3f} (Cμ {p.cmu:.4f}{'' if p.designed else ', between scheduled points'})"
+            if not p.stable:
+                out.append(f"closed loop unstable {at}")
+            if m.pm_deg < t.pm_deg:
+                fc, pm = min(m.gain_crossovers, key=lambda c: c[1])
+                out.append(f"phase margin {pm:.1f} deg < {t.pm_deg:g} deg {at}: the gain crossover at {fc:.2f} Hz")
+            for name, value, sign in (("gain margin", m.gm_db, "rises"), ("downward gain margin", m.gm_low_db,
+                                                                             "falls")):
+                if value < t.gm_db:
+                    fc = min((c for c in m.phase_crossovers if (c[1] < 0) == (sign == "rises")),
+                             key=lambda c: abs(c[1]))[0]
+                    out.append(f"{name} {value:.1f} dB < {t.gm_db:g} dB {at}: the loop gain at the phase "
+                               f"crossover at {fc:.2f} Hz (unstable if it {sign} by that much)")
+            if m.peak_s_db > t.peak_db:
+                out.append(f"|S| peak {m.peak_s_db:+.2f} dB > {t.peak_db:+g} dB {at}: at {m.peak_s_hz:.2f} Hz")
+            if m.peak_gust_db > t.peak_db:
+                out.append(f"gust amplification (with the observer) {m.peak_gust_db:+.2f} dB > {t.peak_db:+g} dB {at}")
+            if m.robust >= 1.0:
+                u = self.uncertainty
+                out.append(f"robust stability max |W T| {m.robust:.2f} >= 1 {at}: at {m.robust_hz:.2f} Hz "
+                           f"(W: gain error {100 * u.gain:.0f} %, delay {1e3 * u.delay_s:g} ms)")
+        return out
 
     def summary(self) -> dict[str, Any]:
-        """Worst case over the schedule: margins, peak |S|, f₆."""
+        """Worst case over every operating point checked: margins, peak |S|, f₆, the limit."""
         pts = self.points
-        gm = min(p.gm_db for p in pts)
+        gm = min(min(p.margins.gm_db, p.margins.gm_low_db) for p in pts)
+        lim = [p.limit_f6_hz for p in pts if p.limit_f6_hz is not None]
         return {"gm_db_min": gm if math.isfinite(gm) else None,  # None: no phase crossover anywhere
                 "pm_deg_min": min(p.pm_deg for p in pts),
                 "peak_s_db_max": max(p.peak_s_db for p in pts), "f6_hz_min": min(p.f6_hz for p in pts),
-                "stable": all(p.stable for p in pts)}
+                "robust_max": max(p.margins.robust for p in pts),
+                "limit_f6_hz_min": min(lim) if lim else None,
+                "stable": all(p.stable for p in pts), "violations": self.violations()}
 
     def to_dict(self) -> dict[str, Any]:
+        pts = []
+        for p in self.points:
+            d = asdict(p)
+            d["gains"] = asdict(p.gains)
+            d["ti_s"] = self.dt / p.gains.ki
+            d.update({k: getattr(p, k) for k in ("gm_db", "pm_deg", "peak_s_db", "f6_hz", "crossover_hz")})
+            pts.append(d)
         return {"dt_s": self.dt, "period_samples": self.period, "margin_samples": self.margin,
-                "targets": asdict(self.targets), "summary": self.summary(),
-                "points": [{**{k: v for k, v in asdict(p).items() if k != "gains"}, "gains": asdict(p.gains),
-                            "ti_s": self.dt / p.gains.ki} for p in self.points]}
+                "targets": asdict(self.targets), "uncertainty": asdict(self.uncertainty),
+                "summary": self.summary(), "points": pts}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> Design:
+        """The design of a saved report, every margin computed again from its lifted plants and gains
+        (a report's own numbers are not trusted); older reports without the observer's response or
+        the uncertainty get F_o = 1 and the default weight."""
+        dt = float(doc["dt_s"])
+        targets = Targets(**{k: float(v) for k, v in doc.get("targets", {}).items()})
+        unc = Uncertainty(**doc["uncertainty"]) if "uncertainty" in doc else Uncertainty()
+        points = [check_point(float(p["cmu"]), float(p["dcl"]), np.asarray(p["plant"], float),
+                              np.asarray(p["plant_point"], float),
+                              Gains(**{k: float(v) for k, v in p["gains"].items()}), dt,
+                              np.asarray(p.get("observer") or [], float), float(p.get("fs_hz") or 400.0), unc,
+                              designed=bool(p.get("designed", True)), limit=p.get("limit_f6_hz"),
+                              tail=float(p.get("observer_tail") or 0.0), period=int(p.get("observer_period") or 0))
+                  for p in doc["points"]]
+        return cls(points, dt, int(doc.get("period_samples", BURST_PERIOD_SAMPLES)),
+                   int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc)
 
 
 def plant_tf(p: list[float] | np.ndarray, dt: float) -> Any:
@@ -210,15 +481,21 @@ def plant_response(p: list[float] | np.ndarray, z: np.ndarray) -> np.ndarray:
     return np.polyval(np.asarray(p, dtype=float)[::-1], 1.0 / z)
 
 
+def _operating_input(model: Any, controller: LiftController, dcl0: float, n: int,
+                     period: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Cμ, Cμ_env) at the operating point ΔCL₀: the envelope S⁻¹(ΔCL₀), bursts on at every onset."""
+    burst = max(1, int(round(BURST_S * model.fs_hz)))
+    env = np.full(n, controller.inverse(dcl0))
+    return np.where((np.arange(n) % period) < burst, env, 0.0), env
+
+
 def lifted_plant(model: Any, controller: LiftController, dcl0: float, *, period: int = BURST_PERIOD_SAMPLES,
                  margin: int = MARGIN_SAMPLES, n_periods: int = LIFT_PERIODS,
                  rel: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
     """(``p_j``, ``q_j``) of the module docstring at ΔCL₀ (the model simulated, central differences)."""
-    fs = model.fs_hz
-    burst = max(1, int(round(BURST_S * fs)))
     warm = 8 * period * 4                  # 4 s at the operating point first
     n = warm + n_periods * period
-    gate = (np.arange(n) % period) < burst
+    gate = (np.arange(n) % period) < max(1, int(round(BURST_S * model.fs_hz)))
     dv = max(rel * abs(dcl0), 1e-4)
     ys = []
     for v in (dcl0 + dv, dcl0 - dv):
@@ -232,17 +509,35 @@ def lifted_plant(model: Any, controller: LiftController, dcl0: float, *, period:
     return np.array([y[e - period:e].mean() for e in ends]), y[ends - 1].copy()
 
 
-def _grid_metrics(g: Gains, p: np.ndarray, q: np.ndarray, z: np.ndarray,
-                  f: np.ndarray) -> tuple[float, float, float, float]:
-    """(GM dB, PM deg, peak |S| dB, f₆ Hz) on the grid (the search's fast estimate)."""
-    L = g.loop_response(z, p, q)
-    mag = np.abs(L)
-    cross = np.flatnonzero(np.diff(np.sign(mag - 1.0)))
-    pm = min((180.0 - abs(math.degrees(np.angle(L[k]))) for k in cross), default=180.0)
-    flips = np.flatnonzero(np.diff(np.sign(L.imag)))
-    gm = min((-20.0 * math.log10(abs(L[k].real)) for k in flips if L[k].real < 0), default=math.inf)
-    s = np.abs(1.0 / (1.0 + L))
-    return gm, pm, 20.0 * math.log10(s.max()), _first_crossing(f, s, 0.5)
+def observer_impulse(model: Any, controller: LiftController, dcl0: float, *, period: int = BURST_PERIOD_SAMPLES,
+                     taps: int = OBSERVER_TAPS, delta: float = 1e-6) -> tuple[np.ndarray, float]:
+    """(h̄, r): the observer's estimate's response to a unit impulse added to the measured lift,
+    at ΔCL₀ (module docstring, "The observer in the loop"), averaged over one burst period (the
+    ripple states ring at the burst harmonics without decaying: averaging removes that part
+    exactly, :func:`observer_response` divides the average's response back out), and the ratio of
+    its geometric tail beyond ``taps`` (fitted to the last quarter; 0 if it does not decay). The model's
+    own output is the measurement, then the same plus a step of ``delta`` (far below the gate: the
+    filter stays linear) from a burst onset after 4 s; the difference's first difference over
+    ``delta``. The filter's compiled step (:meth:`~rtlift.observer.Observer.run`)."""
+    from rtlift.observer import Observer
+
+    warm = 8 * period * 4
+    n = warm + taps
+    cmu, env = _operating_input(model, controller, dcl0, n, period)
+    m = model.copy()
+    m.reset()
+    y = np.asarray(m.simulate(cmu, env).total)
+    obs = Observer.from_model(model.copy())
+    out = []
+    for shift in (0.0, delta):
+        obs.reset()
+        out.append(obs.run(cmu, env, y + np.where(np.arange(n) >= warm, shift, 0.0))["dcl"])
+    h = np.diff(np.r_[0.0, (out[1] - out[0])[warm:] / delta])
+    h = np.convolve(h, np.full(period, 1.0 / period))[:taps]        # h̄: averaged over one burst period
+    k = taps // 4
+    a, b = h[-k - 1], h[-1]
+    r = (b / a) ** (1.0 / k) if 0.0 < b < a else 0.0
+    return h, float(r)
 
 
 def _first_crossing(f: np.ndarray, s: np.ndarray, level: float) -> float:
@@ -260,32 +555,47 @@ def _first_crossing(f: np.ndarray, s: np.ndarray, level: float) -> float:
 
 def _stable(g: Gains, p: np.ndarray, q: np.ndarray) -> bool:
     """Closed-loop poles inside the unit circle: the roots of
-    D_C Z^{n−1} + N_C Σ p_j Z^{n−1−j} + K_x D_C Σ (q_j − p_j) Z^{n−1−j},  C = N_C / D_C."""
+    D_C Z^{n−1} + N_C Σ p_j Z^{n−1−j} + K_x D_C Σ (q_j − p_j) Z^{n−1−j},  C = N_C / D_C
+    (coefficients in descending powers; ``np.convolve`` is polynomial multiplication)."""
     n = len(p)
     gain = (1.0 - g.b) / (1.0 - g.a)
-    c_num = gain * np.polymul([g.kp + g.ki, -g.kp], [1.0, -g.a])
-    c_den = np.polymul([1.0, -1.0], [1.0, -g.b])
-    char = np.polyadd(np.polyadd(np.polymul(c_den, np.r_[1.0, np.zeros(n - 1)]), np.polymul(c_num, p)),
-                      np.polymul(c_den, g.kx * (q - p)))
+    c_num = gain * np.convolve([g.kp + g.ki, -g.kp], [1.0, -g.a])
+    c_den = np.convolve([1.0, -1.0], [1.0, -g.b])
+    char = np.zeros(n + 2)
+    char[:3] += c_den                                    # D_C Z^{n−1}
+    char += np.convolve(c_num, p) + np.convolve(c_den, g.kx * (q - p))   # both of degree n + 1
     return bool(np.all(np.abs(np.roots(char)) < 1.0 - 1e-9))
 
 
+def _shortfall(m: Margins, targets: Targets, nyquist_gain: float) -> float:
+    """How far a point misses its targets (0: meets them), in units that never trade for band:
+    1° of phase margin weighs as 0.5 Hz of f₆, 1 dB of gain margin or |S| as 5 and 20 Hz."""
+    return (5.0 * max(0.0, targets.gm_db + 0.2 - min(m.gm_db, m.gm_low_db))
+            + 0.5 * max(0.0, targets.pm_deg + 0.5 - m.pm_deg)
+            + 20.0 * max(0.0, max(m.peak_s_db, m.peak_gust_db) - targets.peak_db + 0.05)
+            + 20.0 * max(0.0, m.robust - 0.97) + max(0.0, nyquist_gain - NYQUIST_GAIN_MAX))
+
+
 def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed: int = 1,
-                 start: Gains | None = None) -> Gains:
+                 start: Gains | None = None, f_o: np.ndarray | None = None,
+                 weight: np.ndarray | None = None, f: np.ndarray | None = None) -> Gains:
     """The gains that maximise f₆ under the targets (module docstring); ``start`` seeds the
-    search (the neighbouring operating point's gains: a smooth schedule)."""
+    search (the neighbouring operating point's gains: a smooth schedule). ``f_o`` and ``weight``
+    the observer's response and the uncertainty weight on the search grid ``f``."""
     from scipy.optimize import differential_evolution, minimize
 
-    z = np.exp(2j * np.pi * F_GRID * dt)
+    f = analysis_grid(dt, 800) if f is None else f
+    z = np.exp(2j * np.pi * f * dt)
+    fo = np.ones(f.shape) if f_o is None else f_o
+    pa, dx = plant_response(p, z), plant_response(q, z) - plant_response(p, z)
 
     def cost(x: np.ndarray) -> float:
         g = Gains(*map(float, x))
         if not _stable(g, p, q):
-            return 10.0
-        gm, pm, peak, f6 = _grid_metrics(g, p, q, z, F_GRID)
-        nyquist = g.nyquist_gain()
-        return (-f6 + max(0.0, targets.gm_db + 0.2 - gm) + max(0.0, targets.pm_deg + 1.0 - pm) / 10.0
-                + 2.0 * max(0.0, peak - targets.peak_db + 0.1) + max(0.0, nyquist - NYQUIST_GAIN_MAX))
+            return 100.0
+        L = g.response(z) * pa + g.kx * dx           # L = C P_A + K_x (P_X − P_A)
+        m = loop_margins(f, L, 1.0 - fo * L / (1.0 + L), weight)
+        return -m.f6_hz + _shortfall(m, targets, g.nyquist_gain())
 
     lo, hi = np.array(BOUNDS).T
     x0 = np.array([start.kp, start.ki, start.a, start.b, start.kx] if start is not None else HAND_START)
@@ -296,42 +606,190 @@ def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed
     return Gains(*map(float, np.clip(best.x, lo, hi)))
 
 
-def check_point(cmu: float, dcl: float, p: np.ndarray, q: np.ndarray, g: Gains, dt: float) -> PointDesign:
-    """Margins and crossover from python-control; peak |S| and f₆ on a fine grid."""
+def check_point(cmu: float, dcl: float, p: np.ndarray, q: np.ndarray, g: Gains, dt: float,
+                h_o: np.ndarray, fs_hz: float, unc: Uncertainty, *, designed: bool = True,
+                limit: float | None = None, tail: float = 0.0, period: int = 0) -> PointDesign:
+    """Every margin on the dense :func:`analysis_grid` (:func:`loop_margins`); closed-loop poles from
+    the characteristic polynomial and from python-control (both must say stable)."""
     import control as ct
 
-    L = loop_tf(g, p, q, dt)
+    f = analysis_grid(dt)
+    L = g.loop_response(np.exp(2j * np.pi * f * dt), p, q)
+    fo = observer_response(h_o, fs_hz, f, tail, period)
+    m = loop_margins(f, L, 1.0 - fo * L / (1.0 + L), unc.weight(f))
     with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)   # L at z = 1 (the integrator): no stderr line
-        gm, pm, _, _, wgc, _ = ct.stability_margins(L)
-        stable = bool(np.all(np.abs(ct.feedback(L, 1).poles()) < 1.0))
-    f = np.geomspace(0.005, 0.5 / dt - 1e-3, 2000)
-    z = np.exp(2j * np.pi * f * dt)
-    _, _, peak, f6 = _grid_metrics(g, p, q, z, f)
-    gm_db = 20.0 * math.log10(gm) if np.isfinite(gm) else math.inf
-    return PointDesign(cmu, dcl, [float(v) for v in p], [float(v) for v in q], g, gm_db,
-                       float(pm), float(wgc) / (2.0 * math.pi), peak, f6, stable)
+        stable = bool(np.all(np.abs(ct.feedback(loop_tf(g, p, q, dt), 1).poles()) < 1.0)) and _stable(g, p, q)
+    return PointDesign(cmu, dcl, [float(v) for v in p], [float(v) for v in q], g, [float(v) for v in h_o],
+                       fs_hz, m, stable, designed, limit, tail, period)
+
+
+def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, f_o: Any = None,
+                    unc: Uncertainty | None = None, taps: int = LIMIT_TAPS) -> float:
+    """The widest band [0, f_B] of |S_o| ≤ 0.5 that *any* causal linear controller acting on the two
+    lifted measurements can reach on this plant, subject to |S_o| ≤ ``peak_db`` and |S| ≤ ``peak_db``
+    everywhere and robust stability |W T| ≤ 1 (module docstring, "The limit"; docs/DESIGN.md).
+
+    The plant is FIR, hence stable: every stabilising controller is u = −K y with
+    T = Q_A P_A + Q_X P_X for stable Q (Youla), S = 1 − T, S_o = 1 − F_o T — affine in Q. With Q
+    FIR (``taps`` periods) each bound is a set of linear inequalities (a circle as an outer
+    polygon; the bounds on 190 frequencies, 0.025 Hz apart above 0.4 Hz, far finer than the FIR's
+    resolution); the band is the highest point f_B of a log grid (90 points to Nyquist, 6 % apart) up
+    to which some Q keeps |S_o| ≤ 0.5 (a feasibility LP, HiGHS; binary search over the grid).
+    ``f_o``: callable F_o(f) (None: 1)."""
+    from scipy.optimize import linprog
+
+    def t_rows(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(T = rows @ x at ``f``, F_o at ``f``); x = (Q_A taps, Q_X taps)."""
+        z = np.exp(2j * np.pi * f * dt)
+        shifts = z[:, None] ** -np.arange(taps)[None, :]
+        fo = np.ones(f.shape, complex) if f_o is None else np.asarray(f_o(f))
+        return np.c_[plant_response(p, z)[:, None] * shifts, plant_response(q, z)[:, None] * shifts], fo
+
+    nyq = 0.5 / dt
+    f_all = np.r_[np.geomspace(0.01, nyq / 10, 30, endpoint=False), np.linspace(nyq / 10, nyq, 160)]
+    rows_all, fo_all = t_rows(f_all)      # the bounds everywhere: dense (an FIR of 3 s resolves 0.33 Hz)
+    f = np.geomspace(0.02, nyq, 90)       # the band's edge: 6 % apart
+    rows, fo = t_rows(f)
+    w = (unc or Uncertainty()).weight(f_all)
+    ang = np.exp(-2j * np.pi * np.arange(LIMIT_SIDES) / LIMIT_SIDES)
+    mpk = 10.0 ** (peak_db / 20.0)
+
+    def polygon(a: np.ndarray, c: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+        """Re(e^{−jθ_k}(c + a x)) ≤ r for every side k, as A_ub x ≤ b_ub."""
+        rot = ang[None, :, None] * a[:, None, :]
+        return rot.real.reshape(-1, a.shape[1]), (r - (ang[None, :] * c[:, None]).real).reshape(-1)
+
+    ones = np.ones(f_all.size)
+    parts = [polygon(-rows_all, ones, mpk), polygon(-fo_all[:, None] * rows_all, ones, mpk),
+             polygon(w[:, None] * rows_all, 0.0 * ones, 1.0)]
+    a_fix = np.vstack([a for a, _ in parts])
+    b_fix = np.concatenate([b for _, b in parts])
+    nx = rows.shape[1]
+
+    def feasible(top: int) -> bool:
+        """Some Q keeps |S_o| ≤ 0.5 on f[0..top] within the fixed bounds."""
+        a, b = polygon(-fo[:top + 1, None] * rows[:top + 1], np.ones(top + 1), 0.5)
+        res = linprog(np.zeros(nx), A_ub=np.vstack([a, a_fix]), b_ub=np.r_[b, b_fix],
+                      bounds=[(None, None)] * nx, method="highs")
+        return res.status == 0
+
+    if not feasible(0):
+        return 0.0
+    lo, hi = 0, f.size          # feasible up to index lo; hi: first known infeasible (or past the end)
+    while hi - lo > 1:          # binary search over the grid
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if feasible(mid) else (lo, mid)
+    return float(f[lo])
 
 
 def design_loop(model: Any, targets: Targets | None = None, config: ControlConfig | None = None,
-                fractions: tuple[float, ...] = SCHEDULE_FRACTIONS) -> Design:
-    """The gain-scheduled design for ``model`` (module docstring)."""
+                fractions: tuple[float, ...] = SCHEDULE_FRACTIONS, *, observer: bool = True,
+                uncertainty: Uncertainty | None = None, limit: bool = True, max_inserted: int = 2) -> Design:
+    """The gain-scheduled design for ``model`` (module docstring): gains searched at each of
+    ``fractions``, then every target checked there and half-way between neighbours with the gains
+    the controller interpolates; where a half-way check misses a target the gains are searched
+    there too and it joins the schedule (at most ``max_inserted`` times); the limit of the band
+    computed at each scheduled point (``limit``)."""
     targets = targets or Targets()
+    unc = uncertainty or uncertainty_from_model(model)
     cfg = config or ControlConfig(fs_hz=model.fs_hz)
     ctl = LiftController(model, cfg)
     dt = cfg.period / cfg.fs_hz
-    points: list[PointDesign] = []
-    for frac in fractions:
-        dcl0 = ctl.dcl_min + frac * (ctl.dcl_max - ctl.dcl_min)
+    fs = cfg.fs_hz
+    per = cfg.period if observer else 0
+    f = analysis_grid(dt, 800)
+
+    def plant_at(dcl0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         p, q = lifted_plant(model, ctl, dcl0, period=cfg.period)
-        g = design_point(p, q, dt, targets, start=points[-1].gains if points else None)
-        points.append(check_point(ctl.inverse(dcl0), dcl0, p, q, g, dt))
-    return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets)
+        h, r = observer_impulse(model, ctl, dcl0, period=cfg.period) if observer else (np.zeros(0), 0.0)
+        return p, q, h, r
+
+    def between(designed: list[PointDesign]) -> list[PointDesign]:
+        """The scheduled points with a check half-way (in Cμ) between each neighbouring pair, at the
+        gains the controller interpolates there."""
+        sched = LiftController(model, ControlConfig(fs_hz=fs, period=cfg.period, schedule=tuple(
+            (pt.cmu, pt.gains.kp, dt / pt.gains.ki, pt.gains.a, pt.gains.b, pt.gains.kx) for pt in designed)))
+        out = [designed[0]]
+        for lo, hi in zip(designed, designed[1:], strict=False):
+            cmu = 0.5 * (lo.cmu + hi.cmu)
+            sched._schedule_at(cmu)
+            dcl0 = float(np.interp(cmu, sched._map_cmu, sched._map_dcl))
+            p, q, h, r = plant_at(dcl0)
+            g = Gains(sched.kp, sched._gain_i, sched._a, sched._b, sched.kx)
+            out += [check_point(cmu, dcl0, p, q, g, dt, h, fs, unc, designed=False, tail=r, period=per), hi]
+        return out
+
+    def design_at(dcl0: float, start: Gains | None) -> PointDesign:
+        p, q, h, r = plant_at(dcl0)
+        g = design_point(p, q, dt, targets, start=start, f_o=observer_response(h, fs, f, r, per),
+                         weight=unc.weight(f), f=f)
+        lim = rejection_limit(p, q, dt, targets.peak_db, f_o=lambda x: observer_response(h, fs, x, r, per),
+                              unc=unc) if limit else None
+        return check_point(ctl.inverse(dcl0), dcl0, p, q, g, dt, h, fs, unc, limit=lim, tail=r, period=per)
+
+    designed: list[PointDesign] = []
+    for frac in fractions:
+        designed.append(design_at(ctl.dcl_min + frac * (ctl.dcl_max - ctl.dcl_min),
+                                  designed[-1].gains if designed else None))
+    points, inserted = between(designed), 0
+    while inserted < max_inserted:
+        bad = [pt for pt in points if not pt.designed
+               and Design([pt], dt, cfg.period, MARGIN_SAMPLES, targets, unc).violations()]
+        if not bad:
+            break
+        pt = bad[0]          # designed there too, from its lower neighbour's gains
+        start = max((d for d in designed if d.cmu < pt.cmu), key=lambda d: d.cmu).gains
+        designed = sorted([*designed, design_at(pt.dcl, start)], key=lambda d: d.cmu)
+        points, inserted = between(designed), inserted + 1
+    return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc)
 
 
-def schedule_from_report(path: str) -> tuple[tuple[float, float, float, float, float, float], ...]:
-    """The schedule rows ``(Cμ, K_p, T_i, a, b, K_x)`` of a saved design (``rtlift design``'s
-    report.json); :class:`~rtlift.core.errors.UserError` (one line) if it is not one."""
+DESIGN_VERSION = 2
+"""Changes when the design computes something else: a cached design of another version is redone."""
+REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
+
+
+def report_doc(design: Design, model: str) -> dict[str, Any]:
+    """report.json's content (``rtlift design``, the cache beside the model): the design, its
+    violations, and the predicted |S_o| (dB) at the gust frequencies; non-finite numbers as None."""
+    f = np.array(REPORT_FREQUENCIES)
+    doc = {"version": DESIGN_VERSION, "model": model, **design.to_dict(),
+           "predicted_s_db": {"f_hz": list(REPORT_FREQUENCIES),
+                              "points": [[20 * math.log10(abs(s)) for s in p.sensitivity(f, design.dt)]
+                                         for p in design.points]}}
+    return _finite(doc)
+
+
+def _finite(x: Any) -> Any:
+    """Non-finite numbers (an infinite gain margin: no phase crossover) as ``None``."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def design_cache_path(model_path: str, targets: Targets | None = None) -> str:
+    """Where ``rtlift control`` caches the design of ``model_path``: beside it,
+    ``MODEL.design-<sha12>.json``, sha256 of the model file's bytes, the design's version and the
+    targets (a changed model, code or target is a new name: never a stale design)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(model_path, "rb") as fh:
+        h.update(fh.read())
+    h.update(f"|design {DESIGN_VERSION}|{targets or Targets()}".encode())
+    base = model_path[:-5] if model_path.endswith(".json") else model_path
+    return f"{base}.design-{h.hexdigest()[:12]}.json"
+
+
+def load_design(path: str, *, accept_warnings: bool = False, what: str = "--design") -> Design:
+    """A saved design (``rtlift design``'s report.json or a cached one), every target checked again
+    from its lifted plants and gains; :class:`~rtlift.core.errors.UserError` (one line) if it is not
+    one, or if it misses a target and ``accept_warnings`` is false."""
     import json
 
     from rtlift.core.errors import UserError
@@ -339,13 +797,56 @@ def schedule_from_report(path: str) -> tuple[tuple[float, float, float, float, f
     try:
         with open(path, encoding="utf-8") as f:
             doc = json.load(f)
-        rows = tuple((float(p["cmu"]), float(p["gains"]["kp"]), float(p["ti_s"]), float(p["gains"]["a"]),
-                      float(p["gains"]["b"]), float(p["gains"]["kx"])) for p in doc["points"])
+        design = Design.from_dict(doc)
+        rows = design.schedule()
         ControlConfig(schedule=rows)
     except OSError as exc:
-        raise UserError(f"--design {path}: cannot read it ({exc.strerror or exc})") from None
-    except (ValueError, KeyError, TypeError) as exc:
-        raise UserError(f"--design {path}: not a design report of rtlift design ({exc})") from None
+        raise UserError(f"{what} {path}: cannot read it ({exc.strerror or exc})") from None
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:
+        raise UserError(f"{what} {path}: not a design report of rtlift design ({exc})") from None
     if not rows:
-        raise UserError(f"--design {path}: the report has no operating points")
-    return rows
+        raise UserError(f"{what} {path}: the report has no operating points")
+    refuse_violations(design, what, path, accept_warnings)
+    return design
+
+
+def refuse_violations(design: Design, what: str, where: str, accept_warnings: bool) -> None:
+    """:class:`~rtlift.core.errors.UserError` naming the first target the design misses (and how many
+    more), unless ``accept_warnings``."""
+    from rtlift.core.errors import UserError
+
+    bad = design.violations()
+    if bad and not accept_warnings:
+        more = f" (and {len(bad) - 1} more; rtlift design lists them)" if len(bad) > 1 else ""
+        raise UserError(f"{what} {where}: the design misses a target: {bad[0]}{more}; "
+                        "--accept-design-warnings runs it anyway")
+
+
+def schedule_from_report(path: str, accept_warnings: bool = False
+                         ) -> tuple[tuple[float, float, float, float, float, float], ...]:
+    """The schedule rows ``(Cμ, K_p, T_i, a, b, K_x)`` of a saved design (:func:`load_design`)."""
+    return load_design(path, accept_warnings=accept_warnings).schedule()
+
+
+def cached_design(model: Any, model_path: str | None, accept_warnings: bool = False) -> tuple[Design, str]:
+    """``rtlift control``'s design: read from the cache beside ``model_path``
+    (:func:`design_cache_path`) when there, else made (:func:`design_loop`) and written there (a
+    directory that cannot be written to: not cached). (design, where it came from); a design that
+    misses a target raises :class:`~rtlift.core.errors.UserError` unless ``accept_warnings``."""
+    import os
+
+    from rtlift.core.jsonfile import write_json_atomic
+
+    path = None if model_path is None else design_cache_path(str(model_path))
+    if path is not None and os.path.exists(path):
+        return load_design(path, accept_warnings=accept_warnings, what="cached design"), f"cached design {path}"
+    design = design_loop(model)
+    source = "design"
+    if path is not None:
+        try:
+            write_json_atomic(path, report_doc(design, str(model_path)), stage="design cache")
+            source = f"design (cached as {path})"
+        except OSError as exc:
+            source = f"design (not cached: {exc.strerror or exc})"
+    refuse_violations(design, "the design of", str(model_path or "the model"), accept_warnings)
+    return design, source

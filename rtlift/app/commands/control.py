@@ -14,8 +14,11 @@ first sample after it. ``--view`` serves the live page of ``rtlift observe``.
 
 The feedback gains are designed from the model with python-control before the link opens
 (:mod:`rtlift.app.control_design`: PI with a lead–lag at the burst rate, gain margin ≥ 6 dB,
-phase margin ≥ 45°, predicted |S| ≤ 4 dB, scheduled over Cμ; 10–20 s); ``--kp``/``--ti`` set a
-plain PI by hand instead.
+phase margin ≥ 45°, predicted |S| ≤ 4 dB, robust to the model's error, scheduled over Cμ; a minute
+on a loaded machine) and cached beside the model (``MODEL.design-<sha12>.json``, keyed by the model
+file's bytes): a later start with the same model reads it. A design that misses a target (a
+saved one included: its margins are computed again) is refused unless
+``--accept-design-warnings``; ``--kp``/``--ti`` set a plain PI by hand instead.
 """
 
 from __future__ import annotations
@@ -51,6 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ti", type=float, metavar="S", help="hand-set PI: integral time (s)")
     p.add_argument("--design", metavar="REPORT.json",
                    help="the gains of a saved design (rtlift design's report.json) instead of designing at start")
+    p.add_argument("--accept-design-warnings", action="store_true",
+                   help="run a design that misses one of its targets (refused otherwise)")
     p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
     p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters, command latency, tracking RMSE")
@@ -80,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
     reference = parse_reference(args.reference)
     model = load_model(args.model)
     observer = Observer.from_model(model)
-    config, gains = control_config(model, args.feedback == "on", args.kp, args.ti, args.design)
+    config, gains = control_config(model, args.feedback == "on", args.kp, args.ti, args.design,
+                                   model_path=args.model, accept_warnings=args.accept_design_warnings)
     controller = LiftController(model, config)
     calibration = Calibration.load(args.calibration)
     _warm_up(observer, controller)
@@ -131,10 +137,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def control_config(model, feedback: bool, kp: float | None, ti: float | None,
-                   design_file: str | None = None) -> tuple[object, dict]:
+                   design_file: str | None = None, *, model_path: str | None = None,
+                   accept_warnings: bool = False) -> tuple[object, dict]:
     """The controller's settings and a summary of where its gains came from: the design
-    (default), a saved design (``--design``) or ``--kp``/``--ti`` by hand (the other one at its
-    default)."""
+    (default; cached beside ``model_path``), a saved design (``--design``) or ``--kp``/``--ti`` by
+    hand (the other one at its default). A design that misses a target: UserError unless
+    ``accept_warnings``."""
     from rtlift.app.control import ControlConfig
 
     if design_file is not None and (kp is not None or ti is not None):
@@ -142,7 +150,7 @@ def control_config(model, feedback: bool, kp: float | None, ti: float | None,
     if design_file is not None:
         from rtlift.app.control_design import schedule_from_report
 
-        schedule = schedule_from_report(design_file)
+        schedule = schedule_from_report(design_file, accept_warnings)
         return (ControlConfig(feedback=feedback, fs_hz=model.fs_hz, schedule=schedule),
                 {"source": f"design file {design_file}", "schedule": [list(r) for r in schedule]})
     if kp is not None or ti is not None:
@@ -157,11 +165,11 @@ def control_config(model, feedback: bool, kp: float | None, ti: float | None,
                                                                                       "ti_s": ti}
     if not feedback:
         return ControlConfig(feedback=False, fs_hz=model.fs_hz), {"source": "none (feedback off)"}
-    from rtlift.app.control_design import design_loop
+    from rtlift.app.control_design import cached_design
 
-    design = design_loop(model)
+    design, source = cached_design(model, model_path, accept_warnings)
     return (ControlConfig(feedback=True, fs_hz=model.fs_hz, schedule=design.schedule()),
-            {"source": "design", **design.summary(), "schedule": [list(r) for r in design.schedule()]})
+            {"source": source, **design.summary(), "schedule": [list(r) for r in design.schedule()]})
 
 
 def _warm_up(observer, controller) -> None:

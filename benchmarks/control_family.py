@@ -1,0 +1,96 @@
+"""The lift loop on plants of the bench's family it was not designed on: per plant draw, the
+user's whole path, then the gust and the fade.
+
+For each draw N (``--draws 100-104``: reporting draws; 1–49 are for calibration): record the
+clean campaign on plant N (``rtlift bench record --plant-draw N``: static, single_burst,
+sine_k0125), identify the model from it (``rtlift identify``, the paper's hybrid), design the loop
+(:func:`rtlift.app.control_design.design_loop`: its margins, the targets it misses, the limit any
+causal controller reaches), then measure on plant N in process (:func:`benchmarks.gust_rejection.
+measure`: gust suppression per frequency beside the prediction, step tracking under a 70 % fade,
+the envelope at a constant reference). Whatever the design says, the loop is measured (a design
+``rtlift control`` would refuse is marked so). One JSON object per draw is appended to ``--out``
+as it finishes (a long run keeps what it did); the last line printed is one JSON line of all.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+from benchmarks._common import emit, run_cli  # noqa: E402
+from benchmarks.gust_rejection import FREQUENCIES, measure  # noqa: E402
+
+CAMPAIGN = ("static", "single_burst", "sine_k0125")
+
+
+def draws(text: str) -> list[int]:
+    """``A-B`` or ``A,B,C`` as a list of draw numbers."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out += list(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int) -> dict:
+    from rtlift.app.control import ControlConfig
+    from rtlift.app.control_design import design_loop
+    from rtlift.model.modelfile import load_model
+
+    t0 = time.perf_counter()
+    files = {}
+    for exp in CAMPAIGN:
+        files[exp] = os.path.join(tmp, f"{n}_{exp}.csv")
+        run_cli("bench", "record", "--plant-draw", n, "--out", files[exp], exp)
+    path = os.path.join(tmp, f"{n}_model.json")
+    run_cli("identify", "--static", files["static"], "--single-burst", files["single_burst"], "--train",
+            files["sine_k0125"], "-o", path, "--quiet")
+    t1 = time.perf_counter()
+    model = load_model(path)
+    design = design_loop(model)
+    t2 = time.perf_counter()
+    point = design.nearest(0.08)
+    config = ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule())
+    res = measure(model, config, point, design.dt, seed=seed, plant_draw=n, frequencies=frequencies)
+    res.pop("quiet")
+    s = design.summary()
+    return {"draw": n, "identify_s": t1 - t0, "design_s": t2 - t1, "measure_s": time.perf_counter() - t2,
+            "violations": s["violations"], "refused_by_control": bool(s["violations"]),
+            "pm_deg_min": s["pm_deg_min"], "gm_db_min": s["gm_db_min"], "peak_s_db_max": s["peak_s_db_max"],
+            "robust_max": s["robust_max"], "f6_predicted_hz": point.f6_hz, "limit_f6_hz": point.limit_f6_hz,
+            "limit_f6_hz_min": s["limit_f6_hz_min"], "predicted_peak_db_at_0p08": point.peak_s_db, **res}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--draws", default="100-104", help="draw numbers, A-B or A,B,C (default 100-104)")
+    ap.add_argument("--out", default="control_family.jsonl", help="JSON lines, one per draw (appended)")
+    ap.add_argument("--seed", type=int, default=11, help="the bench's noise seed of the measuring runs")
+    ap.add_argument("--frequencies", default=",".join(f"{f:g}" for f in FREQUENCIES))
+    args = ap.parse_args()
+    freqs = tuple(float(f) for f in args.frequencies.split(","))
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in draws(args.draws):
+            r = one_draw(n, tmp, freqs, args.seed)
+            results.append(r)
+            with open(args.out, "a", encoding="utf-8") as fh:
+                fh.write(json.dumps(r) + "\n")
+            sup = {row["f_hz"]: row["suppression_db"] for row in r["rows"]}
+            print(f"draw {n}: design {'REFUSED' if r['refused_by_control'] else 'ok'} "
+                  f"(PM {r['pm_deg_min']:.1f} deg, peak {r['peak_s_db_max']:+.2f} dB); 6 dB band measured "
+                  f"{r['f6_hz_measured']:.3f} Hz, predicted {r['f6_predicted_hz']:.3f}, limit {r['limit_f6_hz']:.3f}; "
+                  f"max amplification {r['max_amplification_db']:+.2f} dB; fade tracking ratio "
+                  f"{r['tracking_ratio']:.2f}; " + " ".join(f"{f:g}:{v:+.1f}" for f, v in sup.items())
+                  + f" ({r['identify_s']:.0f} + {r['design_s']:.0f} + {r['measure_s']:.0f} s)", flush=True)
+    emit({"draws": results})
+
+
+if __name__ == "__main__":
+    main()
