@@ -48,8 +48,7 @@ DOUBLE_TOLERANCE = 1e-9
 
 @dataclass(frozen=True)
 class CExport:
-    """What :func:`export_c` wrote and what the step costs: the paths, the state size in bytes
-    of ``NAME_state`` (as the generator lays it out, before padding), and the multiply–adds per
+    """What :func:`export_c` wrote and what the step costs: the paths and the multiply–adds per
     step (counted from the loops' trip counts: model, filter)."""
 
     header: Path
