@@ -31,7 +31,7 @@ from rtlift.core.programs import EXPERIMENTS
 from rtlift.core.records import Record, read_record
 from rtlift.model.modelfile import load_model
 from rtlift.observer import Observer
-from rtlift.observer.monitor import MARGIN, TESTS, DepartureMonitor
+from rtlift.observer.monitor import MARGIN, TESTS, DepartureMonitor, persistent_max
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "tests" / "data" / "bench_model.json"
@@ -78,21 +78,34 @@ _CONFIGS: dict[int, object] = {}
 
 
 def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (), reference: str = REFERENCE,
-                thresholds: dict | None = None, history: bool = False) -> DepartureMonitor:
-    """``rtlift control``'s closed loop on the bench in this process
-    (:class:`rtlift.app.hil_tracking.InProcessTracking`: the serial wire, the converter, the observer
-    loop, the controller with the gains ``rtlift control`` designs by default), the monitor stepped
-    by the observer loop as ``--monitor`` steps it; the steps repeat every 120 s."""
+                thresholds: dict | None = None, history: bool = False, plant_draw: int = 0,
+                tracking: list | None = None) -> DepartureMonitor:
+    """``rtlift control``'s closed loop on the bench (plant ``plant_draw`` of the family) in this
+    process (:class:`rtlift.app.hil_tracking.InProcessTracking`: the serial wire, the converter, the
+    observer loop, the controller with the gains ``rtlift control`` designs by default), the monitor
+    stepped by the observer loop and told the reference's steps as ``--monitor`` is; the steps
+    repeat every 120 s. ``tracking``, a list, receives the run (its ``traces()``)."""
+    from firmware_io.calibration import Calibration
+    from hil_sim.hil import HilStream
     from rtlift.app.commands.control import control_config
     from rtlift.app.control import LiftController
     from rtlift.app.hil_tracking import InProcessTracking
+    from rtlift.app.reference import parse_reference
+    from rtlift.app.watch import reference_steps
 
     if id(model) not in _CONFIGS:
-        _CONFIGS[id(model)] = control_config(model, True, None, None)[0]
+        _CONFIGS[id(model)] = control_config(model, True, None, None, accept_warnings=True)[0]
     mon = new_monitor(model, thresholds, history)
+    spec = repeated(reference, seconds)
+    tare = max(1, int(round(Calibration().tare_seconds * model.fs_hz)))     # as ControlLoop counts it
+    mon.set_steps(*reference_steps(parse_reference(spec), tare, model.fs_hz))
     ctl = LiftController(model, _CONFIGS[id(model)])
-    InProcessTracking(model, ctl, repeated(reference, seconds), seconds, seed=seed, effects=tuple(effects),
-                      monitor=mon).run()
+    run = InProcessTracking(model, ctl, spec, seconds, seed=seed, effects=tuple(effects), monitor=mon)
+    if plant_draw:
+        run.stream = HilStream("random", seed=seed, effects=list(effects), plant_draw=plant_draw)
+    run.run()
+    if tracking is not None:
+        tracking.append(run)
     return mon
 
 
@@ -105,15 +118,6 @@ def monitor_record(model, rec: Record, thresholds: dict | None = None, history: 
         est = step(c, v, z)
         mstep(z, est.model_dcl, est.innovation)
     return mon
-
-
-def persistent_max(history: list[dict], test: str, persist: int) -> float:
-    """The largest value the statistic held for ``persist`` consecutive evaluations."""
-    v = np.array([h[test] for h in history])
-    if v.size < persist:
-        return 0.0
-    runs = np.lib.stride_tricks.sliding_window_view(v, persist).min(axis=1)
-    return float(runs.max())
 
 
 LOOP_TYPES = ("sine_k0125", "sine_k025", "random")

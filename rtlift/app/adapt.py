@@ -24,6 +24,11 @@ replay`` of the log makes the same swap at the same sample with the same rows an
 every estimate and command bit for bit. Each adaptation's model file is kept in the adapt
 directory with its provenance (the loop, the departure, the window, the diagnosis report).
 
+What the diagnosis calls ``structure`` (the model lacked it at identification: its evidence does
+not depart from the fingerprint) is not a change of the plant: unless the user asked
+(``--adapt-structure``), a window whose accepted entries include one is not swapped in; it is a
+finding, reported in one line, in the events file and in the summary (``finding``, ``reason``).
+
 One diagnosis at a time; departures while one runs are logged, not acted on. The window must
 still be in the ring when the swap comes (``ring_s``): a diagnosis that takes longer is
 dropped (``reason``).
@@ -117,7 +122,8 @@ class Adapter:
 
     def __init__(self, loop: Any, model_path: str, out_dir: str | os.PathLike, *, closed: Any = None,
                  fs_hz: float = FS_HZ, events: Any = None, before_s: float = BEFORE_S,
-                 after_s: float = AFTER_S, replay: list[dict] | None = None, log: Any = None) -> None:
+                 after_s: float = AFTER_S, replay: list[dict] | None = None, log: Any = None,
+                 structure: bool = False) -> None:
         self.loop = loop
         self.closed = closed
         self.model_path = str(model_path)
@@ -129,6 +135,9 @@ class Adapter:
         self.events = events or (lambda e: None)
         self.log = log or (lambda line: None)
         self.adaptations: list[dict[str, Any]] = []
+        self.structure = structure
+        """Swap in what the diagnosis calls ``structure`` too (``--adapt-structure``); by default a
+        window whose accepted entries include one is a finding, reported, not swapped."""
         self.replaying = replay is not None
         self._replay = sorted(replay or [], key=lambda e: e["index"])
         self._pending_departure: int | None = None   # loop index at which to cut the window
@@ -218,9 +227,18 @@ class Adapter:
             acc = [e for e in rep["effects"] if e["accepted"]]
             base = next(iter(rep["baseline"]["records"].values()))
             aug = next(iter(rep["augmented"]["records"].values()))
-            event.update(accepted=[e["name"] for e in acc], rmse_before=base["rmse"], rmse_after=aug["rmse"])
+            event.update(accepted=[e["name"] for e in acc], rmse_before=base["rmse"], rmse_after=aug["rmse"],
+                         kinds={e["name"]: e.get("kind", "effect") for e in acc})
             if not acc:
                 event["reason"] = "nothing accepted"
+                self._finish(event)
+                return
+            structure = [e["name"] for e in acc if e.get("kind") == "structure"]
+            if structure and not self.structure:
+                event["finding"] = structure
+                event["reason"] = (f"structure: {', '.join(structure)} (a deficiency the model had since "
+                                   "identification, not a change of the plant): reported, not swapped "
+                                   "(--adapt-structure swaps it in)")
                 self._finish(event)
                 return
             model_file = self._keep_model(work, n, job, event)

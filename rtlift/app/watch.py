@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import threading
@@ -28,14 +29,100 @@ from rtlift.core.errors import UserError
 
 
 def add_arguments(p: argparse.ArgumentParser, adapt: bool = True) -> None:
-    p.add_argument("--monitor", choices=("on", "off"), default="on",
+    p.add_argument("--monitor", nargs="+", default=["on"], metavar="MODE",
                    help="on: compare the loop's residual with the model's identification fingerprint in "
-                        "sliding windows and report departures (the default); off: no monitor")
+                        "sliding windows and report departures, with the thresholds in the model file (the "
+                        "default); off: no monitor; calibrate OUT.json: a baseline run — record every "
+                        "statistic over this (clean) run and write thresholds from it to OUT.json; FILE: "
+                        "use the thresholds of such a file")
     if not adapt:
         return
     p.add_argument("--adapt", metavar="DIR",
                    help="on a departure, diagnose the recorded window in another process and swap in the "
                         "augmented model at a burst onset; windows, reports and model files go to DIR")
+    p.add_argument("--adapt-structure", action="store_true",
+                   help="with --adapt: also swap in what the diagnosis calls structure (a deficiency the model "
+                        "had since identification); by default that is reported, not swapped")
+
+
+def monitor_mode(value: list[str] | str | None) -> tuple[str, str | None]:
+    """``--monitor``'s words as (mode, file): ("on", None), ("off", None), ("calibrate", OUT) or
+    ("file", FILE); a malformed one is a :class:`UserError`."""
+    words = [value] if isinstance(value, str) else list(value or ["on"])
+    if words in (["on"], ["off"]):
+        return words[0], None
+    if words[0] == "calibrate":
+        if len(words) != 2:
+            raise UserError("--monitor calibrate needs the file to write the thresholds to: "
+                            "--monitor calibrate OUT.json")
+        return "calibrate", words[1]
+    if len(words) != 1:
+        raise UserError(f"--monitor {' '.join(words)}: give on, off, calibrate OUT.json or a thresholds file")
+    return "file", words[0]
+
+
+def read_thresholds(path: str) -> dict[str, float]:
+    """The thresholds of a ``--monitor calibrate`` file (:func:`calibration_doc`)."""
+    from rtlift.observer.monitor import TESTS
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except OSError as exc:
+        raise UserError(f"--monitor {path}: cannot read ({exc.strerror or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"--monitor {path}: not a JSON file ({exc.msg} at line {exc.lineno})") from None
+    th = doc.get("thresholds") if isinstance(doc, dict) else None
+    if not isinstance(th, dict) or not th:
+        raise UserError(f"--monitor {path}: no 'thresholds' (write one with --monitor calibrate {path})")
+    out = {}
+    for k, v in th.items():
+        if k not in TESTS:
+            raise UserError(f"--monitor {path}: unknown test {k!r} (tests: {', '.join(TESTS)})")
+        if v is None:
+            continue
+        if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise UserError(f"--monitor {path}: threshold of {k} must be a positive number, got {v!r}")
+        out[k] = float(v)
+    return out
+
+
+def calibration_doc(monitor: Any, model_path: str) -> dict[str, Any]:
+    """Thresholds from a baseline run: each statistic's largest value held for ``persist``
+    consecutive evaluations over the run, times :data:`~rtlift.observer.monitor.MARGIN` (a
+    statistic never evaluated, or 0 throughout, keeps the model's threshold: ``null``)."""
+    from rtlift.observer.monitor import MARGIN, TESTS, persistent_max
+
+    hist = monitor.history or []
+    pm = {t: persistent_max([h[t] for h in hist], monitor.config.persist) for t in TESTS}
+    return {"format": "rtlift-monitor-thresholds", "version": 1, "model": model_path,
+            "evaluations": len(hist), "seconds": monitor._sample / monitor.fs_hz, "margin": MARGIN,
+            "persistent_max": pm,
+            "thresholds": {t: (round(MARGIN * v, 6) if v > 0 else None) for t, v in pm.items()},
+            "rule": "each statistic's largest value held for persist consecutive evaluations over a clean run "
+                    "of the real loop, times the margin; null: never evaluated (the model's threshold stays)"}
+
+
+def follow_reference(loop: Any, closed: Any) -> None:
+    """Tell the loop's monitor when the closed loop's reference steps (no test judges a window
+    holding a step's own transient); nothing without a monitor or a closed loop."""
+    if closed is not None and getattr(loop, "monitor", None) is not None:
+        loop.monitor.set_steps(*reference_steps(closed.reference, closed.tare_samples, closed.fs_hz))
+
+
+def reference_steps(reference: Any, offset: int, fs_hz: float) -> tuple[list[int], list[float]]:
+    """The samples (the monitor's count: ``offset`` samples before tracking starts, the tare) at
+    which a ``steps:`` reference steps, and the steps' sizes (ΔCL; the first from 0). Other kinds
+    give none (a sine, a CSV's ramps move the operating point smoothly)."""
+    if getattr(reference, "kind", None) != "steps":
+        return [], []
+    prev, samples, sizes = 0.0, [], []
+    for t, v in zip(reference.t, reference.value, strict=True):
+        if v != prev:
+            samples.append(offset + int(round(t * fs_hz)))
+            sizes.append(v - prev)
+        prev = v
+    return samples, sizes
 
 
 def events_path(log: str | None, adapt_dir: str | None) -> str | None:
@@ -55,6 +142,8 @@ class Watch:
         self.monitor = None
         self.adapter = None
         self.departures: list[dict[str, Any]] = []
+        self.calibrate_to: str | None = None
+        self.model_path = ""
         self._lock = threading.Lock()
         self._f = None
         if events_file:
@@ -103,6 +192,17 @@ class Watch:
     def close(self, wait_s: float = 0.0) -> None:
         if self.adapter is not None:
             self.adapter.close(wait_s)
+        if self.calibrate_to and self.monitor is not None:
+            from rtlift.core.jsonfile import write_json_atomic
+
+            doc = calibration_doc(self.monitor, self.model_path)
+            try:
+                write_json_atomic(self.calibrate_to, doc, stage="monitor thresholds")
+            except OSError as exc:
+                raise UserError(f"{self.calibrate_to}: cannot write thresholds ({exc.strerror or exc})") from None
+            self.say(f"monitor thresholds from this run ({doc['evaluations']} evaluations) written to "
+                     f"{self.calibrate_to}")
+            self.calibrate_to = None
         with self._lock:
             if self._f is not None:
                 self._f.close()
@@ -124,11 +224,25 @@ def attach(loop: Any, args: argparse.Namespace, model: Any, prog: str, *, closed
             raise UserError(f"{adapt_dir}: cannot create the adapt directory ({exc.strerror})") from None
     watch = Watch(prog, events_path(getattr(args, "log", None), adapt_dir) if replay is None and not quiet else None,
                   quiet)
-    if getattr(args, "monitor", "on") == "on":
+    watch.model_path = str(getattr(args, "model", ""))
+    mode, path = monitor_mode(getattr(args, "monitor", ["on"]))
+    thresholds = read_thresholds(path) if mode == "file" else None
+    if mode != "off":
         try:
             watch.monitor = DepartureMonitor.for_model(model)
         except ValueError as exc:
             watch.say(f"monitor off: {exc}")
+    if watch.monitor is not None:
+        if thresholds is not None:
+            watch.monitor.use_thresholds(thresholds, f"the baseline run {path}")
+        if mode == "calibrate":
+            watch.monitor.use_thresholds(dict.fromkeys(watch.monitor.thresholds, math.inf),
+                                         f"none: a baseline run (--monitor calibrate {path})")
+            watch.monitor.history = []
+            watch.calibrate_to = path
+        if not quiet:
+            watch.say(f"monitor thresholds: {watch.monitor.threshold_source}")
+        follow_reference(loop, closed)
     if watch.monitor is None and adapt_dir:
         raise UserError("--adapt needs the departure monitor (--monitor on and a model file with a fingerprint)")
     if watch.monitor is not None:
@@ -136,6 +250,7 @@ def attach(loop: Any, args: argparse.Namespace, model: Any, prog: str, *, closed
         loop.monitor = watch.monitor
     if adapt_dir or replay:
         watch.adapter = Adapter(loop, args.model, adapt_dir or ".", closed=closed, fs_hz=model.fs_hz,
-                                events=watch.on_adapt_event, replay=replay, log=watch.say)
+                                events=watch.on_adapt_event, replay=replay, log=watch.say,
+                                structure=bool(getattr(args, "adapt_structure", False)))
         loop.adapter = watch.adapter
     return watch

@@ -14,7 +14,7 @@ blocks of ``block`` samples (1 s), the sums of
 (O(1) a sample, nothing allocated), and ν in a ring of the last ``window`` seconds. At the end of
 each block it evaluates, over the last ``window`` blocks (``trend_window`` for the trend):
 
-- ``bias``   |ē − ē₀| / σ_fp — the window's mean residual against the first window's ē₀ (a zero
+- ``bias``   |ē − ē₀| / σ_fp — the window's mean residual against the first judged window's ē₀ (a zero
   drift, a fade at a steady level). Against the run's own start, not the fingerprint's mean: that
   mean is each identification record's tare offset (on the independent plant −0.005 on its sine,
   +0.009 on its static sweep, with σ_fp 0.008), and a loop tares itself;
@@ -23,7 +23,7 @@ each block it evaluates, over the last ``window`` blocks (``trend_window`` for t
   model being fitted to its campaign); evaluated only when the window's std(ΔCL_m) ≥
   ``gain_excitation`` σ_fp, else 0. In a loop tracking steps these are the windows holding a step,
   where the model's dynamic misfit also shows: its threshold is the highest;
-- ``level``  std(e) / σ_fp — the residual's spread (added noise, an unmodelled mode);
+- ``level``  std(e − g(m_b)) / σ_fp — the residual's spread (added noise, an unmodelled mode);
 - ``whiteness`` ρ₁(ν), the innovations' lag-1 autocorrelation (an unmodelled slow or resonant
   state colours them);
 - ``line``   the largest ratio (dB) of the innovations' Hann periodogram in one bin to the
@@ -44,18 +44,35 @@ each block it evaluates, over the last ``window`` blocks (``trend_window`` for t
   or a drifting zero). Measured against the hold's own start, not the run's first window, the
   model's misfit at other operating points does not enter it.
 
+What no test judges: a block inside a transient — the run's start, a commanded step of the
+operating point (:meth:`DepartureMonitor.set_steps`: ``rtlift control`` tells it its reference's
+steps), a swap of the model — is left out of every window (all its sums zero), for the settling time
+:class:`Settle` derives from the model's own dynamics; ``line`` waits until its ring holds no such
+sample, and a hold cannot span one. What the model's misfit does at each operating point: a model
+file identified since issue 46 carries g(m), its own mean residual against its lift
+(:mod:`rtlift.residual.monitor_print`), removed block by block (e_b − g(m_b)) before ``bias``,
+``level``, ``gain``, ``trend`` and the suspect's regression, so a reference step does not move them
+by the misfit the model had at the new operating point all along.
+
 A departure is raised when a statistic stays above its threshold for ``persist`` consecutive
 evaluations; the same test is not raised again until it has been back under its threshold for
-a whole window. The thresholds (:data:`THRESHOLDS`) are set from clean runs only
+a whole window. The thresholds come, in this order, from a baseline run of the real loop
+(``--monitor FILE``, written by ``--monitor calibrate FILE``), from the model file's own print (the
+null distribution of every statistic on the model's own identification records,
+:mod:`rtlift.residual.monitor_print`), else — an older model file, said in one line — the global
+constants :data:`THRESHOLDS`, set from clean runs of our bench and the independent plant only
 (``benchmarks/monitor_null.py --calibrate``: the largest value each statistic held for
 ``persist`` consecutive evaluations over the calibration seeds' clean streams, times
-:data:`MARGIN`), and the false-departure rate is measured on other seeds.
+:data:`MARGIN`). The summary says which were in force (``thresholds_from``).
 
 The suspect named with a departure is what the diagnosis would try first (the diagnosis that
 ``--adapt`` runs decides): ``bias`` is an ``actuator_fade`` when the residual's block means follow
-the model's lift with a negative slope beside an offset and a trend in time, a ``zero_drift`` when
-the lift moved and they did not follow it, else "actuator_fade or zero_drift" (in a closed loop
-the two look alike at first: the controller raises Cμ as the lift falls); ``gain`` < 0 an ``actuator_fade``;
+the model's lift with a significant negative slope beside an offset and a trend in time, else (in a
+closed loop the two look alike at first: the controller raises Cμ as the lift falls, and a fade's
+first seconds are too few blocks for the slope) by the shift's sign as ``hold``:
+``actuator_fade`` when the lift fell below the model's, ``zero_drift`` when it rose (on the
+calibration draws 1 and 2, a fade's first ``bias`` 5 s after its onset was named ``zero_drift`` by
+the earlier rule "the lift moved and the block means did not follow"); ``gain`` < 0 an ``actuator_fade``;
 ``line`` a ``periodic_disturbance`` at the peak's frequency; ``level`` and ``whiteness`` an
 unmodelled ``resonance`` or noise; ``trend`` a ``zero_drift``; ``hold`` an ``actuator_fade`` when
 the lift fell below the model's (a fade cannot raise it), a ``zero_drift`` when it rose. A balance
@@ -266,11 +283,15 @@ class DepartureMonitor:
         own = (model.fingerprint or {}).get("monitor") or {}
         thresholds = own.get("thresholds")
         if thresholds:
-            cfg = replace(cfg, thresholds={**THRESHOLDS, **{k: float(v) for k, v in thresholds.items()}})
+            cfg = replace(cfg, thresholds={**THRESHOLDS, **{k: float(v) for k, v in thresholds.items()
+                                                            if v is not None}})
         mon = cls(scale, model.fs_hz, cfg, fingerprint_hold_scale(model.fingerprint, cfg.block_s),
                   Settle.of_model(model, scale, own.get("lift_range")), own.get("operating_point"))
         if thresholds:
-            mon.threshold_source = (f"the model's own identification records ({own.get('source', 'fingerprint')})")
+            kept = [k for k in TESTS if thresholds.get(k) is None]
+            mon.threshold_source = (f"the model's own identification records ({own.get('source', 'fingerprint')})"
+                                    + (f"; {', '.join(kept)}: the global constants (never evaluated there)"
+                                       if kept else ""))
         return mon
 
     def use_thresholds(self, thresholds: Mapping[str, float], source: str) -> None:
@@ -308,6 +329,9 @@ class DepartureMonitor:
         self._ring[:] = 0.0
         self._prev_nu = math.nan
         self._bias_ref: float | None = None
+        self._bias_shift = 0.0
+        self._fit = ("none", 0.0)
+        self._held: list[str] = []
         self._gain_sign = 0.0
         self._run = dict.fromkeys(TESTS, 0)
         self._quiet = dict.fromkeys(TESTS, self.window_blocks)
@@ -412,12 +436,16 @@ class DepartureMonitor:
     def _misfit_of(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per block of ``w`` with samples: its mean residual less the model's own misfit at its
         operating point, e_b − g(m_b) (:func:`operating_point_misfit`), and m_b."""
+        e, m, g = self._blocks_of(w)
+        return e - g, m
+
+    def _blocks_of(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per block of ``w`` with samples: e_b, m_b and g(m_b) (0 without an operating-point misfit)."""
         ok = w[:, 0] > 0
         n = w[ok, 0]
         e, m = w[ok, 1] / n, w[ok, 3] / n
-        if self._op_m.size:
-            e = e - np.interp(m, self._op_m, self._op_e)
-        return e, m
+        g = np.interp(m, self._op_m, self._op_e) if self._op_m.size else np.zeros_like(m)
+        return e, m, g
 
     def statistics(self) -> dict[str, float]:
         """The six statistics over the current windows (module docstring)."""
@@ -426,16 +454,22 @@ class DepartureMonitor:
         n, se, se2, sm, sm2, sem, sn, sn2, snn = w.sum(axis=0)
         out = dict.fromkeys(TESTS, 0.0)
         self._fit = ("none", 0.0)
+        self._held = []
+        if n < 0.5 * self.window_blocks * self.block and np.count_nonzero(w[:, 0] > 0) < w.shape[0]:
+            self._held += ["bias", "level", "gain"]        # a transient left too little of the window
         if n >= 0.5 * self.window_blocks * self.block:
             em, mm = se / n, sm / n
-            var_e = max(se2 / n - em * em, 0.0)
             var_m = max(sm2 / n - mm * mm, 0.0)
-            eb, mb = self._misfit_of(w)
+            raw, mb, gb = self._blocks_of(w)
+            eb = raw - gb
             nb = w[w[:, 0] > 0, 0]
             ec = float(nb @ eb / nb.sum())        # the window's mean residual, g(m) removed
+            # Σ(e − g_b)² = Σe² − 2 g_b Σe + n_b g_b², block by block
+            var_e = max((se2 - 2.0 * float(gb @ (nb * raw)) + float(nb @ gb ** 2)) / n - ec * ec, 0.0)
             if self._bias_ref is None:
                 self._bias_ref = ec
-            out["bias"] = abs(ec - self._bias_ref) / sc
+            self._bias_shift = ec - self._bias_ref
+            out["bias"] = abs(self._bias_shift) / sc
             out["level"] = math.sqrt(var_e) / sc
             if math.sqrt(var_m) >= cfg.gain_excitation * sc:
                 g = (sem / n - em * mm) / var_m
@@ -455,6 +489,8 @@ class DepartureMonitor:
                 out["whiteness"] = (snn / m - mean_nu * mean_nu) / var_nu
                 if self._since >= self._ring.size and self._sample - self._quiet_from >= self._ring.size:
                     out["line"] = self._line()
+                elif self._since >= self._ring.size:
+                    self._held.append("line")           # its ring holds a transient
         t = self._window_sums(self.trend_blocks)
         if len(t) >= self.trend_blocks:
             ok = t[:, 0] > 0
@@ -514,8 +550,15 @@ class DepartureMonitor:
         self.evaluations += 1
         if self.history is not None:
             self.history.append(stats)
-        t_s = self._sample / self.fs_hz
+        self.judge(stats, self._sample / self.fs_hz, self._held)
+
+    def judge(self, stats: Mapping[str, float], t_s: float, held: Any = ()) -> None:
+        """One evaluation's statistics against the thresholds: a departure when one stays above its
+        threshold for ``persist`` evaluations (not raised again until back under for a window).
+        A test ``held`` (its window held a transient) counts neither way."""
         for test in TESTS:
+            if test in held:
+                continue
             v, thr = stats[test], self.thresholds[test]
             if v > thr:
                 self._run[test] += 1
@@ -534,7 +577,8 @@ class DepartureMonitor:
             kind, t = self._fit
             if kind == "proportional" and t < 0:
                 return "actuator_fade"
-            return "zero_drift" if kind == "offset" else "actuator_fade or zero_drift"
+            # else by the shift's sign, as ``hold`` (a fade cannot raise the lift)
+            return "actuator_fade" if self._bias_shift < 0 else "zero_drift"
         if test == "gain":
             return "actuator_fade" if self._gain_sign < 0 else "gain_increase"
         if test == "line":
@@ -564,6 +608,14 @@ class DepartureMonitor:
                            "steps": int(self._steps.size)},
                 "operating_point_misfit": bool(self._op_m.size),
                 "last": {k: float(v) for k, v in self.last.items()}}
+
+
+def persistent_max(values: Any, persist: int) -> float:
+    """The largest value a statistic held for ``persist`` consecutive evaluations (0 if fewer)."""
+    v = np.asarray(values, dtype=float)
+    if v.size < persist:
+        return 0.0
+    return float(np.lib.stride_tricks.sliding_window_view(v, persist).min(axis=1).max())
 
 
 def monitor_arrays(monitor: DepartureMonitor, dcl: np.ndarray, model_dcl: np.ndarray,

@@ -156,6 +156,9 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibr
                          None if seconds is None else int(round(seconds * model.fs_hz)))
     if loop.adapter is not None:     # the live loop's swaps change the controller too
         loop.adapter.closed = closed
+    from rtlift.app.watch import follow_reference
+
+    follow_reference(loop, closed)   # the monitor holds off after the reference's steps, as live
     recorder.position = lambda: closed.received
     switched_off = bool(logged) and not logged[-1].enable
     stop = logged[-1].after_samples if switched_off else None
