@@ -38,6 +38,12 @@ experiments of one system (each its own run from rest, one cost pooled over them
    the two with the lower held-out RMSE is kept. A pole at z = 1 in a model fitted on y itself
    is within the parametrisation's reach only to 1 − 10⁻⁷ and drifts over a long record.
 
+6. **Multi-start** (``wiener``): where the best linear model holds out no better than the
+   estimation data's mean (an even map such as |·| makes the BLA zero, and G₁ cannot be read
+   from it), :data:`MULTI_STARTS` random stable G₁ are refined briefly besides it and the
+   ``keep`` best by cost refined in full; the lowest held-out RMSE is kept. Asymmetric maps and
+   dead zones need nothing more: f is piecewise linear on quantile knots, any shape.
+
 An order, a split or a knot count whose fit fails numerically (a non-finite start, a constant
 or non-finite G₁ output) is skipped and named in ``provenance["skipped"]``; on a short record the
 orders and knot counts beyond :data:`PER_COEFFICIENT` samples per coefficient are not tried and
@@ -422,11 +428,15 @@ def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure:
     best_bla = min(bla, key=lambda k: bla[k][2])
     tried = [k for k in ((min((k for k in bla if not k[1]), key=lambda k: bla[k][2], default=None)), best_bla)
              if k is not None]
+    # a linear model that holds out no better than the estimation data's mean says nothing of G₁ (an
+    # even map: the BLA of |x| is 0): then the Wiener fit also starts from random poles (module docstring, 6)
+    level = float(np.mean(est.y[est.rows]))
+    blind = bla[tried[0]][2] >= float(np.sqrt(np.mean(np.concatenate([y[k:] - level for _, y, k in held_parts]) ** 2)))
     best = None
     for n, integrating in dict.fromkeys(tried):
         b, a, bla_holdout = bla[n, integrating]
         found = _w_stage(structure, b, a, *runs[integrating], held_parts, fs, knots, more, opt, limits, integrating,
-                         skipped)
+                         skipped, MULTI_STARTS if blind and structure == "wiener" else 0)
         if found is not None and (best is None or found[0] < best[0]):
             best = (*found, n, bla_holdout, integrating)
     if best is None:
@@ -439,6 +449,9 @@ def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure:
     if integrating:
         model.provenance["integrating"] = ("fitted on the differenced output, run integrated: its held-out error "
                                            "was the lower")
+    if blind and structure == "wiener":
+        model.provenance["random_starts"] = (f"{MULTI_STARTS} random pole sets besides the linear model's (it held "
+                                             "out no better than the mean)")
     if len(recs) > 1:
         model.provenance["records"] = [r.name for r in recs]
     if skipped:
@@ -451,13 +464,16 @@ def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure:
 
 def _w_stage(structure: str, b: np.ndarray, a: np.ndarray, cost: _Runs, est: _Runs, held_parts: list, fs: float,
              knots: int, more: tuple[int, ...], opt: SisoOptions, limits: Limits, integrating: bool,
-             skipped: dict[str, str]) -> tuple[float, SisoModel | SaturatedModel, int, int] | None:
-    """The W-block model from the linear model B/A (module docstring, 2–3): (held-out RMSE, model,
-    knots, starts refined), or None where every start failed (each failure named in ``skipped``)."""
+             skipped: dict[str, str], random_starts: int = 0
+             ) -> tuple[float, SisoModel | SaturatedModel, int, int] | None:
+    """The W-block model from the linear model B/A (module docstring, 2–3; with ``random_starts``,
+    6): (held-out RMSE, model, knots, starts refined), or None where every start failed (each
+    failure named in ``skipped``)."""
     n = a.size - 1
     tag = " integrating" if integrating else ""
     if structure == "wiener":
-        starts = [(_Dims(n, b.size - 1, 0, 0), (b, a, None, None))]
+        dims = _Dims(n, b.size - 1, 0, 0)
+        starts = [(dims, (b, a, None, None)), *_random_starts(dims, cost, knots, opt, limits, random_starts)]
     else:
         starts = []
         for b1, a1, b2, a2 in _splits(b, a):
@@ -498,3 +514,32 @@ def _w_stage(structure: str, b: np.ndarray, a: np.ndarray, cost: _Runs, est: _Ru
         if held < held0:
             best = (held, model, dims, th, count)
     return best[0], best[1], best[4], len(starts)
+
+
+MULTI_STARTS = 8
+"""Random pole sets a blind Wiener fit starts from (module docstring, 6)."""
+
+
+def _random_starts(dims: _Dims, cost: _Runs, knots: int, opt: SisoOptions, limits: Limits, count: int) -> list:
+    """``count`` random stable G₁ of ``dims`` (pole pairs of radius 0.5–0.98 and angle 0.05–π/2, a
+    real pole for an odd order, zeros at the origin; seeded: the same data give the same model),
+    each refined for a tenth of ``max_nfev``; the ``keep`` best by cost, as (dims, (b, a, None, None))."""
+    rng = np.random.default_rng(0)
+    quick = []
+    for _ in range(count):
+        k = dims.n1 // 2
+        r, w = rng.uniform(0.5, 0.98, k), rng.uniform(0.05, np.pi / 2, k)
+        poles = np.concatenate([r * np.exp(1j * w), r * np.exp(-1j * w), rng.uniform(0.5, 0.98, dims.n1 % 2)])
+        a0 = np.real(np.poly(poles))
+        b0 = np.zeros(dims.m1 + 1)
+        b0[0] = 1.0
+        try:
+            th = _refine(dims, _Dims.theta(b0, a0, None, None), cost, max(opt.max_nfev // 10, 3), knots, limits)
+            phi, _ = _simulate_basis(dims, th, cost, knots)
+        except FAILS:
+            continue
+        res = (np.clip(phi @ _fit_values(phi, cost.y, cost.rows, limits), *limits) - cost.y)[cost.rows]
+        if np.all(np.isfinite(res)):
+            b1, a1, _, _ = dims.build(th)
+            quick.append((float(np.sum(res**2)), (b1, a1, None, None)))
+    return [(dims, start) for _, start in sorted(quick, key=lambda q: q[0])[:opt.keep]]
