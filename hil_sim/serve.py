@@ -16,6 +16,14 @@ version-1 device instead (it reads no commands). ``--speed X`` paces the samples
 faster than real time (the device's clock still counts 400 Hz; the watchdog keeps host time).
 ``--gust F:A,...`` adds Σ A sin(2π F t) to the plant's true ΔCL (:mod:`hil_sim.gust`), t the
 device clock: a disturbance for ``rtlift control`` to reject.
+
+It serves session after session ("leave it running"): each host that opens the port (serial:
+seen as the pty's hang-up ending; SLCAN: the channel opened) finds the command side in its
+power-on state (:meth:`hil_sim.devices.host_control.HostControl.new_session`: no command
+applied, actuator off, no ``cmd_seq`` history), and a watchdog trip clears at the next valid
+command. The plant goes on between sessions (the flow relaxes with the actuator off), and the
+serial DAQ's clock runs whether or not anybody reads it: what it samples with the port closed is
+never sent (``samples_unread`` on the stop line), as a USB DAQ's.
 """
 
 from __future__ import annotations
@@ -60,7 +68,8 @@ def serve_main(args: argparse.Namespace) -> int:
         device = SlcanAdapter(chunks, faults=faults, seed=seed, fs_hz=pace, clock_hz=FS_HZ)
         how = "slcan"
     elif getattr(args, "serial", False):
-        device = SerialDaq(chunks, faults=faults, seed=seed, fs_hz=pace, period_us=int(round(1e6 * PERIOD_S)))
+        device = SerialDaq(chunks, faults=faults, seed=seed, fs_hz=pace, period_us=int(round(1e6 * PERIOD_S)),
+                           unread_lost=True)
         how = "serial"
     else:
         raise UserError("bench serve: give --serial or --slcan")

@@ -90,12 +90,38 @@ def test_a_command_after_the_ramp_takes_control_again():
     assert got[99] == (1, WD, 0, False) and got[100:] == [(2, HC, 4000, True)] * 10
 
 
-def test_an_ignored_command_feeds_the_watchdog_but_does_not_end_the_ramp():
+def test_an_ignored_command_feeds_the_watchdog_while_host_control_lasts():
+    """cmd_seq 5 applied at 10 (20-sample watchdog); a second 5 at 25 is not newer: ignored, not
+    applied, but it feeds the watchdog, which fires at 45 instead of 30."""
     ctl = _control()
-    got = _run(ctl, 80, {10: Command(5, 8000, watchdog_ms_div10=5), 40: Command(5, 1000)})
-    assert ctl.stats.commands_ignored == 1
-    assert [e for _, _, e, _ in got[30:71]] == [8000 - 200 * j for j in range(41)]
-    assert all(s == WD for _, s, _, _ in got[30:])
+    got = _run(ctl, 80, {10: Command(5, 8000, watchdog_ms_div10=5), 25: Command(5, 1000)})
+    assert ctl.stats.commands_ignored == 1 and ctl.stats.commands_applied == 1
+    assert got[44] == (5, HC, 8000, True) and got[45] == (5, WD, 8000, True)
+    assert [e for _, _, e, _ in got[45:80]] == [8000 - 200 * j for j in range(35)]
+
+
+def test_after_a_trip_a_host_that_counts_from_one_again_takes_control():
+    """Issue 44: a host that restarted sends cmd_seq 1 after another's 52 tripped the watchdog.
+    Not newer than 52, but host control has ended: applied at once, bit5 cleared, the stale
+    cmd_seq no longer locks the device out (it was ignored, the trip latched)."""
+    ctl = _control()
+    got = _run(ctl, 120, {10: Command(52, 8000, watchdog_ms_div10=5), 100: Command(1, 3000), 101: Command(2, 2000)})
+    assert got[99] == (52, WD, 0, False)
+    assert got[100] == (1, HC, 3000, True) and got[101:] == [(2, HC, 2000, True)] * 19
+    assert ctl.stats.commands_ignored == 0 and ctl.stats.commands_applied == 3 and ctl.stats.watchdog_trips == 1
+
+
+def test_a_new_session_is_the_power_on_state():
+    """A host opens the port mid-control (the last one gone without a trip yet): nothing applied
+    (version 1, no echo), actuator off at once, default watchdog and burst period; the new
+    host's cmd_seq 1 is then applied though 52 came before."""
+    ctl = _control()
+    _run(ctl, 20, {10: Command(52, 8000, burst_period_ms=200, watchdog_ms_div10=90)})
+    ctl.new_session()
+    assert (ctl.applied, ctl.version, ctl.envelope_cv, ctl.enabled, ctl.burst_period_ms) == (None, 1, 0, False, None)
+    assert ctl.watchdog_ms == 500 and ctl.step(20, 0, 0) == (None, 0, 0)
+    ctl.receive(Command(1, 3000), 21)
+    assert ctl.step(21, 0, 0) == (1, HC, 3000) and ctl.stats.commands_ignored == 0
 
 
 def test_the_plant_gets_the_ramp_at_its_burst_onsets():

@@ -169,7 +169,8 @@ class DeviceStats:
     late (then counted like the others). Every command packet the host wrote is exactly one of
     dropped, corrupted-or-otherwise-invalid (``cmd_errors``), valid, or still delayed.
     ``samples_unread`` (a device made with ``unread_lost``) were sampled while no host had the
-    port open, and so never sent.
+    port open, and so never sent; ``sessions`` counts the hosts that opened it (such a device)
+    or the SLCAN channel's opens.
     """
 
     samples: int = 0
@@ -194,6 +195,7 @@ class DeviceStats:
     commands_delayed: int = 0
     watchdog_trips: int = 0
     samples_unread: int = 0
+    sessions: int = 0
     disconnected: bool = False
 
     def as_dict(self) -> dict[str, int | bool]:

@@ -13,7 +13,16 @@ it is ``E * (R - j) // R`` at sample ``f + j`` (``R`` = the ramp in samples, int
 arithmetic), so exactly 0 at ``f + R``. The actuator stays enabled until then and is off
 afterwards, until the next applied command; a command applied during the ramp ends it and
 takes over at once like any command. A valid command that is not newer (ignored) feeds the
-watchdog but does not end the ramp or the watchdog state.
+watchdog and is otherwise ignored while host control lasts.
+
+Sessions. Host control ends when the watchdog fires: the host that commanded is gone, so the
+next valid command starts a new host's control whatever its ``cmd_seq`` (as firmware would: a
+host that restarted counts from 1 again, and a stale ``cmd_seq`` must not lock it out while the
+watchdog stays latched). A device that sees a host open its port (:meth:`HostControl.new_session`:
+``rtlift bench serve``'s serial DAQ on a hang-up of its pty, the SLCAN adapter on ``O``/``L``)
+also goes back to its power-on state: nothing applied (it streams version 1 until the next
+command, echoing no old ``cmd_seq``), actuator off at once, the default watchdog, the
+experiment's burst period, no ``cmd_seq`` history, nothing pending or late.
 
 Why 100 ms: long enough that the amplifier sees 40 steps at 400 Hz instead of one cut, short
 against the default watchdog (500 ms), so the actuator is off at most ``watchdog_ms`` + 100 ms
@@ -94,6 +103,24 @@ class HostControl:
         """``False``: a protocol-version-1 firmware, which reads no commands (``rtlift bench
         serve --protocol 1``): whatever the host writes is ignored, nothing is echoed."""
 
+    def new_session(self) -> None:
+        """A host opened the port: the command side's power-on state (module docstring,
+        "Sessions"); the counts in ``stats`` go on."""
+        self.applied = None
+        self.envelope_cv = 0
+        self.enabled = False
+        self.burst_period_ms = None
+        self.watchdog_ms = DEFAULT_WATCHDOG_MS
+        self.host_control = False
+        self.watchdog = False
+        if self._pending is not None:                      # the last host's, not applied: replaced
+            self.stats.commands_superseded += 1
+        self._pending = None
+        self.stats.commands_dropped += len(self._late)     # the last host's, still in transit: never arrive
+        self._late.clear()
+        self._last_seq = None
+        self._ramp = None
+
     @property
     def pending(self) -> Command | None:
         """The newest valid command received and not yet applied (it is, at the next sample)."""
@@ -134,6 +161,8 @@ class HostControl:
             return
         st.commands_valid += 1
         self._fed_at = index
+        if self.watchdog and self._pending is None:     # host control ended: a new host's, whatever its cmd_seq
+            self._last_seq = None
         if not is_newer(command.cmd_seq % self.modulus, self._last_seq, self.modulus):
             st.commands_ignored += 1
             return

@@ -9,7 +9,10 @@ and emits one sample per period on absolute deadlines (``deadline += period``; i
 With ``unread_lost`` the device keeps no end of the slave open itself, so it can see (a
 hang-up on the master) whether a host has the port open: like a USB DAQ whose clock runs
 whether or not anybody reads it, what it samples while nobody has the port open is lost
-(``stats.samples_unread``) instead of waiting in the pty's buffer.
+(``stats.samples_unread``) instead of waiting in the pty's buffer; its command side still
+runs on the device clock meanwhile (:meth:`PtyDevice.on_unread`: the watchdog fires with
+nobody there), and each host that opens the port starts a session (:meth:`PtyDevice.on_host`,
+``stats.sessions``).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import errno
 import os
 import select
+import termios
 import threading
 import time
 import tty
@@ -53,6 +57,7 @@ class PtyDevice(ABC):
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
         self._hangup = None
+        self._host_away = True
         if unread_lost:
             os.close(self._slave)
             self._slave = None
@@ -126,6 +131,12 @@ class PtyDevice(ABC):
                         self._serve_input()
                     continue
                 hung_up = self._hangup is not None and bool(self._hangup.poll(0))   # no host: nothing to read
+                if self._hangup is not None and hung_up != self._host_away:
+                    if hung_up:
+                        self._host_left(master)
+                    else:
+                        self.on_host()              # a host opened the port: before anything it wrote
+                    self._host_away = hung_up
                 readable, _, _ = select.select([] if hung_up else [master], [], [], max(0.0, deadline - now))
                 if readable:
                     self._serve_input()
@@ -148,8 +159,9 @@ class PtyDevice(ABC):
                     self.finished.set()
                     continue
                 self.stats.samples += 1
-                if self._hangup is not None and self._hangup.poll(0):
-                    self.stats.samples_unread += 1      # nobody has the port open: lost
+                if self._hangup is not None and self._host_away:    # as seen above: a host that opened
+                    self.stats.samples_unread += 1      # since gets its session first; nobody there: lost
+                    self.on_unread(index, sample)
                 else:
                     self._emit(index, sample)
                 deadline += period
@@ -167,8 +179,25 @@ class PtyDevice(ABC):
             data = os.read(self._master, 4096)
         except BlockingIOError:
             return
+        except OSError as exc:
+            if exc.errno == errno.EIO and self._hangup is not None:
+                return                      # the host closed the port: not gone, nobody there
+            raise
         if data:
             self.on_input(data)
+
+    def _host_left(self, master: int) -> None:
+        """The host closed the port: what it wrote last is still served, then what it left
+        unread is flushed, so that the next host reads nothing of this session."""
+        while True:
+            try:
+                data = os.read(master, 4096)
+            except OSError:                 # EIO: nothing more the host wrote
+                break
+            if not data:
+                break
+            self.on_input(data)
+        termios.tcflush(master, termios.TCIOFLUSH)
 
     def write(self, data: bytes) -> None:
         """Write all of ``data`` to the host, waiting while the pty buffer is full."""
@@ -192,6 +221,14 @@ class PtyDevice(ABC):
 
     def on_input(self, data: bytes) -> None:
         """Bytes the host wrote (ignored unless the device speaks a command protocol)."""
+        return None
+
+    def on_host(self) -> None:
+        """A host opened the port (a device made with ``unread_lost``): a new session."""
+        self.stats.sessions += 1
+
+    def on_unread(self, index: int, sample: tuple[int, int, int, tuple[int, ...]]) -> None:
+        """Sample ``index`` was taken while no host had the port open (never sent)."""
         return None
 
     @abstractmethod

@@ -13,7 +13,9 @@ version-2 packets echoing the applied ``cmd_seq``. While ``stats.cmd_errors`` is
 sends the event ``"cmd_errors=N"`` (N since start) once a second of its clock. The applied
 command and envelope are exposed in :attr:`SerialDaq.control` (the hook for the plant).
 Command faults (dropped, corrupted, late; :mod:`.faults`) are decided per command packet,
-before the firmware sees it, and counted in ``stats``.
+before the firmware sees it, and counted in ``stats``. Made with ``unread_lost`` (``rtlift
+bench serve``), each host that opens the port starts a session from the power-on state
+(:meth:`.host_control.HostControl.new_session`).
 """
 
 from __future__ import annotations
@@ -76,6 +78,18 @@ class SerialDaq(PtyDevice):
         """What the host commanded (version 2): the applied command, envelope and watchdog."""
         self._input = bytearray()
         self._samples_per_report = max(1, int(round(self.fs_hz)))
+
+    def on_host(self) -> None:
+        """A host opened the port (``unread_lost``): the command side's power-on state, and
+        streaming begins again with a 0x00 (the host's first packet delimited)."""
+        super().on_host()
+        self.control.new_session()
+        self._started = False
+
+    def on_unread(self, index: int, sample: tuple[int, int, int, tuple[int, ...]]) -> None:
+        """The command side runs on the device clock with nobody there (the watchdog fires)."""
+        _, envelope_cv, status, _ = sample
+        self.control.step(index, status, envelope_cv)
 
     def send_event(self, text: str) -> None:
         """Queue a firmware event packet (kind 2); it goes out before the next sample."""

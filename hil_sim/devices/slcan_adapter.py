@@ -15,6 +15,9 @@ the DAQ's command; an invalid one (DLC ≠ 8, bad hex, ``cmd_seq`` 0) is counted
 ``stats.cmd_errors`` (CAN has no event frame to report it). From the first applied command on,
 ``FT_FORCE`` echoes its ``cmd_seq`` (u8) and ``ACT``'s status carries bits 4 and 5. The
 applied command and envelope are exposed in :attr:`SlcanAdapter.control` (the plant hook).
+The DAQ is paused while the channel is closed (its watchdog too), so each open of the channel
+starts a host's session from the command side's power-on state
+(:meth:`.host_control.HostControl.new_session`, ``stats.sessions``).
 
 Faults per frame (see :mod:`.faults`): drop, duplicate, corrupt (the frame arrives
 truncated to 4 data bytes, which the host counts as invalid), garbage (a junk line before
@@ -91,7 +94,9 @@ class SlcanAdapter(PtyDevice):
         if cmd == "":
             reply = OK
         elif cmd in ("O", "L"):
-            if not self.is_open:
+            if not self.is_open:        # a host's session: the DAQ's command side from its power-on state
+                self.stats.sessions += 1
+                self.control.new_session()
                 self.is_open = True
                 self.listen_only = cmd == "L"
                 reply = OK
