@@ -251,6 +251,7 @@ class InProcessTracking:
         from hil_sim.devices.faults import DeviceStats
         from hil_sim.devices.host_control import HostControl
         from hil_sim.devices.source import serial_wire, wire_samples
+        from rtlift.app.applied import commands_not_applied
         from rtlift.app.closed_loop import ControlLoop
         from rtlift.app.live import ObserverLoop
         from rtlift.app.reference import parse_reference
@@ -280,6 +281,9 @@ class InProcessTracking:
             received.clear()
             if closed.done:
                 break
+        ignored = commands_not_applied(link.counters.commands_sent, link.counters.commands_applied)
+        if ignored:                 # as rtlift control's exit 1 (issue 44)
+            raise RuntimeError(f"in-process tracking: {ignored}")
         self.closed = closed
         self.estimates = np.asarray(closed.estimates)
         return self

@@ -22,7 +22,9 @@ faster than real time records the same thing):
 One command is in flight at a time (the next goes out once the device echoed the last, or
 ``ECHO_TIMEOUT_S`` passed), so no command supersedes another and every one is applied;
 when nothing else is due, the current command is repeated every ``KEEPALIVE_SAMPLES`` to feed
-the firmware's watchdog. A command echoed only at or after its onset is counted late.
+the firmware's watchdog. A command echoed only at or after its onset is counted late. An
+experiment whose commands the device mostly did not apply (:mod:`rtlift.app.applied`) ends
+incomplete: ``rtlift record`` exits 1 with one line.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.app.applied import commands_not_applied
 from rtlift.core.errors import UserError
 from rtlift.core.programs import Program, samples_of_ms
 from rtlift.core.rate import FS_HZ
@@ -241,6 +244,8 @@ class Recorder:
 
         c1 = self.link.counters.as_dict()
         counters = {k: int(c1[k] - c0[k]) for k in COUNTER_KEYS}
+        if not reason:          # a program the device did not follow is no record of it (issue 44)
+            reason = commands_not_applied(counters["commands_sent"], counters["commands_applied"]) or ""
         result = RecordResult(name, None, not reason, reason, counters=counters, commands_late=run.late,
                               first_burst_delay=run.delay)
         start = run.start - self.tare_samples

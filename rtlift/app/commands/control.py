@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.calibration import Calibration
     from firmware_io.convert import Converter
     from firmware_io.links import open_link
+    from rtlift.app.applied import commands_not_applied
     from rtlift.app.closed_loop import ControlLoop
     from rtlift.app.control import LiftController, gains_text
     from rtlift.app.link_options import link_config_from_args
@@ -131,6 +132,9 @@ def run(args: argparse.Namespace) -> int:
         finally:
             if view is not None:
                 view.close(data)
+    ignored = commands_not_applied(data["commands_sent"], data["commands_applied"])
+    if code == 0 and ignored:       # a run the device did not follow is no success (issue 44)
+        code, message = 1, f"rtlift control: {ignored}; the run was not under control (summary written)"
     if message:
         print(message, file=sys.stderr)
     return code
