@@ -142,6 +142,27 @@ def test_the_command_says_the_apis_split_default():
     from rtlift.diagnose import sources
 
     assert command.SPLIT_DEFAULT == sources.SPLIT_DEFAULT
+    assert (command.MIN_TRAIN_S, command.MIN_VALIDATE_S) == (sources.MIN_TRAIN_S, sources.MIN_VALIDATE_S)
+
+
+def test_the_help_states_the_least_run_and_the_split_agrees():
+    """Issue 44: ``--run``'s least length is in its help (25 s at the default split, from 22 s with
+    --split between 12/T and 1 - 10/T), and the split's check agrees at those lengths."""
+    import re
+
+    from rtlift.app.cli import build_parser
+    from rtlift.core.errors import UserError
+    from rtlift.diagnose import sources
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["diagnose"]
+    text = " ".join(sub.format_help().split())
+    assert "at least 12 s to fit and 10 s to judge: 25 s at the default split" in text
+    assert "a run of T s from 22 s on with --split between 12/T and 1 - 10/T" in text
+    assert re.search(r"50 samples in each part", text)
+    assert sources.split_index(25 * 400, 400.0, sources.SPLIT_DEFAULT, "r") == 15 * 400
+    with pytest.raises(UserError, match="at least 12 s and 10 s needed"):
+        sources.split_index(24 * 400, 400.0, sources.SPLIT_DEFAULT, "r")
+    assert sources.split_index(22 * 400, 400.0, 12 / 22, "r") == 12 * 400
 
 
 def test_the_api_splits_a_run_as_the_command_does(tmp_path):

@@ -10,6 +10,8 @@ from rtlift.core.errors import UserError
 SPLIT_DEFAULT = 0.6
 """``--split``'s default, as the help says it: :data:`rtlift.diagnose.sources.SPLIT_DEFAULT` (not
 imported here: the diagnosis package loads scipy, and every command's parser is built at start)."""
+MIN_TRAIN_S, MIN_VALIDATE_S = 12.0, 10.0
+"""``--run``'s least parts of a lift run, as the help says them: those of :mod:`rtlift.diagnose.sources`."""
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -26,7 +28,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="records the effects are judged on (never fitted on)")
     p.add_argument("--run", metavar="F",
                    help="one long record (a closed-loop log as a record, a day's run): fitted on its first "
-                        "part, judged on the rest (instead of --train/--validate)")
+                        "part, judged on the rest (instead of --train/--validate). A lift run needs at least "
+                        f"{MIN_TRAIN_S:g} s to fit and {MIN_VALIDATE_S:g} s to judge: "
+                        f"{max(MIN_TRAIN_S / SPLIT_DEFAULT, MIN_VALIDATE_S / (1 - SPLIT_DEFAULT)):g} s at the "
+                        f"default split; a run of T s from {MIN_TRAIN_S + MIN_VALIDATE_S:g} s on with --split "
+                        f"between {MIN_TRAIN_S:g}/T and 1 - {MIN_VALIDATE_S:g}/T. A generic t,u,y run: 50 samples "
+                        "in each part (past --skip)")
     p.add_argument("--split", type=float, metavar="FRACTION",
                    help=f"with --run: the share of the run the effects are fitted on (default {SPLIT_DEFAULT:g}); "
                         "the model runs on through it from rest, the rest is scored")
