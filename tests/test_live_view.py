@@ -156,9 +156,16 @@ def test_the_page_keeps_updating(watched):
 
 @pytest.mark.pty
 def test_the_page_ends_on_the_summary_counters(watched):
+    """``--seconds 8`` ends on exactly 8 s of the device's samples: 3200 estimates, each a sample
+    stepped (or a lost one filled). ``received`` counts every frame the host decoded, and the log
+    holds exactly those (the replay below receives as many): frames that came in the same read
+    as the 3200th are among them, how many depends on the machine's load (3231 seen under load,
+    3233 in a script here), so the count asserted is at least 3200, not equal (issue 44)."""
     assert watched.state == "ended: completed"
     assert watched.final == {k: watched.summary[k] for k in COUNTER_KEYS if k in watched.summary}
-    assert watched.final["received"] == 3200 and watched.final["estimates"] == 3200
+    s = watched.summary
+    assert watched.final["estimates"] == s["samples_stepped"] + s["samples_filled"] == 3200
+    assert watched.final["received"] >= 3200
 
 
 @pytest.mark.pty
@@ -181,7 +188,7 @@ def test_a_realtime_replay_shows_on_the_page_and_ends_on_its_summary(watched, br
     assert wait_ended(page) == "ended: ended"
     summary = json.loads((tmp_path / "replay.json").read_text())
     assert shown_counters(page) == {k: summary[k] for k in COUNTER_KEYS if k in summary}
-    assert summary["received"] == watched.summary["received"]
+    assert summary["received"] == summary["samples_stepped"] == watched.summary["received"]   # the log: what came
 
 
 @pytest.mark.pty
