@@ -185,8 +185,8 @@ def _header(pfx: str, parts: ModelParts, spec: FilterSpec, real: str, source: st
         fields += [f"PFX_real P[{d * d}];   /* the covariance, row-major */", f"PFX_real T[{d * d}];   /* scratch */",
                    f"PFX_real work[{d}];   /* scratch: P⁻Hᵀ */"]
     if spec.harmonics:
-        fields += [f"PFX_real tab[{spec.max_period * 2 * spec.harmonics}];   /* the ripple basis of one period */",
-                   "PFX_real prev_cmu;", "int since, period, table_period, ripple_on;"]
+        fields += ["PFX_real prev_cmu;   /* the burst phase: Cμ(k−1), φ(k), P(k) */",
+                   "int since, period, ripple_on;"]
     fields += ["PFX_real last_cmu, last_env;   /* the last finite inputs (held for a bad one) */",
                "PFX_real rejected_run;", "int gate_open;",
                "unsigned long sample, updates, rejected, missing, bad_inputs, nis_in_band;",
@@ -306,8 +306,8 @@ def macs(parts: ModelParts, spec: FilterSpec) -> tuple[int, int]:
     model += 8 * i["INTERACTION"] + 2 * i["HYST"] + 2 * i["FADE"]
     nnz = int(np.count_nonzero(spec.F))
     filt = nnz + d + n + d + d + n + d           # F ξ, G u, g C, H ξ, the update, C x, h_liftᵀ ξ
-    if spec.full:                                # F P Fᵀ, P⁻Hᵀ, H P⁻Hᵀ, w, the downdate, the ripple row and term
-        filt += 2 * nnz * d + d * d + d + d + d * d + 2 * (d - spec.ripple_start)
+    if spec.full:     # F P Fᵀ, P⁻Hᵀ, H P⁻Hᵀ, w, the downdate, the ripple row and term, its basis (angle addition)
+        filt += 2 * nnz * d + d * d + d + d + d * d + 2 * (d - spec.ripple_start) + 4 * spec.harmonics
     return model, filt
 
 
