@@ -100,8 +100,15 @@ class CommandTracker:
         self._sent_at[slot] = host_time
 
     def received(self, sample: Sample) -> None:
-        """A delivered sample: the first one echoing a pending command closes its latency."""
+        """A delivered sample: the first one echoing a pending command closes its latency.
+
+        Before this host has sent anything, a sample echoing a ``cmd_seq`` is a previous host's
+        last command (the device remembers it across sessions): the numbering continues after it,
+        so this host's first command is newer and the device applies it (PROTOCOL.md: a command
+        not newer than the last applied one is ignored)."""
         cmd_seq = sample.cmd_seq
+        if cmd_seq and self.counters.commands_sent == 0:
+            self.last_sent = cmd_seq
         if cmd_seq:
             slot = cmd_seq % PENDING_SLOTS
             if self._sent_seq[slot] == cmd_seq:

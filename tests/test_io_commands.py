@@ -289,6 +289,20 @@ def test_tracker_times_each_command_to_its_first_echo_and_skips_superseded_ones(
     assert counters.commands_sent == 2 and counters.command_latency.n == 1
     assert counters.command_latency.percentile(50) == pytest.approx(0.004, rel=0.006)
 
+@pytest.mark.parametrize("modulus", [65536, 256])
+def test_a_new_host_numbers_its_commands_after_the_last_one_the_device_applied(modulus):
+    """A device that remembers the previous session's cmd_seq (49, or 255 on the wrap) applies
+    this host's first command: it is newer under PROTOCOL.md's rule."""
+    for remembered in (49, modulus - 1):
+        tr = CommandTracker(Counters(), modulus)
+        tr.received(Sample(0, 0, 0, 0, (0.0,) * 6, 0, 0.0, remembered))
+        first = tr.next_seq()
+        assert is_newer(first, remembered, modulus) and first != 0
+        tr.sent(first, 0.001)
+        tr.received(Sample(1, 0, 0, 0, (0.0,) * 6, 0, 0.002, remembered))   # not yet applied: no rebase
+        assert tr.next_seq() == next_cmd_seq(first, modulus)
+
+
 
 # -- links --------------------------------------------------------------------------------------
 def test_serial_link_writes_the_command_packet_and_counts_it():
