@@ -26,8 +26,10 @@ from hypothesis import strategies as st
 from rtlift.api import load
 from rtlift.blocks.delay import Delay
 from rtlift.core.rate import FS_HZ as FS
-from rtlift.export.c_module import DOUBLE_TOLERANCE, SINGLE_TOLERANCE, export_c, reference_observer
+from rtlift.export.c_module import export_c
 from rtlift.export.filter_spec import ExportError, bound_observer, filter_spec, steady_radius
+from rtlift.export.steady import reference_observer
+from rtlift.export.vectors import DOUBLE_TOLERANCE, SINGLE_TOLERANCE
 from rtlift.observer import ObserverConfig
 from testkit.synthetic import OUTPUT_STAGES, interaction_model, make_model, with_effects
 

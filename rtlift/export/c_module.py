@@ -30,22 +30,13 @@ import numpy as np
 
 from rtlift.blocks.compiled_stages import HYSTERESIS
 from rtlift.export.filter_spec import ExportError, FilterSpec, bound_observer, filter_spec, kernel_arrays
+from rtlift.export.vectors import reference_vectors, test_program, write_vectors
 from rtlift.model.hybrid import HybridModel
-from rtlift.observer import Observer, ObserverConfig
+from rtlift.observer import ObserverConfig
 from rtlift.observer import config as oc
 
 PRECISIONS = ("double", "single")
 GAINS = ("steady", "full")
-SINGLE_TOLERANCE = 1e-2
-"""The bound ``NAME_test`` holds a single-precision module to: the largest error of any output
-column (ΔĈL, open-loop ΔCL, ν, NIS) relative to that column's largest magnitude. Measured on
-101 480 samples of seed-1 bench records (tests/test_export_c.py): worst 5.6e-3 (NIS; 3.9e-3 ν,
-1.1e-4 ΔĈL) for an interaction-structure model with every effect, full gain; 2.1e-5 for the
-bench model. The float open-loop model's own error (≤ 6.4e-4) is most of it."""
-DOUBLE_TOLERANCE = 1e-9
-"""The same for double precision (the issue's bound; measured ≤ 4.3e-13 on the same run)."""
-
-
 @dataclass(frozen=True)
 class CExport:
     """What :func:`export_c` wrote and what the step costs: the paths and the multiply–adds per
@@ -320,8 +311,6 @@ def export_c(model: HybridModel, out_dir: str | Path, precision: str = "double",
              vector_samples: int = 4000) -> CExport:
     """Write ``prefix.h``, ``prefix.c``, ``prefix_test.c`` and ``prefix_vectors.txt`` into ``out_dir``
     for ``model`` and its observer (its stored Q and R unless ``config``)."""
-    from rtlift.export.vectors import reference_vectors, test_program, write_vectors
-
     if precision not in PRECISIONS:
         raise ExportError(f"--precision {precision}: must be 'double' or 'single'")
     if gain not in GAINS:
@@ -355,26 +344,3 @@ def export_c(model: HybridModel, out_dir: str | Path, precision: str = "double",
         raise ExportError(f"{out_dir}: cannot write ({exc.strerror})") from None
     m, f = macs(parts, spec)
     return CExport(header, src, test, vectors, pfx, precision, gain, m, f)
-
-
-def reference_observer(model: HybridModel, config: ObserverConfig | None, spec: FilterSpec):
-    """A fresh Python observer that the module must equal: :class:`~rtlift.observer.Observer`
-    (``--gain full``) or :class:`~rtlift.export.steady.SteadyGainObserver` (steady); ``step(cmu,
-    env, dcl)`` returns (ΔĈL, open loop, ν, NIS, flags) either way."""
-    from rtlift.export.steady import SteadyGainObserver
-
-    obs = bound_observer(model, config)
-    if spec.full:
-        return _FullReference(obs)
-    return SteadyGainObserver(obs, spec)
-
-
-class _FullReference:
-    """:class:`Observer` with the step's tuple (ν and NIS NaN when missing)."""
-
-    def __init__(self, obs: Observer) -> None:
-        self.obs = obs
-
-    def step(self, cmu: float, env: float, dcl: float) -> tuple[float, float, float, float, int]:
-        return self.obs.step(cmu, env, dcl).as_tuple()
-

@@ -1,4 +1,5 @@
-"""The steady-gain observer in Python: the judge of ``rtlift export c --gain steady``.
+"""The Python observers an exported module must equal (:func:`reference_observer`): the observer
+itself for ``--gain full``, and the steady-gain observer, the judge of ``--gain steady``.
 
 The model's step is the compiled one the observer binds (:func:`rtlift.blocks.compiled.hybrid_sample`
 or :func:`rtlift.blocks.compiled_interaction.interaction_sample`, on copies of its arrays); the
@@ -18,8 +19,9 @@ import numpy as np
 
 from rtlift.blocks.compiled import hybrid_sample
 from rtlift.blocks.compiled_interaction import interaction_sample
-from rtlift.export.filter_spec import MODEL_ARGUMENTS, FilterSpec, kernel_arrays
-from rtlift.observer import Observer
+from rtlift.export.filter_spec import MODEL_ARGUMENTS, FilterSpec, bound_observer, kernel_arrays
+from rtlift.model.hybrid import HybridModel
+from rtlift.observer import Observer, ObserverConfig
 from rtlift.observer.config import (
     FLAG_BAD_INPUT,
     FLAG_GATE_RELEASED,
@@ -98,3 +100,23 @@ class SteadyGainObserver:
         return np.array([self.step(c, e, z) for c, e, z in zip(np.asarray(cmu, float).tolist(),
                                                                  np.asarray(env, float).tolist(),
                                                                  np.asarray(dcl, float).tolist(), strict=True)])
+
+
+def reference_observer(model: HybridModel, config: ObserverConfig | None, spec: FilterSpec):
+    """A fresh Python observer that the module must equal: :class:`~rtlift.observer.Observer`
+    (``--gain full``) or :class:`SteadyGainObserver` (steady); ``step(cmu,
+    env, dcl)`` returns (ΔĈL, open loop, ν, NIS, flags) either way."""
+    obs = bound_observer(model, config)
+    if spec.full:
+        return _FullReference(obs)
+    return SteadyGainObserver(obs, spec)
+
+
+class _FullReference:
+    """:class:`Observer` with the step's tuple (ν and NIS NaN when missing)."""
+
+    def __init__(self, obs: Observer) -> None:
+        self.obs = obs
+
+    def step(self, cmu: float, env: float, dcl: float) -> tuple[float, float, float, float, int]:
+        return self.obs.step(cmu, env, dcl).as_tuple()
