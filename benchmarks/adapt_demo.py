@@ -42,10 +42,27 @@ def fade(onset_tracking_s: float = ONSET_TRACKING_S) -> str:
     return f"actuator_fade:final_fraction=0.7,time_constant_s=2,onset_s={onset_tracking_s + 3.0:g}"
 
 
+def on_draw(run: BenchTracking, draw: int, seed: int, effects: tuple[str, ...]) -> BenchTracking:
+    """``run``'s bench made plant ``draw`` of the family (:mod:`hil_sim.family`) before it starts:
+    the device keeps its pseudo-terminal, its stream becomes the drawn plant's."""
+    from hil_sim.hil import HilStream
+
+    if draw:
+        control = run.stream.control
+        run.stream.__dict__.update(HilStream("random", seed=seed, effects=list(effects), plant_draw=draw).__dict__)
+        run.stream.control = control
+    return run
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=120.0)
     ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--model", default=str(MODEL), help="model file (default: the bench's)")
+    ap.add_argument("--plant-draw", type=int, default=0,
+                    help="plant N of the family (hil_sim.family; give --model, identified on it)")
+    ap.add_argument("--reference", default=REFERENCE)
+    ap.add_argument("--adapt-structure", action="store_true", help="pass --adapt-structure to the --adapt runs")
     ap.add_argument("--figure", default=str(FIGURE))
     ap.add_argument("--no-figure", action="store_true")
     ap.add_argument("--runs", default="fade_adapt,fade,clean",
@@ -60,15 +77,19 @@ def main(argv: list[str] | None = None) -> int:
     runs = {}
     for name, (effects, adapt) in cases.items():
         extra = ("--log", str(work / f"{name}.bin")) + (("--adapt", str(work / f"{name}_adapt")) if adapt else ())
-        runs[name] = BenchTracking(str(MODEL), REFERENCE, True, args.seconds, str(work / f"{name}.json"),
-                                   seed=args.seed, effects=effects, extra=extra).start()
+        extra += ("--adapt-structure",) if adapt and args.adapt_structure else ()
+        extra += ("--accept-design-warnings",) if args.model != str(MODEL) else ()   # a drawn plant's model
+        runs[name] = on_draw(BenchTracking(args.model, args.reference, True, args.seconds,
+                                           str(work / f"{name}.json"), seed=args.seed, effects=effects, extra=extra),
+                             args.plant_draw, args.seed, effects).start()
     out: dict = {"benchmark": "adapt_demo", "seconds": args.seconds, "onset_tracking_s": ONSET_TRACKING_S,
+                 "plant_draw": args.plant_draw, "model": args.model, "reference": args.reference,
                  "onset_monitor_s": ONSET_TRACKING_S + TARE_S, "work": str(work), "runs": {}}
     traces = {}
     for name, run in runs.items():
         res = run.finish()
         t, truth, _ = run.traces()
-        ref = reference_values(REFERENCE, len(truth))
+        ref = reference_values(args.reference, len(truth))
         err = lowpass(truth) - lowpass(ref)
         s = run.summary
         row = {"rmse_truth": res["rmse_truth"],
@@ -80,8 +101,10 @@ def main(argv: list[str] | None = None) -> int:
                "latency_p50_ms": s.get("latency_p50_ms"), "latency_p99_ms": s.get("latency_p99_ms"),
                "departures": [{k: d[k] for k in ("t_s", "test", "statistic", "suspect")}
                                                    for d in s.get("departures", [])],
-               "adaptations": [{k: a.get(k) for k in ("t_s", "accepted", "swapped", "rmse_before", "rmse_after",
-                                                      "reason", "model_file")} for a in s.get("adaptations", [])]}
+               "thresholds_from": (s.get("monitor") or {}).get("thresholds_from"),
+               "adaptations": [{k: a.get(k) for k in ("t_s", "accepted", "kinds", "swapped", "rmse_before",
+                                                      "rmse_after", "reason", "finding", "model_file")}
+                               for a in s.get("adaptations", [])]}
         out["runs"][name] = row
         traces[name] = (t, truth, ref)
         print(f"{name}: tracking RMSE {row['rmse_truth']:.4f} (last 40 s {row['rmse_truth_last40']:.4f}); lost "
