@@ -13,6 +13,7 @@ sit on the same samples.
 from __future__ import annotations
 
 import ctypes
+import re
 import shutil
 import subprocess
 import tempfile
@@ -242,8 +243,16 @@ def test_model_step_is_the_model_alone(tmp_path, bench_run):
 
 
 @pytest.mark.parametrize("precision", ["double", "single"])
-def test_the_generated_test_program_passes_on_its_vector(tmp_path, precision):
-    export_c(load(DATA / "bench_model.json"), tmp_path, precision, "full", "bench")
+def test_the_generated_test_program_passes_on_its_vector(tmp_path, precision, capsys):
+    """``rtlift export c`` writes the four files; the test program it writes passes on them."""
+    from rtlift.app.cli import main
+
+    assert main(["export", "c", "--model", str(DATA / "bench_model.json"), "--out", str(tmp_path),
+                 "--precision", precision, "--prefix", "bench"]) == 0
+    macs = re.search(r"full gain: (\d+) multiply-adds per step \(model (\d+), filter (\d+)\)", capsys.readouterr().out)
+    total, model, filt = map(int, macs.groups())
+    assert total == model + filt and model >= 327 and filt >= 2 * 22 * 22      # the taps; P's two d² loops
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bench.c", "bench.h", "bench_test.c", "bench_vectors.txt"]
     subprocess.run(["cc", *CFLAGS, "bench.c", "bench_test.c", "-lm", "-o", "bench_test"], cwd=tmp_path, check=True,
                    capture_output=True)
     run = subprocess.run(["./bench_test", "bench_vectors.txt"], cwd=tmp_path, capture_output=True, text=True)
