@@ -60,6 +60,15 @@ def test_report_md_lists_every_accepted_effect_with_its_parameters():
     assert md.rstrip().endswith("![closed loop](figures/closed_loop.png)")
 
 
+def test_a_design_that_misses_a_target_is_said_in_the_table_and_the_report():
+    s = _summary(ACCEPTED)
+    s["closed_loop"]["design_warnings"] = ["|S| peak +4.31 dB > +4 dB at ΔCL 0.130 (Cμ 0.0108): at 4.00 Hz"]
+    assert "  the feedback design misses a target: |S| peak +4.31 dB > +4 dB" in results_table(s)
+    assert "- |S| peak +4.31 dB > +4 dB at ΔCL 0.130" in report_markdown(s)
+    s["closed_loop"]["design_warnings"] = []
+    assert "misses a target" not in results_table(s) + report_markdown(s)
+
+
 def test_nothing_accepted_reads_as_nothing():
     assert "diagnosis found: nothing" in results_table(_summary([]))
     assert "- nothing accepted" in report_markdown(_summary([]))

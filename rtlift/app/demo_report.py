@@ -98,6 +98,7 @@ def results_table(summary: dict[str, Any]) -> str:
                      f"{r['commands_sent']} applied {r['commands_applied']} superseded {r['superseded']}  "
                      f"latency p99 {_fmt(r['command_latency_p99_ms'], '.2f')} ms")
     lines.append(f"  feedback / feedforward RMSE {c['ratio']:.2f}")
+    lines += [f"  the feedback design misses a target: {w}" for w in c.get("design_warnings", [])]
     return "\n".join(lines)
 
 
@@ -174,6 +175,10 @@ def _closed_loop_markdown(c: dict[str, Any]) -> list[str]:
                   f"{r['commands_sent']} | {r['commands_applied']} | {r['superseded']} | "
                   f"{_fmt(r['command_latency_p50_ms'], '.2f')} / {_fmt(r['command_latency_p99_ms'], '.2f')} | "
                   f"{r['saturated_fraction']:.1%} |")
+    if c.get("design_warnings"):
+        md += ["", "The feedback's design (python-control, `rtlift design`) misses a target; run anyway here "
+               "(`--accept-design-warnings`) to show what it gives:", ""]
+        md += [f"- {w}" for w in c["design_warnings"]]
     md += ["", f"Feedback / feedforward RMSE: {c['ratio']:.2f}. The section took {c['elapsed_s']:.1f} s.", "",
            "![closed loop](figures/closed_loop.png)", ""]
     return md
