@@ -226,6 +226,12 @@ def _fit_values(phi: np.ndarray, y: np.ndarray, rows: slice | np.ndarray,
     return c
 
 
+def _residual(phi: np.ndarray, runs: _Runs, limits: Limits) -> np.ndarray:
+    """The scored simulation error of the model whose basis is Φ, f's values fitted (variable
+    projection), clipped at ``limits`` (module docstring, 4)."""
+    return (np.clip(phi @ _fit_values(phi, runs.y, runs.rows, limits), *limits) - runs.y)[runs.rows]
+
+
 def _penalty(runs: _Runs) -> np.ndarray:
     """The residual a refinement sees where a trial θ gives no finite model: far above any fit's."""
     y = runs.y[runs.rows]
@@ -296,7 +302,7 @@ def _refine(dims: _Dims, th0: np.ndarray, runs: _Runs, max_nfev: int, knots: int
             phi, _ = _simulate_basis(dims, th, runs, knots)
         except ValueError:
             return bad
-        r = (np.clip(phi @ _fit_values(phi, runs.y, runs.rows, limits), *limits) - runs.y)[runs.rows]
+        r = _residual(phi, runs, limits)
         return r if np.all(np.isfinite(r)) else bad
 
     return optimize.least_squares(res, th0, x_scale="jac", max_nfev=max_nfev, ftol=1e-10, xtol=1e-10).x
@@ -485,7 +491,7 @@ def _w_stage(structure: str, b: np.ndarray, a: np.ndarray, cost: _Runs, est: _Ru
                 phi, _ = _simulate_basis(dims, th, cost, knots)
             except FAILS:
                 continue
-            r = (np.clip(phi @ _fit_values(phi, cost.y, cost.rows, limits), *limits) - cost.y)[cost.rows]
+            r = _residual(phi, cost, limits)
             if np.all(np.isfinite(r)):
                 starts.append((float(np.sum(r**2)), dims, (b1, a1, b2, a2)))
         starts = [(d, bb) for _, d, bb in sorted(starts, key=lambda s: s[0])[:opt.keep]]
@@ -538,7 +544,7 @@ def _random_starts(dims: _Dims, cost: _Runs, knots: int, opt: SisoOptions, limit
             phi, _ = _simulate_basis(dims, th, cost, knots)
         except FAILS:
             continue
-        res = (np.clip(phi @ _fit_values(phi, cost.y, cost.rows, limits), *limits) - cost.y)[cost.rows]
+        res = _residual(phi, cost, limits)
         if np.all(np.isfinite(res)):
             b1, a1, _, _ = dims.build(th)
             quick.append((float(np.sum(res**2)), (b1, a1, None, None)))
