@@ -455,8 +455,11 @@ class DepartureMonitor:
         out = dict.fromkeys(TESTS, 0.0)
         self._fit = ("none", 0.0)
         self._held = []
-        if n < 0.5 * self.window_blocks * self.block and np.count_nonzero(w[:, 0] > 0) < w.shape[0]:
+        quiet = int(np.count_nonzero(w[:, 0] > 0))
+        if n < 0.5 * self.window_blocks * self.block and quiet < w.shape[0]:
             self._held += ["bias", "level", "gain"]        # a transient left too little of the window
+        if quiet < 0.5 * self.window_blocks and quiet < w.shape[0]:
+            self._held.append("whiteness")
         if n >= 0.5 * self.window_blocks * self.block:
             em, mm = se / n, sm / n
             var_m = max(sm2 / n - mm * mm, 0.0)
@@ -481,8 +484,8 @@ class DepartureMonitor:
                 out["gain"] = abs(g)
                 self._gain_sign = g
             self._fit = self._block_slope(self._window_sums(self.trend_blocks))
-        m = int(np.count_nonzero(w[:, 0] > 0)) * self.block
-        if m:
+        m = quiet * self.block
+        if quiet >= 0.5 * self.window_blocks:
             mean_nu = sn / m
             var_nu = sn2 / m - mean_nu * mean_nu
             if var_nu > 0:
