@@ -57,6 +57,7 @@ unknown); f is refitted on the whole estimation part at the end.
 from __future__ import annotations
 
 import itertools
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -385,7 +386,10 @@ def identify_siso(rec: SisoRecord | Sequence[SisoRecord], structure: str = "wien
         model.provenance.update(tool="rtlift identify --record", record=name, holdout_fraction=opt.holdout)
         model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
         return model
-    with np.errstate(all="ignore"):      # non-finite trials are caught and skipped, not warned about
+    # non-finite trials are caught and skipped, and a trial's ill-conditioned numerator is judged by its
+    # held-out error: neither is warned about
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", signal.BadCoefficients)
         return _identify_w(recs, n_ests, skip, structure, order, opt, limits)
 
 
