@@ -7,8 +7,11 @@ For each plant draw N (default: the first 20 reporting draws, :data:`hil_sim.fam
 the draw's standard campaign recorded with seed S (default 0) identifies the paper's hybrid
 (``paper``: static, single burst, sine_k0125) and ``rtlift identify``'s default with the trains
 (``default``: :func:`benchmarks.burst_patterns.compare`); every record type recorded with seed
-S + 1 of the same draw validates both, against the draw's own ceiling, the noise-free lift's
-ρ against the same record (``extra["dcl_true"]``). Printed per draw and record: ρ of both
+S + 1 of the same draw validates both, against the draw's own ceiling: the noise-free lift's
+ρ against the same record, the lift as the measurement chain passes it (``extra["dcl_sensed"]``
+on a plant with a balance mode or an anti-alias filter, which smooth the burst vortex's sharp
+onset: against the plant's own lift, ``extra["dcl_true"]``, a model of the measured record can
+score *above* that "ceiling"; both are kept, ``ceiling`` and ``truth``). Printed per draw and record: ρ of both
 models, the ceiling and the default's gap (ceiling − ρ); then per record type over the draws:
 the fraction of draws within 0.02 of the ceiling, the median and the worst gap. Goal (issue
 45): within 0.02 on ≥ 90 % of the draws, within 0.04 on all.
@@ -119,6 +122,18 @@ def identify_draw(draw: int, seed: int) -> dict:
     return {name: {m: {k: float(v) for k, v in s.items()} for m, s in row.items()} for name, row in rows.items()}
 
 
+def measured_ceilings(draw: int, seed: int) -> dict[str, dict[str, float]]:
+    """Per record type of seed ``seed`` of plant ``draw``: the scores of the noise-free lift *as the
+    measurement chain passes it* (``extra["dcl_sensed"]``, where the plant has a balance mode or a
+    filter; else ``dcl_true``) against the record: what no model of the record can beat."""
+    from benchmarks.burst_patterns import bench_records
+    from rtlift.core.metrics import scores
+
+    records = bench_records(seed, draw)[0]
+    return {n: {k: float(v) for k, v in scores(r.dcl, r.extra.get("dcl_sensed", r.extra["dcl_true"])).items()}
+            for n, r in records.items()}
+
+
 def summarise(results: dict[int, dict]) -> dict:
     """Per record type and model over the draws: gaps (ceiling ρ − ρ), fraction within
     :data:`GOAL_GAP`, median and worst gap, and whether the issue's goal holds."""
@@ -187,6 +202,10 @@ def main(argv: list[str] | None = None) -> None:
     found = run_tasks(identify_draw, [(d, args.seed) for d in draws], args.out, serial=args.serial,
                       scheduler=args.scheduler, workers=args.workers)
     results = dict(zip(draws, found, strict=True))
+    for d, rows in results.items():     # the task's ceiling is the plant's lift; the goal's, as measured
+        for name, c in measured_ceilings(d, args.seed + 1).items():
+            rows[name]["truth"] = rows[name]["ceiling"]
+            rows[name]["ceiling"] = c
     summary = summarise(results)
     print_tables(results, summary)
     emit({"draws": draws, "seed": args.seed, "summary": summary, "per_draw": {str(d): r for d, r in results.items()}})

@@ -81,6 +81,9 @@ class BenchRun:
     meta: dict[str, str] = field(default_factory=dict)
     calibration: Calibration = field(default_factory=Calibration)
     fs_hz: float = FS_HZ
+    dcl_sensed: np.ndarray | None = None
+    """The noise-free ΔCL as the measurement chain passes it (the balance's mode, the DAQ's filter:
+    :class:`~hil_sim.sensors.BalanceChain`), on a plant that has one; else ``None`` (it is ``dcl_true``)."""
 
     def __len__(self) -> int:
         return len(self.t)
@@ -94,6 +97,8 @@ class BenchRun:
         env = np.asarray(cal.cmu_from_volts(self.envelope_volts), dtype=float)
         extra = {"volts": self.volts.copy(), "envelope_volts": self.envelope_volts.copy(),
                  "dcl_true": self.dcl_true.copy()}
+        if self.dcl_sensed is not None:
+            extra["dcl_sensed"] = self.dcl_sensed.copy()
         return Record(self.t.copy(), cmu, env, cl - tare, dict(self.meta), extra,
                       name or self.meta.get("experiment", "bench"))
 
@@ -122,6 +127,8 @@ class Bench:
         self.aero_noise = AeroNoise(self.sensor, aero_rng, self.fs_hz)
         chain = BalanceChain(self.sensor, self.fs_hz)
         self.chain = chain if chain else None
+        self.sensing = BalanceChain(self.sensor, self.fs_hz) if chain else None
+        """The same chain with its own state, passing the noise-free ΔCL (``BenchRun.dcl_sensed``)."""
         self.stages: dict[str, list] = {"actuator": [], "force": [], "offset": []}
         for e, s in zip(effects, streams[2:], strict=True):
             if e.stage in self.stages:
@@ -149,7 +156,18 @@ class Bench:
                   | np.where(saturated, STATUS_ADC_SATURATED, 0)
                   | np.where(act.burst, STATUS_BURST_ON, 0)).astype(np.uint8)
         return BenchRun(t, act.volts, act.envelope_volts, act.cmu, act.cmu_envelope, dcl_true,
-                        counts, status, dict(meta), self.calibration, self.fs_hz)
+                        counts, status, dict(meta), self.calibration, self.fs_hz, self._sensed(dcl_true))
+
+    def _sensed(self, dcl_true: np.ndarray) -> np.ndarray | None:
+        """ΔCL through the balance's mode and the DAQ's filter, noise-free (linear, unit DC gain:
+        the same as the lift the forces carry, less the noise)."""
+        if self.sensing is None:
+            return None
+        x = dcl_true[:, None]
+        for stage in (self.sensing.mode, self.sensing.filter):
+            if stage is not None:
+                x = stage.process(x)
+        return x[:, 0]
 
 
 def bench_program(program: Program) -> tuple[np.ndarray, np.ndarray]:
