@@ -197,3 +197,21 @@ def test_a_structure_is_reported_not_swapped_unless_asked(tmp_path, monkeypatch)
     # an effect alone goes on to the swap without asking
     ev = _diagnosis(tmp_path, monkeypatch, {"actuator_fade": "effect"}, structure=False)
     assert "finding" not in ev and "would swap" in ev["reason"]
+
+
+def test_control_tells_its_monitor_the_references_steps(bench_model):
+    import argparse
+
+    from rtlift.app.watch import attach
+
+    class Closed:
+        reference = parse_reference("steps:0.06@0,0.12@10")
+        tare_samples = 800
+        fs_hz = FS_HZ
+
+    loop = _Loop()
+    args = argparse.Namespace(monitor=["on"], model=MODEL, adapt=None, log=None)
+    watch = attach(loop, args, bench_model, "test", closed=Closed(), quiet=True)
+    assert loop.monitor is watch.monitor
+    assert loop.monitor.summary()["settle"]["steps"] == 2
+    assert loop.monitor._steps.tolist() == [800.0, 800.0 + 10 * FS_HZ]

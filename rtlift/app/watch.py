@@ -242,12 +242,12 @@ def attach(loop: Any, args: argparse.Namespace, model: Any, prog: str, *, closed
             watch.calibrate_to = path
         if not quiet:
             watch.say(f"monitor thresholds: {watch.monitor.threshold_source}")
-        follow_reference(loop, closed)
     if watch.monitor is None and adapt_dir:
         raise UserError("--adapt needs the departure monitor (--monitor on and a model file with a fingerprint)")
     if watch.monitor is not None:
         watch.monitor.on_departure = watch.on_departure
         loop.monitor = watch.monitor
+        follow_reference(loop, closed)
     if adapt_dir or replay:
         watch.adapter = Adapter(loop, args.model, adapt_dir or ".", closed=closed, fs_hz=model.fs_hz,
                                 events=watch.on_adapt_event, replay=replay, log=watch.say,
