@@ -92,6 +92,12 @@ class PtyDevice(ABC):
         self._stop.set()
         self._close_fds()
 
+    @property
+    def host_open(self) -> bool:
+        """Whether a host has the port open, as the device thread last saw it (a device made
+        with ``unread_lost``; ``False`` otherwise)."""
+        return self._hangup is not None and not self._host_away
+
     def wait(self, timeout: float | None = None) -> bool:
         """Wait until the device stopped streaming; ``True`` if it did."""
         return self.finished.wait(timeout)
