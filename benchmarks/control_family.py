@@ -57,14 +57,16 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int) -> dic
     t2 = time.perf_counter()
     point = design.nearest(0.08)
     config = ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule())
-    res = measure(model, config, point, design.dt, seed=seed, plant_draw=n, frequencies=frequencies)
+    res = measure(design.control_model(model), config, point, design.dt, seed=seed, plant_draw=n,
+                  frequencies=frequencies)
     res.pop("quiet")
     s = design.summary()
     return {"draw": n, "identify_s": t1 - t0, "design_s": t2 - t1, "measure_s": time.perf_counter() - t2,
             "violations": s["violations"], "refused_by_control": bool(s["violations"]),
             "pm_deg_min": s["pm_deg_min"], "gm_db_min": s["gm_db_min"], "peak_s_db_max": s["peak_s_db_max"],
             "robust_max": s["robust_max"], "f6_predicted_hz": point.f6_hz, "limit_f6_hz": point.limit_f6_hz,
-            "limit_f6_hz_min": s["limit_f6_hz_min"], "predicted_peak_db_at_0p08": point.peak_s_db, **res}
+            "limit_f6_hz_min": s["limit_f6_hz_min"], "predicted_peak_db_at_0p08": point.peak_s_db,
+            "observer": design.observer, **res}
 
 
 def main() -> None:

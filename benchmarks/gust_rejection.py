@@ -151,8 +151,9 @@ def main() -> None:
         from rtlift.app.control_design import Gains, check_point
         point = check_point(point.cmu, point.dcl, np.asarray(point.plant), np.asarray(point.plant_point),
                             Gains(0.5, design.dt / 0.25), design.dt, np.asarray(point.observer), point.fs_hz,
-                            design.uncertainty)
-    res = measure(model, fb_config, point, design.dt, level=args.level, amplitude=args.amplitude, seed=args.seed,
+                            design.uncertainty, tail=point.observer_tail, period=point.observer_period)
+    res = measure(design.control_model(model), fb_config, point, design.dt, level=args.level,
+                  amplitude=args.amplitude, seed=args.seed,
                   plant_draw=args.plant_draw)
     rows, quiet, envelope = res["rows"], res.pop("quiet"), res["envelope"]
     print(f"gust {args.amplitude:g} ΔCL at reference {args.level:g}; "

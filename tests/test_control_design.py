@@ -201,6 +201,20 @@ def test_the_observer_passes_a_slow_disturbance_whole_and_lags_a_fast_one(design
     assert np.all(np.abs(fo) <= 1.01) and np.degrees(np.angle(fo[1])) < -5.0
 
 
+def test_rtlift_control_runs_an_observer_that_passes_a_gust_into_the_estimate(model):
+    """The bench model's own observer meets the gap (factor 1); the same model with its bias state
+    10⁴ times slower (as identified on plant draws 101 and 110) gets the factor that restores it."""
+    from rtlift.app.control_design import OBSERVER_GAP, control_q_bias, with_q_bias
+
+    ctl = LiftController(model)
+    q, k, gap = control_q_bias(model, ctl, 0.1)
+    assert k == 1.0 and q == model.observer_config["q_bias"] and gap <= OBSERVER_GAP
+    slow = with_q_bias(model, model.observer_config["q_bias"] * 1e-4)
+    q, k, gap = control_q_bias(slow, ctl, 0.1)
+    assert 1e3 <= k <= 1e5 and gap <= OBSERVER_GAP
+    assert q == pytest.approx(model.observer_config["q_bias"] * 1e-4 * k)
+
+
 def test_the_uncertainty_weight_comes_from_the_model_file_when_it_is_larger():
     class M:
         provenance = {"wiener": {"dc_gain": 2.0, "uncertainty": {"dc_gain_std": 0.3}}}

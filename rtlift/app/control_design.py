@@ -33,8 +33,14 @@ so the margins are L's and the predicted gust map (peak, f₆) is S_o's. On the 
 state's 9 Hz suggested, and the reason the design's f₆ is now predicted 0.32–0.38 Hz, not
 0.43–0.52 Hz (the bench measured 0.35–0.36 Hz).
 
+The observer the loop runs (:func:`control_q_bias`): the model file's observer is tuned for
+estimation, and on plants of the family its bias state may follow a lift disturbance 10³–10⁴
+times too slowly to be fed back (F_o 0.35 at 0.1 Hz: no rejection, whatever the gains); the
+design raises its q_bias by the smallest factor that brings |1 − F_o| ≤ 0.2 up to 0.5 Hz, and
+``rtlift control`` runs that observer.
+
 Margins (:func:`loop_margins`). Every gain crossover (|L| = 1) and every phase crossover
-(∠L = ±180°, Re L < 0) of L(e^{jωT}) on a 5000-point grid from 2 mHz to Nyquist *inclusive*
+(∠L = ±180°, Re L < 0) of L(e^{jωT}) on a 2000-point grid from 2 mHz to Nyquist *inclusive*
 (z = −1, where L is real: on these loops it is the binding phase crossover), interpolated
 linearly; the phase margin is the smallest over gain crossovers, the gain margin the smallest
 over phase crossovers both ways (up for |L| < 1, down for |L| > 1). They are consistent with the
@@ -72,7 +78,7 @@ disturbance-rejection bandwidth — the highest frequency f₆ below which the p
 ``gm_db`` both ways, phase margin ≥ ``pm_deg``, max |S| and max |S_o| ≤ ``peak_db`` (the
 amplification allowed anywhere), max |W T| < 1 and a bounded controller gain at 4 Hz (no
 burst-to-burst chatter of the envelope); a shortfall is penalised far above any band it could
-buy. The search reads the margins on an 800-point grid; the check on the 5000-point one, with
+buy. The search reads the margins on an 800-point grid; the check on the 2000-point one, with
 the closed-loop poles from the characteristic polynomial and from python-control
 (``feedback(...).poles()``). The check runs at every scheduled point and half-way between
 neighbours with the gains the controller interpolates there; a half-way point that misses a
@@ -120,10 +126,22 @@ family's calibration draws 1–49."""
 DELAY_ERROR_S = 0.01
 """δ: the loop delay the model may miss (s): one burst, the resolution of the onset latching and
 of the identified dead time's choice among near-equal candidates. Provisional like the floor."""
-OBSERVER_TAPS = 4000
-"""Length of the observer's impulse response from the measurement to the estimate (10 s at 400 Hz),
+OBSERVER_TAPS = 2000
+"""Length of the observer's impulse response from the measurement to the estimate (5 s at 400 Hz),
 continued by a geometric tail fitted to its last quarter: the bench model's observer passes 99.98 %
-of a step within 1 s, plant draw 101's only 81 % within 10 s (a slow bias state)."""
+of a step within 1 s, plant draw 101's only 64 % within 5 s (a slow bias state); F_o above 0.01 Hz
+is the same with 10 s to three decimals on both. Stored to 6 significant digits."""
+OBSERVER_BAND_HZ = 0.5
+"""The band over which the observer must pass a lift disturbance into the estimate (the issue's
+ambition for the rejection band)."""
+OBSERVER_GAP = 0.2
+"""Largest |1 − F_o| allowed over that band: where T ≈ 1, S_o ≈ 1 − F_o, so the observer alone
+caps the rejection at 20 log₁₀ 0.2 = −14 dB there — never the binding limit of a 6 dB band. The
+bench model's own observer meets it (|1 − F_o| 0.15 at 0.5 Hz); on plant draws 101 and 110 the
+identified observers' bias states are 10³–10⁴ times slower (F_o 0.35 at 0.1 Hz: no rejection)."""
+Q_BIAS_FACTORS = tuple(float(v) for v in 10.0 ** np.arange(0.0, 6.01, 0.5))
+"""Factors on the model's bias random-walk variance q_bias tried in turn (the smallest that meets
+:data:`OBSERVER_GAP`: the least extra noise let into the estimate)."""
 LIMIT_TAPS = 24
 """FIR length (burst periods, 3 s) of each Youla parameter in the limit's search."""
 LIMIT_SIDES = 12
@@ -273,7 +291,7 @@ def loop_margins(f: np.ndarray, L: np.ndarray, s_gust: np.ndarray | None = None,
                    _first_crossing(f, sg, 0.5), float(wt[j]), float(f[j]))
 
 
-def analysis_grid(dt: float, n: int = 5000) -> np.ndarray:
+def analysis_grid(dt: float, n: int = 2000) -> np.ndarray:
     """Frequencies (Hz) for the check: log-spaced from 2 mHz to 0.5 Hz, then linear to Nyquist
     1/(2T) inclusive (where every crossover near Nyquist lies)."""
     nyq = 0.5 / dt
@@ -378,6 +396,9 @@ class Design:
     margin: int
     targets: Targets = field(default_factory=Targets)
     uncertainty: Uncertainty = field(default_factory=Uncertainty)
+    observer: dict[str, Any] | None = None
+    """The observer ``rtlift control`` runs with this design: ``q_bias`` (its bias variance),
+    ``factor`` on the model's, ``max_gap_to_0p5_hz`` (:func:`control_q_bias`); None: the model's."""
 
     @property
     def scheduled(self) -> list[PointDesign]:
@@ -436,13 +457,14 @@ class Design:
         pts = []
         for p in self.points:
             d = asdict(p)
+            d["observer"] = [float(f"{v:.6g}") for v in p.observer]
             d["gains"] = asdict(p.gains)
             d["ti_s"] = self.dt / p.gains.ki
             d.update({k: getattr(p, k) for k in ("gm_db", "pm_deg", "peak_s_db", "f6_hz", "crossover_hz")})
             pts.append(d)
         return {"dt_s": self.dt, "period_samples": self.period, "margin_samples": self.margin,
                 "targets": asdict(self.targets), "uncertainty": asdict(self.uncertainty),
-                "summary": self.summary(), "points": pts}
+                "observer": self.observer, "summary": self.summary(), "points": pts}
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> Design:
@@ -460,7 +482,12 @@ class Design:
                               tail=float(p.get("observer_tail") or 0.0), period=int(p.get("observer_period") or 0))
                   for p in doc["points"]]
         return cls(points, dt, int(doc.get("period_samples", BURST_PERIOD_SAMPLES)),
-                   int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc)
+                   int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc, doc.get("observer"))
+
+    def control_model(self, model: Any) -> Any:
+        """``model`` with the observer settings this design was checked with (itself if none)."""
+        q = (self.observer or {}).get("q_bias")
+        return model if q is None else with_q_bias(model, q)
 
 
 def plant_tf(p: list[float] | np.ndarray, dt: float) -> Any:
@@ -683,6 +710,31 @@ def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, 
     return float(f[lo])
 
 
+def with_q_bias(model: Any, q_bias: float) -> Any:
+    """A copy of ``model`` whose observer settings have the bias variance ``q_bias``."""
+    m = model.copy()
+    m.observer_config = {**model.observer_config, "q_bias": float(q_bias)}
+    return m
+
+
+def control_q_bias(model: Any, controller: LiftController, dcl0: float, *,
+                   period: int = BURST_PERIOD_SAMPLES) -> tuple[float, float, float]:
+    """(q_bias, factor, max |1 − F_o| over the band): the observer ``rtlift control`` runs. The
+    model's observer is tuned for estimation (innovation likelihood on gust-free records), and its
+    bias state may follow a lift disturbance too slowly to be fed back; the smallest factor of
+    :data:`Q_BIAS_FACTORS` on its q_bias for which |1 − F_o| ≤ :data:`OBSERVER_GAP` up to
+    :data:`OBSERVER_BAND_HZ` at ΔCL₀ (the last factor if none does)."""
+    q0 = float(model.observer_config.get("q_bias", 0.0))
+    f = np.linspace(0.01, OBSERVER_BAND_HZ, 50)
+    gap = math.inf
+    for k in Q_BIAS_FACTORS:
+        h, r = observer_impulse(with_q_bias(model, q0 * k), controller, dcl0, period=period)
+        gap = float(np.max(np.abs(1.0 - observer_response(h, model.fs_hz, f, r, period))))
+        if gap <= OBSERVER_GAP or not q0 > 0:
+            break
+    return q0 * k, k, gap
+
+
 def design_loop(model: Any, targets: Targets | None = None, config: ControlConfig | None = None,
                 fractions: tuple[float, ...] = SCHEDULE_FRACTIONS, *, observer: bool = True,
                 uncertainty: Uncertainty | None = None, limit: bool = True, max_inserted: int = 2) -> Design:
@@ -699,10 +751,13 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     fs = cfg.fs_hz
     per = cfg.period if observer else 0
     f = analysis_grid(dt, 800)
+    mid = ctl.dcl_min + 0.5 * (ctl.dcl_max - ctl.dcl_min)
+    q_bias, factor, gap = control_q_bias(model, ctl, mid, period=cfg.period) if observer else (None, 1.0, None)
+    watched = with_q_bias(model, q_bias) if observer else model
 
     def plant_at(dcl0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         p, q = lifted_plant(model, ctl, dcl0, period=cfg.period)
-        h, r = observer_impulse(model, ctl, dcl0, period=cfg.period) if observer else (np.zeros(0), 0.0)
+        h, r = observer_impulse(watched, ctl, dcl0, period=cfg.period) if observer else (np.zeros(0), 0.0)
         return p, q, h, r
 
     def between(designed: list[PointDesign]) -> list[PointDesign]:
@@ -742,10 +797,12 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         start = max((d for d in designed if d.cmu < pt.cmu), key=lambda d: d.cmu).gains
         designed = sorted([*designed, design_at(pt.dcl, start)], key=lambda d: d.cmu)
         points, inserted = between(designed), inserted + 1
-    return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc)
+    obs = None if not observer else {"q_bias": q_bias, "factor": factor, "model_q_bias": q_bias / factor,
+                                     "max_gap_to_0p5_hz": gap}
+    return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
 
 
-DESIGN_VERSION = 2
+DESIGN_VERSION = 3
 """Changes when the design computes something else: a cached design of another version is redone."""
 REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 

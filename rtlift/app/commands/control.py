@@ -85,9 +85,11 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--seconds must be positive, got {args.seconds}")
     reference = parse_reference(args.reference)
     model = load_model(args.model)
-    observer = Observer.from_model(model)
     config, gains = control_config(model, args.feedback == "on", args.kp, args.ti, args.design,
                                    model_path=args.model, accept_warnings=args.accept_design_warnings)
+    if gains.get("observer_q_bias") is not None:   # the observer the design was checked with
+        model.observer_config = {**model.observer_config, "q_bias": gains["observer_q_bias"]}
+    observer = Observer.from_model(model)
     controller = LiftController(model, config)
     calibration = Calibration.load(args.calibration)
     _warm_up(observer, controller)
@@ -152,11 +154,13 @@ def control_config(model, feedback: bool, kp: float | None, ti: float | None,
     if design_file is not None and (kp is not None or ti is not None):
         raise UserError("--design and --kp/--ti are alternatives: give one")
     if design_file is not None:
-        from rtlift.app.control_design import schedule_from_report
+        from rtlift.app.control_design import load_design
 
-        schedule = schedule_from_report(design_file, accept_warnings)
+        saved = load_design(design_file, accept_warnings=accept_warnings)
+        schedule = saved.schedule()
         return (ControlConfig(feedback=feedback, fs_hz=model.fs_hz, schedule=schedule),
-                {"source": f"design file {design_file}", "schedule": [list(r) for r in schedule]})
+                {"source": f"design file {design_file}", "schedule": [list(r) for r in schedule],
+                 "observer_q_bias": (saved.observer or {}).get("q_bias")})
     if kp is not None or ti is not None:
         base = ControlConfig()
         kp = base.kp if kp is None else kp
@@ -173,7 +177,8 @@ def control_config(model, feedback: bool, kp: float | None, ti: float | None,
 
     design, source = cached_design(model, model_path, accept_warnings)
     return (ControlConfig(feedback=True, fs_hz=model.fs_hz, schedule=design.schedule()),
-            {"source": source, **design.summary(), "schedule": [list(r) for r in design.schedule()]})
+            {"source": source, **design.summary(), "schedule": [list(r) for r in design.schedule()],
+             "observer_q_bias": (design.observer or {}).get("q_bias")})
 
 
 def _warm_up(observer, controller) -> None:

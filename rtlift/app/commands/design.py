@@ -86,7 +86,7 @@ def _markdown(design, doc: dict, model: str) -> str:
              f"|S| <= {t.peak_db:g} dB (the loop's and the gust's with the observer), robust stability "
              f"max |W T| < 1 with W = {u.gain:.2f} + {1 + u.gain:.2f} |1 - exp(-j w {u.delay_s:g} s)| ({u.source}). "
              "v - r = C(Z) e_mean + Kx (e_last - e_mean), C(Z) = (Kp + Ki Z/(Z-1)) g (Z-a)/(Z-b), "
-             "in ΔCL per ΔCL. Margins from every crossover of L up to Nyquist (4 Hz) on a 5000-point grid; "
+             "in ΔCL per ΔCL. Margins from every crossover of L up to Nyquist (4 Hz) on a 2000-point grid; "
              "rows marked 'check' are half-way between scheduled points, at the interpolated gains.", "",
              "**Targets missed:** " + ("none" if not s["violations"] else ""), ""]
     lines += [f"- {v}" for v in s["violations"]]
