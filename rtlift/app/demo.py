@@ -231,21 +231,28 @@ class _Tap:
     """The link as a :class:`~rtlift.app.record.Recorder` sees it: ``asking()`` runs each time the
     host asks for a sample, ``got(sample)`` on each sample it gets (before the Recorder sees it)."""
 
-    def __init__(self, link: Any, got=None, asking=None) -> None:
+    def __init__(self, link: Any, got=None, asking=None, waiting=None) -> None:
         self._link = link
         self._got = got
         self._asking = asking
+        self._waiting = waiting
 
     def recv(self, timeout: float | None = None):
         if self._asking is not None:
             self._asking()
         s = self._link.recv(timeout)
+        while s is None and self._waiting is not None and self._waiting():
+            s = self._link.recv(timeout)
         if s is not None and self._got is not None:
             self._got(s)
         return s
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._link, name)
+
+
+PATIENCE_S = 60.0
+"""How long the host waits for one sample of a :class:`Lockstep` device before calling it silent (s)."""
 
 
 class Lockstep:
@@ -266,12 +273,25 @@ class Lockstep:
         self._got = 0
         self._handled = 0
         self._closed = False
+        self._asked_at = 0.0
         self.device: Any = None
 
     def link(self, link: Any) -> _Tap:
-        return _Tap(link, got=self._count, asking=self._asking)
+        """The host's side; a sample late by more than the host's timeout on a busy machine is
+        waited for while the device runs (up to :data:`PATIENCE_S`): its clock waits for the host
+        and never falls silent by itself, so silence is starvation, not a device gone."""
+        return _Tap(link, got=self._count, asking=self._asking, waiting=self._running)
+
+    def _running(self) -> bool:
+        d = self.device
+        if d.error is not None:
+            raise RuntimeError(f"demo: the simulated device failed: {d.error!r}")
+        if time.perf_counter() - self._asked_at > PATIENCE_S:
+            return False
+        return not d.finished.is_set() and not self._closed
 
     def _asking(self) -> None:
+        self._asked_at = time.perf_counter()
         with self._cond:
             self._handled = self._got
             self._cond.notify_all()
@@ -399,7 +419,8 @@ def _live(model_path: str, opt: DemoOptions, out: str, prog: _Progress) -> dict[
     idx, truth = stream.truth_array()
     lookup = np.full(int(idx.max()) + 1, np.nan)
     lookup[idx] = truth
-    return live_report(cols, lookup[seqs], counters, p50, p99, step_us, out)
+    settled = int(round((SETTLE_S + cal.tare_seconds + 1.0) * FS_HZ))   # off, then 1 s of the program
+    return live_report(cols, lookup[seqs], counters, p50, p99, step_us, out, settled)
 
 
 def tracking_reference(path: str) -> str:

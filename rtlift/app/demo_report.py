@@ -26,12 +26,12 @@ def tracking_figure(t: np.ndarray, ref: np.ndarray, traces: dict, rows: dict, pa
 
 
 def live_report(cols: np.ndarray, true: np.ndarray, counters: dict[str, int], p50: float | None,
-                 p99: float | None, step_us: np.ndarray, out: str) -> dict[str, Any]:
-    """RMSE of measurement, open-loop model and observer against the bench's truth; a figure."""
+                 p99: float | None, step_us: np.ndarray, out: str, skip: int) -> dict[str, Any]:
+    """RMSE of measurement, open-loop model and observer against the bench's truth from sample
+    ``skip`` on; a figure."""
     from rtlift.app.figures import observer_figure
     from rtlift.core.metrics import rmse
 
-    skip = 1200                   # settle and tare with the actuator off (3 s; no ΔCL for the first 2)
     ok = ~np.isnan(cols[:, 0])
     ok[:skip] = False
     meas, hat, model = cols[ok, 0], cols[ok, 1], cols[ok, 2]
@@ -133,7 +133,8 @@ def report_markdown(summary: dict[str, Any]) -> str:
     md += [f"![{name}](figures/validate_{name}.png)" for name in v]
     r = live["rmse_vs_truth"]
     md += ["", f"## 4. The Kalman observer live at 400 Hz ({live['seconds']:g} s)", "",
-           f"Scored from t = {live['scored_from_s']:g} s (after the tare and one second of settling).", "",
+           f"Scored from t = {live['scored_from_s']:g} s (the settle and the tare with the actuator off, then "
+           "one second of the program for the observer to settle).", "",
            "| | RMSE vs the bench's noise-free ΔCL |", "|---|---|",
            f"| raw measurement | {r['measurement']:.5f} |", f"| open-loop hybrid model | {r['open_loop_model']:.5f} |",
            f"| Kalman observer | {r['observer']:.5f} |", "",
