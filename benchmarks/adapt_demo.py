@@ -63,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="plant N of the family (hil_sim.family; give --model, identified on it)")
     ap.add_argument("--reference", default=REFERENCE)
     ap.add_argument("--adapt-structure", action="store_true", help="pass --adapt-structure to the --adapt runs")
+    ap.add_argument("--monitor", default=None, metavar="MODE",
+                    help="pass --monitor MODE to every run (e.g. 'calibrate OUT.json': a baseline run; or FILE)")
     ap.add_argument("--figure", default=str(FIGURE))
     ap.add_argument("--no-figure", action="store_true")
     ap.add_argument("--runs", default="fade_adapt,fade,clean",
@@ -78,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, (effects, adapt) in cases.items():
         extra = ("--log", str(work / f"{name}.bin")) + (("--adapt", str(work / f"{name}_adapt")) if adapt else ())
         extra += ("--adapt-structure",) if adapt and args.adapt_structure else ()
+        extra += ("--monitor", *args.monitor.split()) if args.monitor else ()
         extra += ("--accept-design-warnings",) if args.model != str(MODEL) else ()   # a drawn plant's model
         runs[name] = on_draw(BenchTracking(args.model, args.reference, True, args.seconds,
                                            str(work / f"{name}.json"), seed=args.seed, effects=effects, extra=extra),
