@@ -155,7 +155,9 @@ def test_full_disk_for_the_log(tmp_path, kind, record_property):
     s = json.loads(summary.read_text())
     assert code == 2 and not any("Traceback" in line for line in err), err
     assert err[-1] == f"rtlift: error: {log}: cannot write log (No space left on device); the run stopped"
-    assert s["end"] == "error" and s["received"] > 0 and s["samples_stepped"] == s["received"]
+    # how many came before the log's first failed write depends on load (none when the host's first
+    # read is larger than the file's buffer: seen on a loaded machine), so no count is asserted
+    assert s["end"] == "error" and s["samples_stepped"] == s["received"]
     assert len(read_estimates(out)) == s["received"] + s["samples_filled"] == s["estimates"]
     record_property("measured", f"exit {code}: '{err[-1].replace(str(tmp_path) + '/', '')}'; summary: received "
                                 f"{s['received']}, all stepped, {s['estimates']} estimate rows")
