@@ -1,6 +1,6 @@
 """The Wiener PEM on a real measured benchmark: Wiener–Hammerstein 2009 (nonlinearbenchmark.org).
 
-Data vendored in ``data/`` (official split: train [5200:105200], test after it,
+Data vendored in ``rtlift/data/benchmarks/`` (official split: train [5200:105200], test after it,
 state-initialisation window 50). A subsample keeps this test short.
 """
 

@@ -1,8 +1,8 @@
 """Generic single-input records and models (the measured benchmarks, a user's own rig).
 
 The model u → G₁ → f → G₂ → y streams and batches alike; its file round-trips; a record of the
-other kind is refused with one line; and on the measured WH2009 circuit (vendored in ``data/``)
-the residual of a Wiener model leads to the output block it lacks.
+other kind is refused with one line; and on the measured WH2009 circuit (vendored in
+``rtlift/data/benchmarks/``) the residual of a Wiener model leads to the output block it lacks.
 """
 
 from __future__ import annotations
