@@ -100,15 +100,14 @@ def test_an_ignored_command_feeds_the_watchdog_while_host_control_lasts():
     assert [e for _, _, e, _ in got[45:80]] == [8000 - 200 * j for j in range(35)]
 
 
-def test_after_a_trip_a_host_that_counts_from_one_again_takes_control():
-    """Issue 44: a host that restarted sends cmd_seq 1 after another's 52 tripped the watchdog.
-    Not newer than 52, but host control has ended: applied at once, bit5 cleared, the stale
-    cmd_seq no longer locks the device out (it was ignored, the trip latched)."""
+def test_an_ignored_command_does_not_end_the_ramp():
+    """PROTOCOL.md: a command not newer than the last applied one is ignored, after a trip too
+    (a new host continues the numbering from the echoed cmd_seq instead)."""
     ctl = _control()
-    got = _run(ctl, 120, {10: Command(52, 8000, watchdog_ms_div10=5), 100: Command(1, 3000), 101: Command(2, 2000)})
-    assert got[99] == (52, WD, 0, False)
-    assert got[100] == (1, HC, 3000, True) and got[101:] == [(2, HC, 2000, True)] * 19
-    assert ctl.stats.commands_ignored == 0 and ctl.stats.commands_applied == 3 and ctl.stats.watchdog_trips == 1
+    got = _run(ctl, 80, {10: Command(5, 8000, watchdog_ms_div10=5), 40: Command(5, 1000)})
+    assert ctl.stats.commands_ignored == 1
+    assert [e for _, _, e, _ in got[30:71]] == [8000 - 200 * j for j in range(41)]
+    assert all(s == WD for _, s, _, _ in got[30:])
 
 
 def test_a_new_session_is_the_power_on_state():

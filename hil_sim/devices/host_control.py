@@ -13,12 +13,11 @@ it is ``E * (R - j) // R`` at sample ``f + j`` (``R`` = the ramp in samples, int
 arithmetic), so exactly 0 at ``f + R``. The actuator stays enabled until then and is off
 afterwards, until the next applied command; a command applied during the ramp ends it and
 takes over at once like any command. A valid command that is not newer (ignored) feeds the
-watchdog and is otherwise ignored while host control lasts.
+watchdog but does not end the ramp or the watchdog state (PROTOCOL.md: a command not newer
+than the last applied one is ignored, after a trip too; a new host continues the numbering from
+the ``cmd_seq`` the samples echo, :class:`firmware_io.commands.CommandTracker`).
 
-Sessions. Host control ends when the watchdog fires: the host that commanded is gone, so the
-next valid command starts a new host's control whatever its ``cmd_seq`` (as firmware would: a
-host that restarted counts from 1 again, and a stale ``cmd_seq`` must not lock it out while the
-watchdog stays latched). A device that sees a host open its port (:meth:`HostControl.new_session`:
+Sessions. A device that sees a host open its port (:meth:`HostControl.new_session`:
 ``rtlift bench serve``'s serial DAQ on a hang-up of its pty, the SLCAN adapter on ``O``/``L``)
 also goes back to its power-on state: nothing applied (it streams version 1 until the next
 command, echoing no old ``cmd_seq``), actuator off at once, the default watchdog, the
@@ -161,8 +160,6 @@ class HostControl:
             return
         st.commands_valid += 1
         self._fed_at = index
-        if self.watchdog and self._pending is None:     # host control ended: a new host's, whatever its cmd_seq
-            self._last_seq = None
         if not is_newer(command.cmd_seq % self.modulus, self._last_seq, self.modulus):
             st.commands_ignored += 1
             return
