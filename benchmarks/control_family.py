@@ -69,13 +69,40 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int) -> dic
             "observer": design.observer, **res}
 
 
+def table(rows: list[dict]) -> str:
+    """The per-draw results as a markdown table, then their distribution (min / median / max)."""
+    import numpy as np
+
+    head = ("| draw | design | q_bias factor | PM min (deg) | predicted peak (dB) | 6 dB band measured / predicted / "
+            "limit (Hz) | suppression at 0.1 / 0.2 / 0.35 / 0.5 / 1 Hz (dB) | max amplification (dB) | fade ratio |")
+    out = [head, "|" + "---|" * 9]
+    for r in sorted(rows, key=lambda r: r["draw"]):
+        sup = {row["f_hz"]: row["suppression_db"] for row in r["rows"]}
+        refused = "refused: " + r["violations"][0].split(" at ")[0] if r["refused_by_control"] else "ok"
+        out.append(f"| {r['draw']} | {refused} | {(r.get('observer') or {}).get('factor', 1):g} | "
+                   f"{r['pm_deg_min']:.1f} | {r['peak_s_db_max']:+.2f} | {r['f6_hz_measured']:.3f} / "
+                   f"{r['f6_predicted_hz']:.3f} / {r['limit_f6_hz']:.3f} | "
+                   + " / ".join(f"{sup.get(f, float('nan')):+.1f}" for f in (0.1, 0.2, 0.35, 0.5, 1.0))
+                   + f" | {r['max_amplification_db']:+.2f} | {r['tracking_ratio']:.2f} |")
+    for key, name in (("f6_hz_measured", "6 dB band measured (Hz)"), ("limit_f6_hz", "limit (Hz)"),
+                      ("max_amplification_db", "max amplification (dB)"), ("tracking_ratio", "fade ratio")):
+        v = np.array([r[key] for r in rows], dtype=float)
+        out.append(f"\n{name}: min {v.min():.3f}, median {np.median(v):.3f}, max {v.max():.3f} (n = {v.size})")
+    return "\n".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--table", metavar="JSONL", nargs="+", help="print the markdown table of saved results and stop")
     ap.add_argument("--draws", default="100-104", help="draw numbers, A-B or A,B,C (default 100-104)")
     ap.add_argument("--out", default="control_family.jsonl", help="JSON lines, one per draw (appended)")
     ap.add_argument("--seed", type=int, default=11, help="the bench's noise seed of the measuring runs")
     ap.add_argument("--frequencies", default=",".join(f"{f:g}" for f in FREQUENCIES))
     args = ap.parse_args()
+    if args.table:
+        rows = [json.loads(line) for path in args.table for line in open(path, encoding="utf-8") if line.strip()]
+        print(table(rows))
+        return
     freqs = tuple(float(f) for f in args.frequencies.split(","))
     results = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -139,10 +139,16 @@ def main() -> None:
     ap.add_argument("--figure", metavar="PNG", help="Bode plot with the measured points, envelope traces")
     ap.add_argument("--peak-db", type=float, default=4.0, help="the design's |S| bound (dB, default 4)")
     ap.add_argument("--pty", metavar="F,F,...", help="also measure these frequencies live over the serial pty")
+    ap.add_argument("--design", metavar="REPORT.json", help="a saved design (rtlift design's report.json or the "
+                    "cache beside the model) instead of designing")
     args = ap.parse_args()
     model = load_model(args.model)
     t0 = time.perf_counter()
-    design = design_loop(model, Targets(peak_db=args.peak_db))
+    if args.design:
+        from rtlift.app.control_design import load_design
+        design = load_design(args.design, accept_warnings=True)
+    else:
+        design = design_loop(model, Targets(peak_db=args.peak_db))
     design_s = time.perf_counter() - t0
     fb_config = (ControlConfig(fs_hz=model.fs_hz) if args.hand
                  else ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule()))

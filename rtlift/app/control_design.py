@@ -111,6 +111,12 @@ BOUNDS = ((0.0, 4.0), (0.1, 2.0), (-0.9, 0.95), (0.0, 0.95), (-1.0, 3.0))
 for slow drifts (an actuator fade). The lag pole b stays on the positive axis: a pole near
 Z = −1 would amplify the estimate's noise at the burst rate's Nyquist frequency (4 Hz), an
 envelope alternating from one burst to the next."""
+PEAK_MARGIN_DB = 0.15
+"""The search holds the |S| peaks this far below the target at the scheduled points: the gains
+interpolated half-way between two of them gave 0.03–0.34 dB more on the bench model and plant
+draws 101 and 110 (the peak sits at 4 Hz, where the interpolated lead-lag and K_x do not add up to
+either neighbour's); a half-way point still over is designed and joins the schedule. 0.3 dB
+cost the bench model's predicted band 0.05 Hz (0.27–0.33 Hz)."""
 HAND_START = (0.5, 0.5, 0.0, 0.0, 0.0)
 """Where the search starts at the first operating point: the hand-set PI (K_p 0.5, T_i 0.25 s)."""
 NYQUIST_GAIN_MAX = 2.0
@@ -599,7 +605,7 @@ def _shortfall(m: Margins, targets: Targets, nyquist_gain: float) -> float:
     1° of phase margin weighs as 0.5 Hz of f₆, 1 dB of gain margin or |S| as 5 and 20 Hz."""
     return (5.0 * max(0.0, targets.gm_db + 0.2 - min(m.gm_db, m.gm_low_db))
             + 0.5 * max(0.0, targets.pm_deg + 0.5 - m.pm_deg)
-            + 20.0 * max(0.0, max(m.peak_s_db, m.peak_gust_db) - targets.peak_db + 0.05)
+            + 20.0 * max(0.0, max(m.peak_s_db, m.peak_gust_db) - targets.peak_db + PEAK_MARGIN_DB)
             + 20.0 * max(0.0, m.robust - 0.97) + max(0.0, nyquist_gain - NYQUIST_GAIN_MAX))
 
 
@@ -802,7 +808,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
 
 
-DESIGN_VERSION = 3
+DESIGN_VERSION = 5
 """Changes when the design computes something else: a cached design of another version is redone."""
 REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 
