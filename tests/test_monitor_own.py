@@ -116,11 +116,14 @@ def test_the_models_own_print_sets_its_thresholds(bench_model, bench_print):
     assert p["lift_range"] > 0.1
     assert p["hours"] > 0.2
     judged = [t for t, v in p["thresholds"].items() if v is not None]
-    assert {"bias", "level", "whiteness", "trend"} <= set(judged)
-    # a threshold is the persistent maximum on the model's own residual times the margin: above what
-    # the records held, and for the bench's model below the global constants set on two plants' worst
-    for t in ("bias", "trend"):
-        assert 0 < p["thresholds"][t] < THRESHOLDS[t]
+    assert {"bias", "level", "whiteness"} <= set(judged)
+    # a statistic judged fewer than MIN_JUDGED times keeps the global constant (trend: 30-block windows)
+    assert all(p["judged"][t] >= 600 for t in judged)
+    assert all(p["judged"][t] < 600 or p["persistent_max"][t] <= 0 for t in set(p["thresholds"]) - set(judged))
+    # a threshold is the persistent maximum on the model's own residual times the margin: for the
+    # bench's model below the global constant set on two plants' worst
+    assert p["thresholds"]["bias"] == pytest.approx(p["margin"] * p["persistent_max"]["bias"], rel=1e-5)
+    assert 0 < p["thresholds"]["bias"] < THRESHOLDS["bias"]
     model = bench_model.copy()
     model.fingerprint = {**bench_model.fingerprint, "monitor": p}
     mon = DepartureMonitor.for_model(model)

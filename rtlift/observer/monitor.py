@@ -47,7 +47,10 @@ each block it evaluates, over the last ``window`` blocks (``trend_window`` for t
 What no test judges: a block inside a transient — the run's start, a commanded step of the
 operating point (:meth:`DepartureMonitor.set_steps`: ``rtlift control`` tells it its reference's
 steps), a swap of the model — is left out of every window (all its sums zero), for the settling time
-:class:`Settle` derives from the model's own dynamics; ``line`` waits until its ring holds no such
+:class:`Settle` derives from the model's own dynamics, prolonged while a step's transient ends with
+the model's lift still moving from one block to the next by more than ``hold_band`` σ_fp (a loop
+that rings after a step: on the loaded machine, commands late by up to 0.6 s, the envelope swung
+for 3 s after a step, the residual's block mean up to 2.4 σ_fp); ``line`` waits until its ring holds no such
 sample, and a hold cannot span one. What the model's misfit does at each operating point: a model
 file identified since issue 46 carries g(m), its own mean residual against its lift
 (:mod:`rtlift.residual.monitor_print`), removed block by block (e_b − g(m_b)) before ``bias``,
@@ -340,6 +343,7 @@ class DepartureMonitor:
         self._hold_ref: tuple[float, float] | None = None
         self._hold = 0.0                # the hold statistic after the last block (signed, σ_hold)
         self._ok = np.zeros(self.trend_blocks, dtype=bool)   # a block outside every transient
+        self._prev_m = math.inf         # the last block's mean model lift
         # the start (or the swap) is a transient of the model's whole lift range
         self._quiet_from = self._sample + self.settle.samples(self.settle.start_size(self.scale), self.scale,
                                                               self.fs_hz)
@@ -386,7 +390,17 @@ class DepartureMonitor:
                 float(self._step_sizes[k]), self.scale, self.fs_hz))
             k += 1
         self._next_step = k
-        self._ok[self._nb % self.trend_blocks] = self._sample - self.block >= self._quiet_from
+        start = self._sample - self.block
+        if row[0] > 0:
+            m = row[3] / row[0]
+            moved = abs(m - self._prev_m) if math.isfinite(self._prev_m) else 0.0
+            if steps.size and start < self._quiet_from and moved > self.config.hold_band * self.scale:
+                # the loop's lift still moving at a commanded step's transient's end (a loop that
+                # rings, commands arriving late): the transient lasts until it has settled
+                self._quiet_from = max(self._quiet_from,
+                                       self._sample + self.settle.samples(moved, self.scale, self.fs_hz))
+            self._prev_m = m
+        self._ok[self._nb % self.trend_blocks] = start >= self._quiet_from
         self._acc = [0.0] * N_SUMS
         self._in_block = 0
         self._nb += 1
