@@ -78,7 +78,8 @@ def table(rows: list[dict]) -> str:
     out = [head, "|" + "---|" * 9]
     for r in sorted(rows, key=lambda r: r["draw"]):
         sup = {row["f_hz"]: row["suppression_db"] for row in r["rows"]}
-        refused = "refused: " + r["violations"][0].split(" at ")[0] if r["refused_by_control"] else "ok"
+        refused = ("refused: " + r["violations"][0].split(" at ")[0].replace("|", "")   # no | in a table cell
+                   if r["refused_by_control"] else "ok")
         out.append(f"| {r['draw']} | {refused} | {(r.get('observer') or {}).get('factor', 1):g} | "
                    f"{r['pm_deg_min']:.1f} | {r['peak_s_db_max']:+.2f} | {r['f6_hz_measured']:.3f} / "
                    f"{r['f6_predicted_hz']:.3f} / {r['limit_f6_hz']:.3f} | "
