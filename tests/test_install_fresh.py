@@ -1,7 +1,9 @@
 """The README's two set-up commands, in order, in a fresh virtual environment (issue 26).
 
 ``python3 -m pip install . && rtlift demo``, then ``python3 -m pip install -e '.[test]' &&
-python3 -m pytest``: the editable install uninstalls the first one. numba used to write its
+python3 -m pytest``: the editable install uninstalls the first one. The demo runs here, from the
+installed wheel with an empty compile cache as a new user runs it, and its report and numbers
+are checked (:func:`tests.test_demo_e2e.check_demo`; the suite's only demo run, ~3–4 min). numba used to write its
 compiled cache into ``site-packages/rtlift/*/__pycache__``; those files are not the wheel's, so
 the uninstall left them, and the orphan ``site-packages/rtlift/`` directory shadowed the
 editable package for every later command run outside the checkout (``No module named
@@ -22,10 +24,12 @@ from pathlib import Path
 
 import pytest
 
+from tests.test_demo_e2e import LIVE_SECONDS, check_demo
+
 REPO = Path(__file__).resolve().parents[1]
 MODEL = REPO / "tests" / "data" / "bench_model.json"
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.pty]   # the demo serves the bench on ptys
 
 
 def _copy_checkout(dest: Path) -> Path:
@@ -60,6 +64,11 @@ def test_the_readme_commands_in_order_then_a_model_command_from_another_director
     site = Path(run(py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])").strip())
 
     run(py, "-m", "pip", "install", "-q", ".", cwd=src)                            # README, first command
+    demo = elsewhere / "rtlift-demo"                                               # ... && rtlift demo
+    r = subprocess.run([str(rtlift), "demo", "--out", str(demo), "--live-seconds", str(LIVE_SECONDS), "--quiet"],
+                       cwd=elsewhere, env=env, capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, r.stderr[-2000:]
+    check_demo(demo, r.stdout, r.stderr)
     run(rtlift, "bench", "record", "sine_k025", "--seed", "3", "--out", record)
     first = run(rtlift, "validate", "--model", MODEL, record)
     installed = site / "rtlift"
