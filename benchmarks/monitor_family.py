@@ -4,7 +4,7 @@ For every plant draw N given (``--draws``; :mod:`hil_sim.family`: 1–49 calibra
 reporting): the standard campaign's static sweep, single burst and ``sine_k0125`` are recorded on
 plant N (``rtlift bench record --plant-draw N``), a model is identified on them
 (``rtlift identify``: its fingerprint carries the monitor's own print,
-:mod:`rtlift.residual.monitor_print`), and ``rtlift control``'s closed loop runs in this process
+:mod:`rtlift.observer.monitor_print`), and ``rtlift control``'s closed loop runs in this process
 (:func:`benchmarks.monitor_null.closed_loop`: the serial wire, the observer loop stepping the
 monitor, the designed controller, the monitor told the reference's steps) tracking steps every
 10 s for ``--seconds`` (120): once clean, once with an actuator fade to 70 % (on-time constant

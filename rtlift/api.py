@@ -100,8 +100,8 @@ def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any
     observer = {**idf.observer, **tune_observer(idf.model, [train])}   # Q, R from the data, for rtlift observe
     require_finite("observer tuning", train.name, observer=observer)
     idf.model.observer_config = observer
+    from rtlift.observer.monitor_print import monitor_print  # the live monitor's thresholds, from these records
     from rtlift.residual.fingerprint import FINGERPRINT_START_S
-    from rtlift.residual.monitor_print import monitor_print   # the live monitor's thresholds, from these records
 
     idf.model.fingerprint["monitor"] = monitor_print(idf.model, [train, static, single_burst],
                                                      int(round(FINGERPRINT_START_S * idf.model.fs_hz)))

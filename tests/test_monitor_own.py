@@ -21,7 +21,7 @@ from rtlift.core.errors import UserError
 from rtlift.core.rate import FS_HZ
 from rtlift.model.modelfile import load_model
 from rtlift.observer.monitor import THRESHOLDS, DepartureMonitor, Settle, monitor_arrays
-from rtlift.residual.monitor_print import monitor_print, operating_point_misfit
+from rtlift.observer.monitor_print import monitor_print, operating_point_misfit
 
 SIGMA = 0.01
 

@@ -53,7 +53,7 @@ that rings after a step: on the loaded machine, commands late by up to 0.6 s, th
 for 3 s after a step, the residual's block mean up to 2.4 σ_fp); ``line`` waits until its ring holds no such
 sample, and a hold cannot span one. What the model's misfit does at each operating point: a model
 file identified since issue 46 carries g(m), its own mean residual against its lift
-(:mod:`rtlift.residual.monitor_print`), removed block by block (e_b − g(m_b)) before ``bias``,
+(:mod:`rtlift.observer.monitor_print`), removed block by block (e_b − g(m_b)) before ``bias``,
 ``level``, ``gain``, ``trend`` and the suspect's regression, so a reference step does not move them
 by the misfit the model had at the new operating point all along.
 
@@ -62,7 +62,7 @@ evaluations; the same test is not raised again until it has been back under its 
 a whole window. The thresholds come, in this order, from a baseline run of the real loop
 (``--monitor FILE``, written by ``--monitor calibrate FILE``), from the model file's own print (the
 null distribution of every statistic on the model's own identification records,
-:mod:`rtlift.residual.monitor_print`), else — an older model file, said in one line — the global
+:mod:`rtlift.observer.monitor_print`), else — an older model file, said in one line — the global
 constants :data:`THRESHOLDS`, set from clean runs of our bench and the independent plant only
 (``benchmarks/monitor_null.py --calibrate``: the largest value each statistic held for
 ``persist`` consecutive evaluations over the calibration seeds' clean streams, times
