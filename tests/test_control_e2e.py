@@ -17,6 +17,7 @@ from hil_sim.devices import SerialDaq, SlcanAdapter
 from hil_sim.hil import HilStream
 from rtlift.app.cli import main
 from rtlift.core.rate import FS_HZ
+from testkit.lines import line_with
 
 pytestmark = pytest.mark.pty
 
@@ -166,8 +167,7 @@ def test_an_unplug_with_reconnect_does_not_end_the_run_and_the_view_serves_it(tm
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             assert "link open" in proc.stderr.readline()
-            view_line = proc.stderr.readline()
-            assert "live view on" in view_line, view_line
+            view_line = line_with(proc.stderr, "live view on")
             url = view_line.split("live view on", 1)[1].strip()
             dev.start()
             with urllib.request.urlopen(url, timeout=10) as page:

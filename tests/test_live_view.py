@@ -26,6 +26,7 @@ from rtlift.app.view import LiveView
 from rtlift.app.view.browser import HEADLESS_FLAGS, find_chromium
 from rtlift.app.view.server import COUNTER_KEYS
 from rtlift.core.errors import UserError
+from testkit.lines import line_with
 
 REPO = Path(__file__).resolve().parents[1]
 FIGURE = REPO / "docs" / "figures" / "live_view.png"
@@ -107,8 +108,7 @@ def watched(browser, model_file, tmp_path_factory) -> Watched:
             line = proc.stderr.readline()
             assert "link open" in line, line + proc.stderr.read()
             dev.start()
-            line = proc.stderr.readline()
-            assert "live view on http://127.0.0.1:" in line, line + proc.stderr.read()
+            line = line_with(proc.stderr, "live view on http://127.0.0.1:")
             page = open_page(browser, line.split()[-1])
             received_above(page, 400)
             plots1, counters1 = page.locator("#plots").screenshot(), shown_counters(page)
@@ -175,8 +175,7 @@ def test_a_realtime_replay_shows_on_the_page_and_ends_on_its_summary(watched, br
          "--json", str(tmp_path / "replay.json"), "--view", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        line = proc.stderr.readline()
-        assert "live view on http://127.0.0.1:" in line, line + proc.stderr.read()
+        line = line_with(proc.stderr, "live view on http://127.0.0.1:")
         page = open_page(browser, line.split()[-1])
         received_above(page, 400)
         _, err = proc.communicate(timeout=60)
