@@ -28,6 +28,11 @@ What the diagnosis calls ``structure`` (the model lacked it at identification: i
 not depart from the fingerprint) is not a change of the plant: unless the user asked
 (``--adapt-structure``), a window whose accepted entries include one is not swapped in; it is a
 finding, reported in one line, in the events file and in the summary (``finding``, ``reason``).
+One exception: the departure's own suspect. The monitor raised it against the model's own null
+in time (quiet before, departed now), which is the evidence of a change the window's diagnosis
+cannot give on its own: a live window is a record type the fingerprint never saw (it is compared
+with the static sweep's residual), so a fade that set in mid-run can read "within the
+fingerprint" there. What the monitor suspected and the diagnosis accepted is swapped in.
 
 One diagnosis at a time; departures while one runs are logged, not acted on. The window must
 still be in the ring when the swap comes (``ring_s``): a diagnosis that takes longer is
@@ -233,7 +238,8 @@ class Adapter:
                 event["reason"] = "nothing accepted"
                 self._finish(event)
                 return
-            structure = [e["name"] for e in acc if e.get("kind") == "structure"]
+            suspect = (event.get("departure") or {}).get("suspect")
+            structure = [e["name"] for e in acc if e.get("kind") == "structure" and e["name"] != suspect]
             if structure and not self.structure:
                 event["finding"] = structure
                 event["reason"] = (f"structure: {', '.join(structure)} (a deficiency the model had since "
