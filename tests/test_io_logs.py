@@ -27,16 +27,22 @@ def fields(s):
     return (s.seq, s.t_us, s.volt_cv, s.envelope_cv, s.ft, s.status)
 
 
-def live_then_replay(dev, config, log):
+def live_then_replay(dev, config, log, within_s=60.0):
+    """Stream until the device finished, then read the log back. A device that never finishes
+    fails the test after ``within_s`` (seen once under heavy load: the loop spun on a link that
+    returned nothing while the device waited), never hangs the suite."""
     with dev, open_link({**config, "log": str(log)}) as link:
         dev.start()
         live = []
+        give_up = time.monotonic() + within_s
         while True:
             s = link.recv(0.5)
             if s is None and dev.finished.is_set():
                 break
             if s is not None:
                 live.append(s)
+            assert time.monotonic() < give_up, (f"device not finished after {within_s} s: "
+                                                f"{len(live)} samples, {link.counters.as_dict()}, {dev.stats}")
         live_counters = link.counters.as_dict()
     replay = read_log(log)
     return live, live_counters, list(replay), replay.counters.as_dict()
