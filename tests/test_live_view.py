@@ -201,7 +201,7 @@ def test_sigterm_with_a_page_open_ends_the_run_the_page_and_the_server(browser, 
         try:
             assert "link open" in proc.stderr.readline()
             dev.start()
-            url = proc.stderr.readline().split()[-1]
+            url = line_with(proc.stderr, "live view on").split()[-1]
             page = open_page(browser, url)
             received_above(page, 400)
             proc.send_signal(signal.SIGTERM)
