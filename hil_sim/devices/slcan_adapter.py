@@ -17,8 +17,9 @@ the DAQ's command; an invalid one (DLC ≠ 8, bad hex, ``cmd_seq`` 0) is counted
 applied command and envelope are exposed in :attr:`SlcanAdapter.control` (the plant hook).
 The DAQ is paused while the channel is closed (its watchdog too), so each open of the channel
 starts a host's session from the command side's power-on state
-(:meth:`.host_control.HostControl.new_session`, ``stats.sessions``), with what the last host
-left unread dropped.
+(:meth:`.host_control.HostControl.new_session`, ``stats.sessions``). (Dropping what the last host
+left unread with a ``tcflush`` of the slave at ``O`` also dropped the new host's first frames:
+tests/test_faults_commands.py received none; a new host skips stale echoes by their ``cmd_seq``.)
 
 Faults per frame (see :mod:`.faults`): drop, duplicate, corrupt (the frame arrives
 truncated to 4 data bytes, which the host counts as invalid), garbage (a junk line before
@@ -30,7 +31,6 @@ the DAQ truncated to 4 data bytes: DLC ≠ 8, a ``cmd_errors``), or late.
 
 from __future__ import annotations
 
-import termios
 from collections.abc import Iterable
 
 from firmware_io.can_codec import CMD_ID, DLC, decode_command_frame, encode_sample_frames, load_dbc
@@ -99,7 +99,6 @@ class SlcanAdapter(PtyDevice):
             if not self.is_open:        # a host's session: the DAQ's command side from its power-on state
                 self.stats.sessions += 1
                 self.control.new_session()
-                self._flush_to_host()
                 self.is_open = True
                 self.listen_only = cmd == "L"
                 reply = OK
@@ -127,13 +126,6 @@ class SlcanAdapter(PtyDevice):
                     self._cmd_frame(cmd)
                 reply = b"Z\r" if head.isupper() else b"z\r"
         self.write(reply)
-
-    def _flush_to_host(self) -> None:
-        """What the last host left unread (frames after its ``C``) is dropped, as closing a tty
-        drops its input: the new host reads nothing of the last session."""
-        with self._fd_lock:
-            if self._slave is not None:
-                termios.tcflush(self._slave, termios.TCIFLUSH)
 
     def _cmd_frame(self, cmd: str) -> None:
         """``t100Ldd…``: the host's command to the DAQ behind the adapter, through the command faults."""
