@@ -11,6 +11,15 @@ monitor, the designed controller, the monitor told the reference's steps) tracki
 2 s) from t = 20 s of tracking. Not paced: a 120 s loop takes seconds (the design, once per draw,
 about a minute).
 
+``--clean-seeds K`` runs K clean loops per draw (seeds 5000 + N, then 15000 + N, 25000 + N, ...);
+``--adapt`` attaches ``--adapt``'s :class:`~rtlift.app.adapt.Adapter` to every loop (the window
+diagnosed by ``rtlift diagnose`` in another process, niced, the augmented model swapped in at a
+burst onset; a ``structure`` is reported, not swapped, as by default): while a window is being
+diagnosed the loop runs at the device's rate (:class:`PacedAdapter`), so the diagnosis takes as
+much of the loop's time as it would live, and the swap's time is a live run's. ``--out FILE``
+appends each draw's line to FILE and skips the draws already there (a run stopped and resumed);
+the totals are over every line in it.
+
 Per draw one JSON line: the model's thresholds and where they came from; per run the departures
 (time on the monitor's clock, test, statistic, suspect), every evaluation's statistics (so other
 thresholds can be judged on the same runs: :func:`departures_at`), the tracking RMSE on the
@@ -34,6 +43,7 @@ import numpy as np
 
 from benchmarks._common import run_cli
 from benchmarks.monitor_null import closed_loop
+from rtlift.app.adapt import Adapter
 from rtlift.model.modelfile import load_model
 from rtlift.observer.monitor import TESTS
 
@@ -72,22 +82,71 @@ def departures_at(history: list[dict], thresholds: dict, persist: int = 2, t0_s:
     return [{"t_s": d["t_s"], "test": d["test"]} for d in out]
 
 
-def one_run(model, draw: int, seed: int, seconds: float, effects: tuple[str, ...]) -> dict:
+class PacedAdapter(Adapter):
+    """``--adapt``'s adapter in a loop that is not paced: while a window is being diagnosed
+    (``busy``, until the swap or the diagnosis's end) the loop's samples are held to the
+    device's rate, 1 / f_s each, so the diagnosis in the other process takes as many of the loop's
+    seconds as its wall time, as it would live."""
+
+    _paced_from: tuple[int, float] | None = None
+
+    def after_step(self, index: int, cmu: float, env: float, dcl: float | None) -> None:
+        super().after_step(index, cmu, env, dcl)
+        if not self.busy:
+            self._paced_from = None
+            return
+        now = time.perf_counter()
+        if self._paced_from is None:
+            self._paced_from = (index, now)
+            return
+        due = self._paced_from[1] + (index - self._paced_from[0]) / self.fs_hz
+        if due > now:
+            time.sleep(due - now)
+
+
+ADAPT_KEYS = ("event", "n", "t_s", "swapped", "accepted", "kinds", "finding", "reason", "rmse_before", "rmse_after")
+
+
+def one_run(model, draw: int, seed: int, seconds: float, effects: tuple[str, ...],
+            adapt_dir: Path | None = None, model_path: Path | None = None) -> dict:
     from rtlift.app.hil_tracking import lowpass, reference_values
 
     runs: list = []
+    adapters: list[PacedAdapter] = []
+
+    def attach(loop, closed) -> None:
+        a = PacedAdapter(loop, str(model_path), adapt_dir, closed=closed, fs_hz=model.fs_hz)
+        loop.adapter = a
+        loop.monitor.on_departure = a.on_departure
+        adapters.append(a)
+
     t0 = time.perf_counter()
     mon = closed_loop(model, seed, seconds, effects, reference=REFERENCE, history=True, plant_draw=draw,
-                      tracking=runs)
+                      tracking=runs, on_loop=attach if adapt_dir is not None else None)
     t, truth, _ = runs[0].traces()
     err = lowpass(truth) - lowpass(reference_values(REFERENCE, len(truth)))
-    return {"seed": seed, "seconds": seconds, "wall_s": time.perf_counter() - t0,
-            "departures": [{k: d[k] for k in ("t_s", "test", "statistic", "threshold", "suspect")}
-                           for d in mon.departures],
-            "max": {k: max((h[k] for h in mon.history), default=0.0) for k in TESTS},
-            "history": [{k: round(float(h[k]), 5) for k in TESTS} for h in mon.history],
-            "rmse_last40": float(np.sqrt(np.mean(err[t >= seconds - 40.0] ** 2))),
-            "monitor": mon.summary()}
+    out = {"seed": seed, "seconds": seconds, "wall_s": time.perf_counter() - t0,
+           "departures": [{k: d[k] for k in ("t_s", "test", "statistic", "threshold", "suspect")}
+                          for d in mon.departures],
+           "max": {k: max((h[k] for h in mon.history), default=0.0) for k in TESTS},
+           "history": [{k: round(float(h[k]), 5) for k in TESTS} for h in mon.history],
+           "rmse_last40": float(np.sqrt(np.mean(err[t >= seconds - 40.0] ** 2))),
+           "monitor": mon.summary()}
+    if adapters:
+        a = adapters[0]
+        out["diagnosis_in_flight_at_end"] = a.busy
+        a.close(120.0)
+        out["adaptations"] = [{k: e[k] for k in ADAPT_KEYS if k in e}
+                              | {"departure_t_s": (e.get("departure") or {}).get("t_s")} for e in a.adaptations]
+    return out
+
+
+def parse_draws(spec: str) -> list[int]:
+    draws = []
+    for part in spec.split(","):
+        a, _, b = part.partition("-")
+        draws += list(range(int(a), int(b or a) + 1))
+    return draws
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -96,14 +155,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=120.0)
     ap.add_argument("--work", default=None, help="keep each draw's records and model here")
     ap.add_argument("--no-fade", action="store_true")
+    ap.add_argument("--clean-seeds", type=int, default=1, help="clean runs per draw (default 1)")
+    ap.add_argument("--adapt", action="store_true", help="--adapt on every run (the swap measured)")
+    ap.add_argument("--out", default=None, help="append each draw's line here; skip the draws already there")
     args = ap.parse_args(argv)
-    draws = []
-    for part in args.draws.split(","):
-        a, _, b = part.partition("-")
-        draws += list(range(int(a), int(b or a) + 1))
     work = Path(args.work or tempfile.mkdtemp(prefix="rtlift-family-"))
     rows = []
-    for draw in draws:
+    if args.out and Path(args.out).exists():
+        rows = [json.loads(line) for line in Path(args.out).read_text().splitlines() if line.strip()]
+        rows = [r for r in rows if "draw" in r and "error" not in r]
+    done = {r["draw"] for r in rows}
+    for draw in parse_draws(args.draws):
+        if draw in done:
+            continue
         d = work / f"draw{draw}"
         d.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
@@ -112,47 +176,83 @@ def main(argv: list[str] | None = None) -> int:
             if not path.exists():
                 path = identify(draw, d)
             model = load_model(path)
+
+            def run(seed: int, effects: tuple[str, ...], name: str, d=d, model=model, draw=draw,
+                    path=path) -> dict:
+                adapt = d / f"adapt_{name}_{seed}" if args.adapt else None
+                return one_run(model, draw, seed, args.seconds, effects, adapt, path)
+
             row = {"draw": draw, "model": str(path),
                    "print": {k: v for k, v in ((model.fingerprint or {}).get("monitor") or {}).items()
                              if k not in ("operating_point",)},
-                   "clean": one_run(model, draw, 5000 + draw, args.seconds, ())}
+                   "clean": [run(5000 + draw + 10000 * j, (), "clean") for j in range(args.clean_seeds)]}
             if not args.no_fade:
-                row["fade"] = one_run(model, draw, 6000 + draw, args.seconds, (FADE,))
+                row["fade"] = run(6000 + draw, (FADE,), "fade")
         except Exception as exc:  # noqa: BLE001 - a failed draw is listed, the others go on
             row = {"draw": draw, "error": f"{type(exc).__name__}: {exc}", "trace": traceback.format_exc()[-2000:]}
         row["wall_s"] = time.perf_counter() - t0
         rows.append(row)
-        print(json.dumps(row), flush=True)
+        line = json.dumps(row)
+        print(line, flush=True)
+        if args.out:
+            with open(args.out, "a", encoding="utf-8") as f:
+                f.write(line + "\n")
     print(json.dumps(totals(rows)), flush=True)
     return 0
 
 
+def clean_runs(row: dict) -> list[dict]:
+    """A draw's clean runs (one dict in lines written before ``--clean-seeds``)."""
+    c = row.get("clean") or []
+    return [c] if isinstance(c, dict) else list(c)
+
+
 def totals(rows: list[dict]) -> dict:
-    """False departures over the clean runs (rate, 95 % Poisson bound) and the fades' first names."""
+    """False departures over the clean runs (rate, 95 % Poisson bound), what their window
+    diagnoses accepted and swapped, and the fades' first names and swaps."""
     ok = [r for r in rows if "clean" in r]
-    n = sum(len(r["clean"]["departures"]) for r in ok)
-    hours = sum(r["clean"]["seconds"] for r in ok) / 3600.0
+    cleans = [c for r in ok for c in clean_runs(r)]
+    n = sum(len(c["departures"]) for c in cleans)
+    hours = sum(c["seconds"] for c in cleans) / 3600.0
+    diag = [a for c in cleans for a in c.get("adaptations", [])]
     onset = ONSET_TRACKING_S + MONITOR_LEAD_S
     fades = []
     for r in ok:
         if "fade" not in r:
             continue
-        deps = r["fade"]["departures"]
+        run = r["fade"]
+        deps = run["departures"]
         before = [d for d in deps if d["t_s"] <= onset]
         after = [d for d in deps if d["t_s"] > onset]
         first = after[0] if after else None
+        within = [d for d in after if d["t_s"] <= onset + 10.0]
+        swaps = [a for a in run.get("adaptations", []) if a.get("swapped")]
         fades.append({"draw": r["draw"], "before_onset": len(before),
                       "delay_s": None if first is None else first["t_s"] - onset,
                       "test": None if first is None else first["test"],
                       "suspect": None if first is None else first["suspect"],
-                      "rmse_last40_ratio": r["fade"]["rmse_last40"] / r["clean"]["rmse_last40"]})
+                      "suspects_within_10s": sorted({d["suspect"] for d in within}),
+                      "diagnoses": len(run.get("adaptations", [])),
+                      "swap_s": swaps[0]["t_s"] - onset if swaps else None,
+                      "swap_accepted": swaps[0].get("accepted") if swaps else None,
+                      "rmse_last40_ratio": run["rmse_last40"] / clean_runs(r)[0]["rmse_last40"]})
     named = [f for f in fades if f["suspect"] == "actuator_fade" and f["delay_s"] is not None
              and f["delay_s"] <= 10.0 and f["before_onset"] == 0]
+    alone = [f for f in named if f["suspects_within_10s"] == ["actuator_fade"]]
+    swapped60 = [f for f in fades if f["swap_s"] is not None and f["swap_s"] <= 60.0
+                 and "actuator_fade" in (f["swap_accepted"] or [])]
     return {"benchmark": "monitor_family", "draws": [r["draw"] for r in ok],
-            "failed": [r["draw"] for r in rows if "error" in r], "clean_hours": hours,
+            "failed": [r["draw"] for r in rows if "error" in r], "clean_runs": len(cleans), "clean_hours": hours,
             "false_departures": n, "per_hour": n / hours if hours else None,
             "per_hour_95_upper": poisson_upper(n) / hours if hours else None,
-            "fades": fades, "fade_named_within_10s": len(named), "fade_runs": len(fades)}
+            "clean_diagnoses": len(diag),
+            "clean_effects_accepted": sum(1 for a in diag
+                                          for k in (a.get("kinds") or {}).values() if k != "structure"),
+            "clean_structure_found": sum(1 for a in diag for k in (a.get("kinds") or {}).values() if k == "structure"),
+            "clean_swaps": sum(1 for a in diag if a.get("swapped")),
+            "fades": fades, "fade_named_within_10s": len(named), "fade_named_alone_within_10s": len(alone),
+            "fade_swapped_within_60s": len(swapped60),
+            "fade_ratio_le_1p3": sum(1 for f in fades if f["rmse_last40_ratio"] <= 1.3), "fade_runs": len(fades)}
 
 
 def poisson_upper(n: int, level: float = 0.95) -> float:

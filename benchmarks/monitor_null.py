@@ -79,12 +79,13 @@ _CONFIGS: dict[int, object] = {}
 
 def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (), reference: str = REFERENCE,
                 thresholds: dict | None = None, history: bool = False, plant_draw: int = 0,
-                tracking: list | None = None) -> DepartureMonitor:
+                tracking: list | None = None, on_loop=None) -> DepartureMonitor:
     """``rtlift control``'s closed loop on the bench (plant ``plant_draw`` of the family) in this
     process (:class:`rtlift.app.hil_tracking.InProcessTracking`: the serial wire, the converter, the
     observer loop, the controller with the gains ``rtlift control`` designs by default), the monitor
     stepped by the observer loop and told the reference's steps as ``--monitor`` is; the steps
-    repeat every 120 s. ``tracking``, a list, receives the run (its ``traces()``)."""
+    repeat every 120 s. ``tracking``, a list, receives the run (its ``traces()``); ``on_loop`` is
+    called with the observer loop and the control loop before it runs (an ``--adapt`` adapter)."""
     from firmware_io.calibration import Calibration
     from hil_sim.hil import HilStream
     from rtlift.app.commands.control import control_config
@@ -100,7 +101,8 @@ def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (),
     tare = max(1, int(round(Calibration().tare_seconds * model.fs_hz)))     # as ControlLoop counts it
     mon.set_steps(*reference_steps(parse_reference(spec), tare, model.fs_hz))
     ctl = LiftController(model, _CONFIGS[id(model)])
-    run = InProcessTracking(model, ctl, spec, seconds, seed=seed, effects=tuple(effects), monitor=mon)
+    run = InProcessTracking(model, ctl, spec, seconds, seed=seed, effects=tuple(effects), monitor=mon,
+                            on_loop=on_loop)
     if plant_draw:
         run.stream = HilStream("random", seed=seed, effects=list(effects), plant_draw=plant_draw)
     run.run()

@@ -230,11 +230,12 @@ class InProcessTracking:
 
     def __init__(self, model: Any, controller: Any, reference: str, seconds: float, *, seed: int = 11,
                  effects: tuple[str, ...] = (FADE,), gust: str | None = None,
-                 experiment: str = "random", monitor: Any = None) -> None:
+                 experiment: str = "random", monitor: Any = None, on_loop: Any = None) -> None:
         from hil_sim.gust import parse_gust
         from hil_sim.hil import HilStream
 
         self.monitor = monitor   # a DepartureMonitor stepped by the observer loop, as --monitor does
+        self.on_loop = on_loop   # called with (ObserverLoop, ControlLoop) before the run (an --adapt Adapter)
         self.model = model
         self.controller = controller
         self.reference = reference
@@ -271,6 +272,8 @@ class InProcessTracking:
         loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs, monitor=self.monitor)
         closed = ControlLoop(link, loop, self.controller, parse_reference(self.reference), calibration, fs,
                              int(round(self.seconds * fs)))
+        if self.on_loop is not None:
+            self.on_loop(loop, closed)
         period_us = int(round(1e6 / fs))
         for index, (volt_cv, envelope_cv, status, counts) in enumerate(wire_samples(self.stream, serial_wire)):
             cmd_seq, status, envelope_cv = control.step(index, status, envelope_cv)
