@@ -6,10 +6,14 @@ clean campaign on plant N (``rtlift bench record --plant-draw N``: static, singl
 sine_k0125), identify the model from it (``rtlift identify``, the paper's hybrid), design the loop
 (:func:`rtlift.app.control_design.design_loop`: its margins, the targets it misses, the limit any
 causal controller reaches), then measure on plant N in process (:func:`benchmarks.gust_rejection.
-measure`: gust suppression per frequency beside the prediction, step tracking under a 70 % fade,
+measure`: gust suppression per frequency beside the prediction at the checked point nearest ΔCL
+0.08 — a half-way check with the interpolated gains the controller runs there, or a scheduled
+one —, step tracking under a 70 % fade,
 the envelope at a constant reference). Whatever the design says, the loop is measured (a design
 ``rtlift control`` would refuse is marked so). One JSON object per draw is appended to ``--out``
 as it finishes (a long run keeps what it did); the last line printed is one JSON line of all.
+``--keep DIR`` keeps each draw's model (and reuses it: a re-run after a change of the design skips
+the recording and the identification).
 """
 
 from __future__ import annotations
@@ -38,24 +42,26 @@ def draws(text: str) -> list[int]:
     return out
 
 
-def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int) -> dict:
+def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
+             targets: object = None) -> dict:
     from rtlift.app.control import ControlConfig
     from rtlift.app.control_design import design_loop
     from rtlift.model.modelfile import load_model
 
     t0 = time.perf_counter()
-    files = {}
-    for exp in CAMPAIGN:
-        files[exp] = os.path.join(tmp, f"{n}_{exp}.csv")
-        run_cli("bench", "record", "--plant-draw", n, "--out", files[exp], exp)
-    path = os.path.join(tmp, f"{n}_model.json")
-    run_cli("identify", "--static", files["static"], "--single-burst", files["single_burst"], "--train",
-            files["sine_k0125"], "-o", path, "--quiet")
+    path = os.path.join(keep or tmp, f"{n}_model.json")
+    if not (keep and os.path.exists(path)):
+        files = {}
+        for exp in CAMPAIGN:
+            files[exp] = os.path.join(tmp, f"{n}_{exp}.csv")
+            run_cli("bench", "record", "--plant-draw", n, "--out", files[exp], exp)
+        run_cli("identify", "--static", files["static"], "--single-burst", files["single_burst"], "--train",
+                files["sine_k0125"], "-o", path, "--quiet")
     t1 = time.perf_counter()
     model = load_model(path)
-    design = design_loop(model)
+    design = design_loop(model, targets)
     t2 = time.perf_counter()
-    point = design.nearest(0.08)
+    point = min(design.points, key=lambda pt: abs(pt.dcl - 0.08))   # a half-way check too: the gains run there
     config = ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule())
     res = measure(design.control_model(model), config, point, design.dt, seed=seed, plant_draw=n,
                   frequencies=frequencies)
@@ -66,7 +72,9 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int) -> dic
             "pm_deg_min": s["pm_deg_min"], "gm_db_min": s["gm_db_min"], "peak_s_db_max": s["peak_s_db_max"],
             "robust_max": s["robust_max"], "f6_predicted_hz": point.f6_hz, "limit_f6_hz": point.limit_f6_hz,
             "limit_f6_hz_min": s["limit_f6_hz_min"], "predicted_peak_db_at_0p08": point.peak_s_db,
-            "observer": design.observer, **res}
+            "predicted_point_dcl": point.dcl, "predicted_point_scheduled": point.designed,
+            "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
+            "observer": design.observer, "peak_db_target": design.targets.peak_db, **res}
 
 
 def table(rows: list[dict]) -> str:
@@ -98,17 +106,23 @@ def main() -> None:
     ap.add_argument("--draws", default="100-104", help="draw numbers, A-B or A,B,C (default 100-104)")
     ap.add_argument("--out", default="control_family.jsonl", help="JSON lines, one per draw (appended)")
     ap.add_argument("--seed", type=int, default=11, help="the bench's noise seed of the measuring runs")
+    ap.add_argument("--keep", metavar="DIR", help="keep each draw's identified model there (DIR/N_model.json) and "
+                    "reuse one found there instead of recording and identifying again")
+    ap.add_argument("--peak-db", type=float, help="the design's |S| target (dB; default: the design's own)")
     ap.add_argument("--frequencies", default=",".join(f"{f:g}" for f in FREQUENCIES))
     args = ap.parse_args()
     if args.table:
         rows = [json.loads(line) for path in args.table for line in open(path, encoding="utf-8") if line.strip()]
         print(table(rows))
         return
+    from rtlift.app.control_design import Targets
+
     freqs = tuple(float(f) for f in args.frequencies.split(","))
     results = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in draws(args.draws):
-            r = one_draw(n, tmp, freqs, args.seed)
+            r = one_draw(n, tmp, freqs, args.seed, args.keep,
+                         None if args.peak_db is None else Targets(peak_db=args.peak_db))
             results.append(r)
             with open(args.out, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(r) + "\n")

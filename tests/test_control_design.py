@@ -321,3 +321,18 @@ def test_a_bad_design_file_is_one_line_and_exit_2(tmp_path, capsys, text):
                  "--design", str(bad)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "--design" in err[0]
+
+
+def test_a_saved_design_is_checked_again_without_importing_python_control():
+    """A cached start re-checks the saved design (every margin, the poles from the characteristic
+    polynomial) without python-control: its import (matplotlib with it) was 2.9 of the 3.4 s that
+    re-check took (docs/results/control.md, "A fast start")."""
+    import subprocess
+    import sys
+
+    saved = next(MODEL.parent.glob("bench_model.design-*.json"))
+    code = ("import sys, time; from rtlift.app.control_design import load_design; t = time.perf_counter(); "
+            f"d = load_design({str(saved)!r}); print(len(d.points), 'control' in sys.modules, "
+            "all(p.stable for p in d.points), time.perf_counter() - t)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out[:3] == [str(len(json.loads(saved.read_text())["points"])), "False", "True"]

@@ -475,7 +475,8 @@ class Design:
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> Design:
         """The design of a saved report, every margin computed again from its lifted plants and gains
-        (a report's own numbers are not trusted); older reports without the observer's response or
+        (a report's own numbers are not trusted; the poles from the characteristic polynomial,
+        :func:`check_point` without python-control's cross-check); older reports without the observer's response or
         the uncertainty get F_o = 1 and the default weight."""
         dt = float(doc["dt_s"])
         targets = Targets(**{k: float(v) for k, v in doc.get("targets", {}).items()})
@@ -485,7 +486,8 @@ class Design:
                               Gains(**{k: float(v) for k, v in p["gains"].items()}), dt,
                               np.asarray(p.get("observer") or [], float), float(p.get("fs_hz") or 400.0), unc,
                               designed=bool(p.get("designed", True)), limit=p.get("limit_f6_hz"),
-                              tail=float(p.get("observer_tail") or 0.0), period=int(p.get("observer_period") or 0))
+                              tail=float(p.get("observer_tail") or 0.0), period=int(p.get("observer_period") or 0),
+                              cross_check=False)
                   for p in doc["points"]]
         return cls(points, dt, int(doc.get("period_samples", BURST_PERIOD_SAMPLES)),
                    int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc, doc.get("observer"))
@@ -641,18 +643,24 @@ def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed
 
 def check_point(cmu: float, dcl: float, p: np.ndarray, q: np.ndarray, g: Gains, dt: float,
                 h_o: np.ndarray, fs_hz: float, unc: Uncertainty, *, designed: bool = True,
-                limit: float | None = None, tail: float = 0.0, period: int = 0) -> PointDesign:
+                limit: float | None = None, tail: float = 0.0, period: int = 0,
+                cross_check: bool = True) -> PointDesign:
     """Every margin on the dense :func:`analysis_grid` (:func:`loop_margins`); closed-loop poles from
-    the characteristic polynomial and from python-control (both must say stable)."""
-    import control as ct
-
+    the characteristic polynomial and, with ``cross_check``, from python-control too (both must say
+    stable). A saved design is re-checked without it (:meth:`Design.from_dict`): the cross-check ran
+    when it was designed, and importing python-control (matplotlib with it) was 2.9 of the 3.4 s a
+    cached ``rtlift control`` start spent re-checking its design (docs/results/control.md)."""
     f = analysis_grid(dt)
     L = g.loop_response(np.exp(2j * np.pi * f * dt), p, q)
     fo = observer_response(h_o, fs_hz, f, tail, period)
     m = loop_margins(f, L, 1.0 - fo * L / (1.0 + L), unc.weight(f))
-    with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
-        warnings.simplefilter("ignore", RuntimeWarning)   # L at z = 1 (the integrator): no stderr line
-        stable = bool(np.all(np.abs(ct.feedback(loop_tf(g, p, q, dt), 1).poles()) < 1.0)) and _stable(g, p, q)
+    stable = _stable(g, p, q)
+    if cross_check:
+        import control as ct
+
+        with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)   # L at z = 1 (the integrator): no stderr line
+            stable = bool(np.all(np.abs(ct.feedback(loop_tf(g, p, q, dt), 1).poles()) < 1.0)) and stable
     return PointDesign(cmu, dcl, [float(v) for v in p], [float(v) for v in q], g, [float(v) for v in h_o],
                        fs_hz, m, stable, designed, limit, tail, period)
 
@@ -741,9 +749,17 @@ def control_q_bias(model: Any, controller: LiftController, dcl0: float, *,
     return q0 * k, k, gap
 
 
+MAX_INSERTED = 6
+"""Most operating points a design adds where a half-way check misses a target. 2 left the designs of
+calibration draws 1 and 2 refusing themselves between scheduled points (|S| +6.0 dB at 4 Hz at ΔCL
+0.079; phase margin 31.6° at ΔCL 0.074, where the neighbours' gains lie in the search's two
+basins): the loop runs those interpolated gains at ΔCL 0.08 and measured +2.2 and +5.8 dB."""
+
+
 def design_loop(model: Any, targets: Targets | None = None, config: ControlConfig | None = None,
                 fractions: tuple[float, ...] = SCHEDULE_FRACTIONS, *, observer: bool = True,
-                uncertainty: Uncertainty | None = None, limit: bool = True, max_inserted: int = 2) -> Design:
+                uncertainty: Uncertainty | None = None, limit: bool = True,
+                max_inserted: int = MAX_INSERTED) -> Design:
     """The gain-scheduled design for ``model`` (module docstring): gains searched at each of
     ``fractions``, then every target checked there and half-way between neighbours with the gains
     the controller interpolates; where a half-way check misses a target the gains are searched
