@@ -15,8 +15,8 @@ about a minute).
 ``--adapt`` attaches ``--adapt``'s :class:`~rtlift.app.adapt.Adapter` to every loop (the window
 diagnosed by ``rtlift diagnose`` in another process, niced, the augmented model swapped in at a
 burst onset; a ``structure`` is reported, not swapped, as by default): while a window is being
-diagnosed the loop runs at the device's rate (:class:`PacedAdapter`), so the diagnosis takes as
-much of the loop's time as it would live, and the swap's time is a live run's. ``--out FILE``
+diagnosed the loop runs on a clock (:class:`PacedAdapter`, ``--pace``: the host's, or the
+diagnosis's CPU seconds), so the diagnosis takes as much of the loop's time as it would live. ``--out FILE``
 appends each draw's line to FILE and skips the draws already there (a run stopped and resumed);
 the totals are over every line in it.
 
@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import tempfile
 import time
@@ -84,31 +85,51 @@ def departures_at(history: list[dict], thresholds: dict, persist: int = 2, t0_s:
 
 class PacedAdapter(Adapter):
     """``--adapt``'s adapter in a loop that is not paced: while a window is being diagnosed
-    (``busy``, until the swap or the diagnosis's end) the loop's samples are held to the
-    device's rate, 1 / f_s each, so the diagnosis in the other process takes as many of the loop's
-    seconds as its wall time, as it would live."""
+    (``busy``, until the swap or the diagnosis's end) the loop's samples are held to a clock, so
+    the diagnosis takes as many of the loop's seconds as it would live. ``pace="wall"``: the
+    host's clock (this machine as loaded now: the diagnosis is niced, and at a load average of 16
+    it starves); ``pace="cpu"``: the CPU seconds the diagnosis has used — the worker process's and
+    the adapter's thread's (``/proc``) — that is, its time on a machine that gives it a core
+    (the 2-core rig with nothing but the loop, ~7 % of a core, on the other)."""
 
     _paced_from: tuple[int, float] | None = None
+    pace = "wall"
+
+    def _clock(self) -> float:
+        if self.pace == "wall":
+            return time.perf_counter()
+        ticks = os.sysconf("SC_CLK_TCK")
+        total = 0
+        worker = getattr(self, "_worker", None)
+        paths = [f"/proc/{worker.proc.pid}/stat"] if worker is not None and worker.proc is not None else []
+        if self._thread is not None and self._thread.native_id is not None:
+            paths.append(f"/proc/self/task/{self._thread.native_id}/stat")
+        for path in paths:
+            try:
+                fields = Path(path).read_text().rsplit(")", 1)[1].split()
+            except (OSError, IndexError):
+                continue
+            total += int(fields[11]) + int(fields[12])      # utime, stime
+        return total / ticks
 
     def after_step(self, index: int, cmu: float, env: float, dcl: float | None) -> None:
         super().after_step(index, cmu, env, dcl)
         if not self.busy:
             self._paced_from = None
             return
-        now = time.perf_counter()
         if self._paced_from is None:
-            self._paced_from = (index, now)
+            self._paced_from = (index, self._clock())
             return
         due = self._paced_from[1] + (index - self._paced_from[0]) / self.fs_hz
-        if due > now:
-            time.sleep(due - now)
+        while self.busy and self._clock() < due:
+            time.sleep(0.0025 if self.pace == "wall" else 0.01)
 
 
 ADAPT_KEYS = ("event", "n", "t_s", "swapped", "accepted", "kinds", "finding", "reason", "rmse_before", "rmse_after")
 
 
 def one_run(model, draw: int, seed: int, seconds: float, effects: tuple[str, ...],
-            adapt_dir: Path | None = None, model_path: Path | None = None) -> dict:
+            adapt_dir: Path | None = None, model_path: Path | None = None, pace: str = "wall") -> dict:
     from rtlift.app.hil_tracking import lowpass, reference_values
 
     runs: list = []
@@ -116,13 +137,14 @@ def one_run(model, draw: int, seed: int, seconds: float, effects: tuple[str, ...
 
     def attach(loop, closed) -> None:
         a = PacedAdapter(loop, str(model_path), adapt_dir, closed=closed, fs_hz=model.fs_hz)
+        a.pace = pace
         loop.adapter = a
         loop.monitor.on_departure = a.on_departure
         adapters.append(a)
 
     t0 = time.perf_counter()
     mon = closed_loop(model, seed, seconds, effects, reference=REFERENCE, history=True, plant_draw=draw,
-                      tracking=runs, on_loop=attach if adapt_dir is not None else None)
+                      tracking=runs, on_loop=attach if adapt_dir is not None else None, model_path=model_path)
     t, truth, _ = runs[0].traces()
     err = lowpass(truth) - lowpass(reference_values(REFERENCE, len(truth)))
     out = {"seed": seed, "seconds": seconds, "wall_s": time.perf_counter() - t0,
@@ -157,6 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-fade", action="store_true")
     ap.add_argument("--clean-seeds", type=int, default=1, help="clean runs per draw (default 1)")
     ap.add_argument("--adapt", action="store_true", help="--adapt on every run (the swap measured)")
+    ap.add_argument("--pace", choices=("wall", "cpu"), default="wall",
+                    help="the loop's clock while a window is diagnosed (PacedAdapter; default wall)")
     ap.add_argument("--out", default=None, help="append each draw's line here; skip the draws already there")
     args = ap.parse_args(argv)
     work = Path(args.work or tempfile.mkdtemp(prefix="rtlift-family-"))
@@ -180,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
             def run(seed: int, effects: tuple[str, ...], name: str, d=d, model=model, draw=draw,
                     path=path) -> dict:
                 adapt = d / f"adapt_{name}_{seed}" if args.adapt else None
-                return one_run(model, draw, seed, args.seconds, effects, adapt, path)
+                return one_run(model, draw, seed, args.seconds, effects, adapt, path, args.pace)
 
             row = {"draw": draw, "model": str(path),
                    "print": {k: v for k, v in ((model.fingerprint or {}).get("monitor") or {}).items()

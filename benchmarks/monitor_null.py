@@ -79,13 +79,15 @@ _CONFIGS: dict[int, object] = {}
 
 def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (), reference: str = REFERENCE,
                 thresholds: dict | None = None, history: bool = False, plant_draw: int = 0,
-                tracking: list | None = None, on_loop=None) -> DepartureMonitor:
+                tracking: list | None = None, on_loop=None, model_path: str | None = None) -> DepartureMonitor:
     """``rtlift control``'s closed loop on the bench (plant ``plant_draw`` of the family) in this
     process (:class:`rtlift.app.hil_tracking.InProcessTracking`: the serial wire, the converter, the
     observer loop, the controller with the gains ``rtlift control`` designs by default), the monitor
     stepped by the observer loop and told the reference's steps as ``--monitor`` is; the steps
     repeat every 120 s. ``tracking``, a list, receives the run (its ``traces()``); ``on_loop`` is
-    called with the observer loop and the control loop before it runs (an ``--adapt`` adapter)."""
+    called with the observer loop and the control loop before it runs (an ``--adapt`` adapter);
+    with ``model_path`` the controller's design is cached beside the model file, as ``rtlift
+    control`` caches it."""
     from firmware_io.calibration import Calibration
     from hil_sim.hil import HilStream
     from rtlift.app.commands.control import control_config
@@ -95,7 +97,8 @@ def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (),
     from rtlift.app.watch import reference_steps
 
     if id(model) not in _CONFIGS:
-        _CONFIGS[id(model)] = control_config(model, True, None, None, accept_warnings=True)[0]
+        _CONFIGS[id(model)] = control_config(model, True, None, None, accept_warnings=True,
+                                             model_path=None if model_path is None else str(model_path))[0]
     mon = new_monitor(model, thresholds, history)
     spec = repeated(reference, seconds)
     tare = max(1, int(round(Calibration().tare_seconds * model.fs_hz)))     # as ControlLoop counts it

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 
 import numpy as np
 import pytest
@@ -172,16 +171,20 @@ class _Loop:
 def _diagnosis(tmp_path, monkeypatch, kinds: dict[str, str], structure: bool) -> dict:
     """The adapter's background step on a window whose diagnosis (faked: the report it reads)
     accepted ``kinds``."""
-    def fake_run(cmd, **kw):
-        out = tmp_path / "adapt_1" / "diagnosis"
-        out.mkdir(parents=True, exist_ok=True)
-        rec = {"records": {"w": {"rmse": 0.01}}}
-        (out / "report.json").write_text(json.dumps({
-            "effects": [{"name": n, "kind": k, "accepted": True} for n, k in kinds.items()],
-            "baseline": rec, "augmented": {"records": {"w": {"rmse": 0.008}}}}))
-        return subprocess.CompletedProcess(cmd, 0, "", "")
+    class FakeWorker:
+        def __init__(self, preexec_fn=None):
+            pass
 
-    monkeypatch.setattr("rtlift.app.adapt.subprocess.run", fake_run)
+        def run(self, argv):
+            out = tmp_path / "adapt_1" / "diagnosis"
+            out.mkdir(parents=True, exist_ok=True)
+            rec = {"records": {"w": {"rmse": 0.01}}}
+            (out / "report.json").write_text(json.dumps({
+                "effects": [{"name": n, "kind": k, "accepted": True} for n, k in kinds.items()],
+                "baseline": rec, "augmented": {"records": {"w": {"rmse": 0.008}}}}))
+            return 0, ""
+
+    monkeypatch.setattr("rtlift.app.adapt.DiagnoseWorker", FakeWorker)
     events = []
     ad = Adapter(_Loop(), MODEL, tmp_path, events=events.append, structure=structure)
     ad._keep_model = lambda *a: (_ for _ in ()).throw(RuntimeError("would swap"))
@@ -212,9 +215,14 @@ def test_control_tells_its_monitor_the_references_steps(bench_model):
         tare_samples = 800
         fs_hz = FS_HZ
 
-    loop = _Loop()
+    from rtlift.app.live import ObserverLoop
+    from rtlift.observer import Observer
+
     args = argparse.Namespace(monitor=["on"], model=MODEL, adapt=None, log=None)
-    watch = attach(loop, args, bench_model, "test", closed=Closed(), quiet=True)
-    assert loop.monitor is watch.monitor
+    watch = attach(args, bench_model, "test", quiet=True)
+    loop = ObserverLoop(Observer.from_model(bench_model), lambda s: (0.0, 0.0, None), 1 << 16,
+                        monitor=watch.monitor, adapter=watch.adapter)
+    watch.follow(Closed())
+    assert loop.monitor is watch.monitor and loop.adapter is None
     assert loop.monitor.summary()["settle"]["steps"] == 2
     assert loop.monitor._steps.tolist() == [800.0, 800.0 + 10 * FS_HZ]

@@ -9,7 +9,10 @@ running at 400 Hz and an :class:`Adapter` does, in order:
    ``[departure − before_s, departure + after_s)`` out of the ring and hands it to a background
    thread, which writes it as a record file and runs ``rtlift diagnose --model M --run WINDOW
    --split 0.6`` in **another process** (niced): the diagnosis of users' records, fitted on the
-   window's first 60 %, judged on the rest;
+   window's first 60 %, judged on the rest. That process is started with the loop and has done
+   its imports by the first departure (:class:`~rtlift.app.diagnose_worker.DiagnoseWorker`: on
+   a machine at a load average of 16 the imports alone of a fresh ``rtlift diagnose`` took
+   25 s, and a 120 s run could end before its swap);
 3. when that diagnosis accepts an effect, the thread loads the augmented model, builds its
    observer (and compiles it) and catches it up over the ring's rows from the window's start
    to as far as the loop has got; the loop then, at the next burst onset (Cμ rising from 0),
@@ -43,7 +46,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import threading
 from pathlib import Path
@@ -51,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from rtlift.app.diagnose_worker import DiagnoseWorker
 from rtlift.core.rate import FS_HZ
 
 BEFORE_S = 2.0
@@ -152,6 +155,8 @@ class Adapter:
         self._thread: threading.Thread | None = None
         self._last_cmu = 0.0
         self.count = 0
+        self._worker = None if self.replaying else DiagnoseWorker(_nice)
+        """``rtlift diagnose`` kept warm in another process (niced) from the loop's start."""
 
     @property
     def busy(self) -> bool:
@@ -223,11 +228,10 @@ class Adapter:
                                  "window_samples": f"{job['start']}..{job['stop'] - 1}"})
             path = work / "window.csv"
             write_record(path, rec)
-            cmd = [sys.executable, "-m", "rtlift", "diagnose", "--model", self.model_path, "--run", str(path),
-                   "--split", str(SPLIT), "--out", str(work / "diagnosis")]
-            proc = subprocess.run(cmd, capture_output=True, text=True, preexec_fn=_nice)
-            if proc.returncode != 0:
-                raise RuntimeError((proc.stderr.strip().splitlines() or ["diagnose failed"])[-1])
+            code, stderr = self._worker.run(["diagnose", "--model", self.model_path, "--run", str(path),
+                                             "--split", str(SPLIT), "--out", str(work / "diagnosis")])
+            if code != 0:
+                raise RuntimeError((stderr.strip().splitlines() or ["diagnose failed"])[-1])
             rep = json.loads((work / "diagnosis" / "report.json").read_text())
             acc = [e for e in rep["effects"] if e["accepted"]]
             base = next(iter(rep["baseline"]["records"].values()))
@@ -321,8 +325,11 @@ class Adapter:
         self._busy = False
 
     def close(self, timeout: float = 0.0) -> None:
+        """The run ended: wait up to ``timeout`` for a diagnosis in flight, then end the worker."""
         if self._thread is not None and timeout > 0:
             self._thread.join(timeout)
+        if self._worker is not None:
+            self._worker.close()
 
 
 def _catch_up(obs: Any, rows: np.ndarray) -> None:
