@@ -21,8 +21,7 @@ import subprocess
 import sys
 from typing import Any
 
-WARM = ("rtlift.app.cli", "rtlift.app.commands.diagnose", "rtlift.diagnose.catalog",
-        "rtlift.diagnose.diagnosis", "rtlift.observer")
+WARM = ("rtlift.app.cli", "rtlift.api", "rtlift.diagnose", "rtlift.observer", "rtlift.model.modelfile")
 """Imported before the first request (what a diagnosis imports first)."""
 
 
