@@ -8,15 +8,16 @@ The loop is driven by the arrival of samples; the device's ``seq`` is the clock.
     est = observer.step(Cμ, Cμ_env, ΔCL)
     latency = perf_counter() − sample.host_time            # receive → estimate
 
-then the estimate row is written (and, with a live view, one small tuple appended to its
-drop-oldest ``tap``: never a wait, never I/O). The same samples in give the same rows out, bit for bit,
+then the estimate's row goes to the loop's listeners, one dispatch for received, gap-filled and
+bridged samples (python-can's ``Notifier``/``Listener``): the departure monitor, the ``--adapt``
+swapper's ring, a live view's drop-oldest ``tap`` (never a wait, never I/O), the estimates file —
+all given to :class:`ObserverLoop` when it is made. The same samples in give the same rows out, bit for bit,
 whatever the pacing (live link, log replayed as fast as possible or in real time): nothing
 here depends on the host clock except the latency figures.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -24,13 +25,18 @@ from array import array
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from firmware_io.latency import LatencyRecorder
 from firmware_io.logs import FlushedFile
 from firmware_io.samples import Sample
+from rtlift.core.errors import UserError
+from rtlift.core.jsonfile import write_json_atomic
 from rtlift.core.rate import FS_HZ
-from rtlift.observer import Observer
+from rtlift.observer import Estimate, Observer
+
+Converter = Callable[[Sample], tuple[float, float, "float | None"]]
+"""A sample → ``(Cμ, Cμ_env, ΔCL | None)`` (:class:`firmware_io.convert.Converter`, possibly wrapped)."""
 
 MAX_FILL = int(FS_HZ)
 """At most this many predict-only steps for one gap in ``seq`` (1 s); a longer gap is a
@@ -48,10 +54,51 @@ COLUMNS = ("index", "t", "seq", "t_us", "cmu", "cmu_envelope", "dcl", "dcl_hat",
 ΔCL, empty while taring or on a flagged sample), so one tool reads both."""
 
 
+class Listener(Protocol):
+    """One receiver of the loop's per-sample dispatch (python-can's ``Listener`` to its ``Notifier``).
+
+    :meth:`on_sample` is called once per estimate, in the 400 Hz thread, with the estimate row:
+    the loop's sample ``index``, ``t = index / f_s`` (s), the device's ``seq`` (``None`` across a
+    reconnect gap ``seq`` cannot tell), the device clock ``t_us`` (µs; ``None`` on a predict-only
+    step), the inputs ``cmu``, ``env`` (Cμ, Cμ_env) and the measured ``dcl`` (ΔCL; ``None`` when
+    missing, flagged or taring), and ``est``, the observer's :class:`~rtlift.observer.Estimate`
+    (the same object every step: copy what you keep). It must not wait, do I/O beyond a buffered
+    append, or keep ``est``. :meth:`on_stop` is called once by :meth:`ObserverLoop.stop`."""
+
+    def on_sample(self, index: int, t: float, seq: int | None, t_us: int | None, cmu: float, env: float,
+                  dcl: float | None, est: Estimate) -> None: ...
+
+    def on_stop(self) -> None: ...
+
+
+class Swapper(Protocol):
+    """What swaps the loop's observer while it runs (``--adapt``: :class:`rtlift.app.adapt.Adapter`).
+
+    :meth:`before_step` is called with each received sample's index and Cμ before the observer
+    steps and may set ``loop.observer`` (the loop binds ``loop`` at its construction);
+    :meth:`after_step` receives every estimate's inputs, received or predicted (its rows); ``busy``
+    says a swap is being prepared (the loop's step times go to ``steps_busy`` as well)."""
+
+    loop: Any
+    busy: bool
+
+    def before_step(self, index: int, cmu: float) -> None: ...
+
+    def after_step(self, index: int, cmu: float, env: float, dcl: float | None) -> None: ...
+
+
+class Monitor(Protocol):
+    """A residual monitor stepped after the observer (:class:`rtlift.observer.monitor.DepartureMonitor`):
+    ``step(ΔCL measured | None, model ΔCL, innovation ν)``."""
+
+    def step(self, dcl: float | None, model_dcl: float, innovation: float) -> None: ...
+
+
 class EstimateWriter(FlushedFile):
     """Estimates as CSV (:data:`COLUMNS`; floats as ``repr`` so they read back exactly; empty
     cells for what a filled-in sample does not have), flushed every ``flush_s`` and on close;
-    a failing disk is a one-line error (:class:`~firmware_io.errors.LogError`)."""
+    a failing disk is a one-line error (:class:`~firmware_io.errors.LogError`). A :class:`Listener`:
+    ``on_sample`` writes the row, ``on_stop`` closes the file."""
 
     def __init__(self, path: str | os.PathLike, meta: dict[str, Any] | None = None,
                  flush_s: float = FLUSH_S) -> None:
@@ -59,13 +106,70 @@ class EstimateWriter(FlushedFile):
         self._start(meta, COLUMNS)
         self.rows = 0
 
-    def write(self, index: int, t: float, seq: int, t_us: int | None, cmu: float, env: float,
+    def write(self, index: int, t: float, seq: int | None, t_us: int | None, cmu: float, env: float,
               dcl: float | None, est: Any) -> None:
         self._append(
-            f"{index},{t!r},{seq},{'' if t_us is None else t_us},{cmu!r},{env!r},"
+            f"{index},{t!r},{'' if seq is None else seq},{'' if t_us is None else t_us},{cmu!r},{env!r},"
             f"{'' if dcl is None else repr(dcl)},{est.dcl!r},{est.model_dcl!r},"
             f"{est.innovation!r},{est.nis!r},{est.flags}\n")
         self.rows += 1
+
+    on_sample = write
+
+    def on_stop(self) -> None:
+        self.close()
+
+
+class MonitorListener:
+    """A :class:`Monitor` as a :class:`Listener`: ``monitor.step(dcl, est.model_dcl, est.innovation)``."""
+
+    __slots__ = ("monitor", "_step")
+
+    def __init__(self, monitor: Monitor) -> None:
+        self.monitor = monitor
+        self._step = monitor.step
+
+    def on_sample(self, index: int, t: float, seq: int | None, t_us: int | None, cmu: float, env: float,
+                  dcl: float | None, est: Estimate) -> None:
+        self._step(dcl, est.model_dcl, est.innovation)
+
+    def on_stop(self) -> None:
+        pass
+
+
+class SwapperListener:
+    """A :class:`Swapper`'s rows as a :class:`Listener`: ``after_step(index, cmu, env, dcl)``."""
+
+    __slots__ = ("_after",)
+
+    def __init__(self, swapper: Swapper) -> None:
+        self._after = swapper.after_step
+
+    def on_sample(self, index: int, t: float, seq: int | None, t_us: int | None, cmu: float, env: float,
+                  dcl: float | None, est: Estimate) -> None:
+        self._after(index, cmu, env, dcl)
+
+    def on_stop(self) -> None:
+        pass
+
+
+class Tap:
+    """A live view's drop-oldest ``deque(maxlen=...)`` (:attr:`rtlift.app.view.LiveView.tap`) as a
+    :class:`Listener`: one ``(index, dcl | None, ΔĈL, model ΔCL, ν, NIS)`` tuple per estimate,
+    never a wait, never I/O."""
+
+    __slots__ = ("tap", "_append")
+
+    def __init__(self, tap: deque) -> None:
+        self.tap = tap
+        self._append = tap.append
+
+    def on_sample(self, index: int, t: float, seq: int | None, t_us: int | None, cmu: float, env: float,
+                  dcl: float | None, est: Estimate) -> None:
+        self._append((index, dcl, est.dcl, est.model_dcl, est.innovation, est.nis))
+
+    def on_stop(self) -> None:
+        pass
 
 
 @dataclass
@@ -90,68 +194,109 @@ class LoopStats:
 
 
 class ObserverLoop:
-    """Feeds samples to an :class:`~rtlift.observer.Observer` (module docstring); ``tap``, a
-    ``deque(maxlen=...)``, receives one row per estimate for a live view and drops its oldest."""
+    """Feeds samples to an :class:`~rtlift.observer.Observer` (module docstring) and hands every
+    estimate to its listeners, all given here: ``monitor`` (a :class:`Monitor`, first), ``adapter``
+    (a :class:`Swapper`: called before each received sample's step, and its rows after the
+    monitor), ``tap`` (a live view's deque, :class:`Tap`), ``writer`` (the estimates file), then
+    ``listeners`` in their order. One dispatch (:meth:`_emit`) serves received, gap-filled and
+    bridged samples alike; the listeners' bound ``on_sample`` methods are kept in a tuple, so a
+    sample allocates no list and creates no function."""
 
-    def __init__(self, observer: Observer, converter: Any, seq_modulus: int, *,
+    def __init__(self, observer: Observer, converter: Converter, seq_modulus: int, *,
                  writer: EstimateWriter | None = None, fs_hz: float = FS_HZ,
                  max_samples: int | None = None, time_steps: bool = False, tap: deque | None = None,
-                 monitor: Any = None, step_stats: bool = False) -> None:
+                 monitor: Monitor | None = None, adapter: Swapper | None = None,
+                 listeners: Iterable[Listener] = (), step_stats: bool = False) -> None:
         self.observer = observer
-        self.monitor = monitor  # rtlift.observer.monitor.DepartureMonitor, stepped after the observer
-        self.adapter: Any = None  # rtlift.app.adapt.Adapter (--adapt): may swap ``observer`` at a burst onset
         self.converter = converter
         self.seq_modulus = seq_modulus
-        self.writer = writer
         self.fs_hz = fs_hz
         self.max_samples = max_samples
         self.time_steps = time_steps or step_stats
         self._raw_steps = time_steps
-        self.tap = tap      # rtlift.app.view.LiveView.tap: (index, dcl | None, dcl_hat, model_dcl, ν, NIS) rows
         self.stats = LoopStats()
+        self._monitor = monitor
+        self._adapter = adapter
+        self._tap = None if tap is None else Tap(tap)
+        self._writer = writer
+        self._extra = tuple(listeners)
+        self.listeners: tuple[Listener, ...] = ()
+        self._on_sample: tuple[Callable[..., None], ...] = ()
+        self._register()
         self._last_seq: int | None = None
         self._index = -1
         self._last_cmu = 0.0
         self._last_env = 0.0
 
+    def _register(self) -> None:
+        """The listeners in dispatch order, and their bound ``on_sample`` methods."""
+        mon, ad = self._monitor, self._adapter
+        if ad is not None:
+            ad.loop = self
+        self.listeners = tuple(x for x in (None if mon is None else MonitorListener(mon),
+                                           None if ad is None else SwapperListener(ad),
+                                           self._tap, self._writer) if x is not None) + self._extra
+        self._on_sample = tuple(listener.on_sample for listener in self.listeners)
+
+    @property
+    def monitor(self) -> Monitor | None:
+        """The residual monitor stepped after the observer (given at construction)."""
+        return self._monitor
+
+    @property
+    def adapter(self) -> Swapper | None:
+        """What may swap :attr:`observer` at a burst onset (given at construction; set between
+        samples by a caller that makes its adapter for an existing loop, e.g.
+        :class:`rtlift.app.hil_tracking.InProcessTracking`'s ``on_loop``: registered the same way)."""
+        return self._adapter
+
+    @adapter.setter
+    def adapter(self, adapter: Swapper | None) -> None:
+        self._adapter = adapter
+        self._register()
+
     @property
     def done(self) -> bool:
         return self.max_samples is not None and self._index + 1 >= self.max_samples
 
+    def _emit(self, index: int, seq: int | None, t_us: int | None, cmu: float, env: float, dcl: float | None,
+              est: Estimate) -> None:
+        """The one per-sample dispatch: count the estimate, hand its row to every listener."""
+        self.stats.estimates += 1
+        t = index / self.fs_hz
+        for on_sample in self._on_sample:
+            on_sample(index, t, seq, t_us, cmu, env, dcl, est)
+
+    def _predict(self, seq: int | None, flags: int) -> None:
+        """One predict-only step at the next index (inputs held at the last sample's)."""
+        self._index += 1
+        est = self.observer.step(self._last_cmu, self._last_env, None)
+        est.flags |= flags
+        self._emit(self._index, seq, None, self._last_cmu, self._last_env, None, est)
+
     def feed(self, sample: Sample) -> None:
         """One received sample (and the predict-only steps of any gap before it)."""
-        obs, writer, stats, tap = self.observer, self.writer, self.stats, self.tap
-        if self._last_seq is not None:
-            gap = (sample.seq - self._last_seq) % self.seq_modulus
+        stats, adapter = self.stats, self._adapter
+        last = self._last_seq
+        if last is not None:
+            gap = (sample.seq - last) % self.seq_modulus
             if gap == 0:
                 return
             for i in range(1, min(gap, MAX_FILL)):
-                self._index += 1
-                est = obs.step(self._last_cmu, self._last_env, None)
+                self._predict((last + i) % self.seq_modulus, 0)
                 stats.filled += 1
-                if self.monitor is not None:
-                    self.monitor.step(None, est.model_dcl, est.innovation)
-                if self.adapter is not None:
-                    self.adapter.after_step(self._index, self._last_cmu, self._last_env, None)
-                if tap is not None:
-                    tap.append((self._index, None, est.dcl, est.model_dcl, est.innovation, est.nis))
-                stats.estimates += 1
-                if writer is not None:
-                    writer.write(self._index, self._index / self.fs_hz,
-                                 (self._last_seq + i) % self.seq_modulus, None,
-                                 self._last_cmu, self._last_env, None, est)
         self._last_seq = sample.seq
         self._index += 1
         cmu, env, dcl = self.converter(sample)
-        if self.adapter is not None:
-            self.adapter.before_step(self._index, cmu)
-            obs = self.observer
+        if adapter is not None:
+            adapter.before_step(self._index, cmu)
+        obs = self.observer
         if self.time_steps:
             t0 = time.perf_counter()
             est = obs.step(cmu, env, dcl)
             t1 = time.perf_counter()
             stats.steps.append(t1 - t0)
-            if self.adapter is not None and self.adapter.busy:
+            if adapter is not None and adapter.busy:
                 stats.steps_busy.append(t1 - t0)
             if self._raw_steps:
                 stats.step_times.append(t1 - t0)
@@ -160,41 +305,29 @@ class ObserverLoop:
             t1 = time.perf_counter()
         stats.latencies.append(t1 - sample.host_time)
         stats.samples += 1
-        if self.monitor is not None:
-            self.monitor.step(dcl, est.model_dcl, est.innovation)
-        if self.adapter is not None:
-            self.adapter.after_step(self._index, cmu, env, dcl)
         self._last_cmu, self._last_env = cmu, env
-        if tap is not None:
-            tap.append((self._index, dcl, est.dcl, est.model_dcl, est.innovation, est.nis))
-        stats.estimates += 1
-        if writer is not None:
-            writer.write(self._index, self._index / self.fs_hz, sample.seq, sample.t_us, cmu, env, dcl, est)
+        self._emit(self._index, sample.seq, sample.t_us, cmu, env, dcl, est)
 
     def bridge(self, missed: int, known: bool) -> None:
         """The link came back after its device vanished (``link.on_gap``): ``missed`` samples
         (from ``seq`` if ``known``, else the host clock's estimate) are predicted through, up to
         :data:`MAX_BRIDGE_S`, each row flagged :data:`FLAG_LINK_GAP` (``seq`` left empty when
         unknown); the next sample starts a new ``seq`` run."""
-        obs, writer, stats = self.observer, self.writer, self.stats
         last = self._last_seq
-        steps = min(missed, int(MAX_BRIDGE_S * self.fs_hz)) if last is not None else 0
+        if last is None:
+            return
+        steps = min(missed, int(MAX_BRIDGE_S * self.fs_hz))
+        start = self._index
         for i in range(1, steps + 1):
-            est = obs.step(self._last_cmu, self._last_env, None)
-            est.flags |= FLAG_LINK_GAP
-            stats.bridged += 1
-            if self.monitor is not None:
-                self.monitor.step(None, est.model_dcl, est.innovation)
-            if self.tap is not None:
-                self.tap.append((self._index + i, None, est.dcl, est.model_dcl, est.innovation, est.nis))
-            stats.estimates += 1
-            if writer is not None:
-                index = self._index + i
-                writer.write(index, index / self.fs_hz, (last + i) % self.seq_modulus if known else "", None,
-                             self._last_cmu, self._last_env, None, est)
-        if last is not None:
-            self._index += missed
+            self._predict((last + i) % self.seq_modulus if known else None, FLAG_LINK_GAP)
+            self.stats.bridged += 1
+        self._index = start + missed
         self._last_seq = None
+
+    def stop(self) -> None:
+        """The run is over: every listener's ``on_stop`` (the estimates file closed)."""
+        for listener in self.listeners:
+            listener.on_stop()
 
     def run(self, samples: Iterable[Sample | None], *, silence_s: float | None = None,
             seconds_down: Callable[[], float] | None = None) -> str:
@@ -305,13 +438,9 @@ def _step_percentiles(stats: LoopStats) -> dict[str, float]:
 
 
 def write_summary(path: str | os.PathLike, data: dict[str, Any]) -> None:
-    from rtlift.core.errors import UserError
-
-    tmp = f"{path}.tmp"
+    """SUMMARY.json (keys sorted; NaN and Inf as JSON writes them) through
+    :func:`~rtlift.core.jsonfile.write_json_atomic`; a failing disk is one :class:`UserError` line."""
     try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=1, sort_keys=True)
-            f.write("\n")
-        os.replace(tmp, path)
+        write_json_atomic(path, data, stage="summary", sort_keys=True, finite=False)
     except OSError as exc:
         raise UserError(f"{path}: cannot write summary ({exc.strerror or exc})") from None

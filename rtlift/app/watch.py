@@ -1,9 +1,9 @@
 """``--monitor`` and ``--adapt`` of ``rtlift observe`` and ``rtlift control`` (and their replay).
 
-:func:`attach` puts a :class:`~rtlift.observer.monitor.DepartureMonitor` on an
+:func:`attach` makes a :class:`~rtlift.observer.monitor.DepartureMonitor` for an
 :class:`~rtlift.app.live.ObserverLoop` (on by default; off with ``--monitor off``, or when the
 model file has no fingerprint, which is said in one line) and, with ``--adapt DIR``, an
-:class:`~rtlift.app.adapt.Adapter`. Departures and adaptations are
+:class:`~rtlift.app.adapt.Adapter`, both registered with the loop when it is made. Departures and adaptations are
 
 - printed as one line each on stderr,
 - appended to the events file (``LOG.events.jsonl`` beside a ``--log``, else
@@ -103,11 +103,11 @@ def calibration_doc(monitor: Any, model_path: str) -> dict[str, Any]:
                     "of the real loop, times the margin; null: never evaluated (the model's threshold stays)"}
 
 
-def follow_reference(loop: Any, closed: Any) -> None:
-    """Tell the loop's monitor when the closed loop's reference steps (no test judges a window
-    holding a step's own transient); nothing without a monitor or a closed loop."""
-    if closed is not None and getattr(loop, "monitor", None) is not None:
-        loop.monitor.set_steps(*reference_steps(closed.reference, closed.tare_samples, closed.fs_hz))
+def follow_reference(monitor: Any, closed: Any) -> None:
+    """Tell a monitor when the closed loop's reference steps (no test judges a window holding a
+    step's own transient); nothing without a monitor or a closed loop."""
+    if closed is not None and monitor is not None:
+        monitor.set_steps(*reference_steps(closed.reference, closed.tare_samples, closed.fs_hz))
 
 
 def reference_steps(reference: Any, offset: int, fs_hz: float) -> tuple[list[int], list[float]]:
@@ -176,6 +176,13 @@ class Watch:
                      f"{'; ' + e['reason'] if e.get('reason') else ''}; no swap")
         self.event(e)
 
+    def follow(self, closed: Any) -> None:
+        """The closed loop (:class:`~rtlift.app.closed_loop.ControlLoop`) this loop runs in: the
+        monitor holds off after its reference's steps, the adapter swaps its controller too."""
+        follow_reference(self.monitor, closed)
+        if self.adapter is not None:
+            self.adapter.closed = closed
+
     def counts(self) -> dict[str, int]:
         """Departures and swaps so far (for the live page)."""
         return {"departures": len(self.monitor.departures) if self.monitor else 0,
@@ -209,10 +216,12 @@ class Watch:
                 self._f = None
 
 
-def attach(loop: Any, args: argparse.Namespace, model: Any, prog: str, *, closed: Any = None,
-           replay: list[dict] | None = None, quiet: bool = False) -> Watch:
-    """Monitor (and adapter) on ``loop`` as ``args.monitor`` / ``args.adapt`` say (``quiet``: no
-    stderr lines — a replay sums them up in one)."""
+def attach(args: argparse.Namespace, model: Any, prog: str, *, replay: list[dict] | None = None,
+           quiet: bool = False) -> Watch:
+    """The monitor (and adapter) ``args.monitor`` / ``args.adapt`` ask for, to be given to the
+    :class:`~rtlift.app.live.ObserverLoop` when it is made (``monitor=watch.monitor,
+    adapter=watch.adapter``; a closed loop then :meth:`Watch.follow`); ``quiet``: no stderr
+    lines — a replay sums them up in one."""
     from rtlift.app.adapt import Adapter
     from rtlift.observer.monitor import DepartureMonitor
 
@@ -246,11 +255,8 @@ def attach(loop: Any, args: argparse.Namespace, model: Any, prog: str, *, closed
         raise UserError("--adapt needs the departure monitor (--monitor on and a model file with a fingerprint)")
     if watch.monitor is not None:
         watch.monitor.on_departure = watch.on_departure
-        loop.monitor = watch.monitor
-        follow_reference(loop, closed)
     if adapt_dir or replay:
-        watch.adapter = Adapter(loop, args.model, adapt_dir or ".", closed=closed, fs_hz=model.fs_hz,
+        watch.adapter = Adapter(None, args.model, adapt_dir or ".", fs_hz=model.fs_hz,
                                 events=watch.on_adapt_event, replay=replay, log=watch.say,
                                 structure=bool(getattr(args, "adapt_structure", False)))
-        loop.adapter = watch.adapter
     return watch

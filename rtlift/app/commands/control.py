@@ -100,20 +100,21 @@ def run(args: argparse.Namespace) -> int:
     where = args.serial or args.can
     print(f"rtlift control: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
     fs = model.fs_hz
-    loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs, step_stats=True)
+    watch = attach(args, model, "rtlift control")
+    loop = None
+    view = start_view(args, f"rtlift control {where}", fs,
+                      lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates if loop else 0,
+                               **(watch.counts() if watch else {})})
+    loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs, step_stats=True,
+                        monitor=watch.monitor, adapter=watch.adapter, tap=None if view is None else view.tap)
     link.on_gap = loop.bridge
     watch_domain(loop, model, "rtlift control")
     tracking = None if args.seconds is None else int(round(args.seconds * fs))
     closed = ControlLoop(link, loop, controller, reference, calibration, fs, tracking)
-    watch = attach(loop, args, model, "rtlift control", closed=closed)
-    view = None
+    watch.follow(closed)
     data = None
     t0 = time.perf_counter()
     try:
-        view = start_view(args, f"rtlift control {where}", fs,
-                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates,
-                                   **(watch.counts() if watch else {})})
-        loop.tap = None if view is None else view.tap
         code, message = run_live("rtlift control", loop.stats, link, closed.feed, lambda: closed.done,
                                  lambda: closed.received, args.seconds)
     finally:

@@ -92,21 +92,23 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         writer = EstimateWriter(args.out, {"model": args.model, "fs_hz": f"{model.fs_hz:g}"}) if args.out else None
+        watch = attach(args, model, "rtlift observe")
+        view = start_view(args, f"rtlift observe {where}", model.fs_hz,
+                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates if loop else 0,
+                                   **(watch.counts() if watch else {})})
         loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), link.seq_modulus, writer=writer,
-                            fs_hz=model.fs_hz, step_stats=True,
+                            fs_hz=model.fs_hz, step_stats=True, monitor=watch.monitor, adapter=watch.adapter,
+                            tap=None if view is None else view.tap,
                             max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))
         link.on_gap = loop.bridge
         watch_domain(loop, model, "rtlift observe")
-        watch = attach(loop, args, model, "rtlift observe")
-        view = start_view(args, f"rtlift observe {where}", model.fs_hz,
-                          lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates,
-                                   **(watch.counts() if watch else {})})
-        loop.tap = None if view is None else view.tap
         code, message = run_live("rtlift observe", loop.stats, link, loop.feed, lambda: loop.done,
                                  lambda: loop.stats.samples, args.seconds)
     finally:
         link.close()
-        if writer is not None:
+        if loop is not None:
+            loop.stop()             # the listeners' on_stop: the estimates file closed
+        elif writer is not None:
             writer.close()
         data = None
         try:

@@ -134,7 +134,7 @@ class _CommandRecorder:
         return self.last
 
 
-def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibration, samples,
+def _rerun_control(args, meta: dict[str, str], logged: list, loop, watch, model, calibration, samples,
                    kind: str) -> dict:
     """Feed the samples through a fresh controller as ``rtlift control`` did; compare its commands."""
     from firmware_io.commands import CAN_CMD_SEQ_MODULUS, SERIAL_CMD_SEQ_MODULUS
@@ -154,11 +154,7 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, model, calibr
     recorder = _CommandRecorder(SERIAL_CMD_SEQ_MODULUS if kind == "serial" else CAN_CMD_SEQ_MODULUS)
     closed = ControlLoop(recorder, loop, controller, reference, calibration, model.fs_hz,
                          None if seconds is None else int(round(seconds * model.fs_hz)))
-    if loop.adapter is not None:     # the live loop's swaps change the controller too
-        loop.adapter.closed = closed
-    from rtlift.app.watch import follow_reference
-
-    follow_reference(loop, closed)   # the monitor holds off after the reference's steps, as live
+    watch.follow(closed)     # the monitor holds off after the reference's steps, the swaps change the controller
     recorder.position = lambda: closed.received
     switched_off = bool(logged) and not logged[-1].enable
     stop = logged[-1].after_samples if switched_off else None
@@ -207,7 +203,7 @@ def _write_record(args, converter, source, fs_hz: float, data: dict, commands) -
           f"{rec.meta['filled']} filled in {rec.meta['gaps']} gap(s)")
 
 
-def _watch(args, loop, model):
+def _watch(args, model):
     """The monitor (``--monitor``), and the live loop's adaptations from ``LOG.events.jsonl``
     repeated at the same samples."""
     import json
@@ -224,7 +220,7 @@ def _watch(args, loop, model):
         except (OSError, ValueError) as exc:
             raise UserError(f"{path}: cannot read the loop's events ({exc})") from None
     adaptations = [e for e in logged or [] if e.get("event") == "adaptation"]
-    return attach(loop, args, model, "rtlift replay", replay=adaptations if adaptations else None,
+    return attach(args, model, "rtlift replay", replay=adaptations if adaptations else None,
                   quiet=True), logged
 
 
@@ -278,23 +274,22 @@ def run(args: argparse.Namespace) -> int:
         converter = Converter(calibration, model.fs_hz)
         if args.record:
             converter = RecordingConverter(converter)
-        loop = ObserverLoop(observer, converter, source.seq_modulus, writer=writer, fs_hz=model.fs_hz)
-        watch, logged_events = _watch(args, loop, model)
+        watch, logged_events = _watch(args, model)
+        loop = ObserverLoop(observer, converter, source.seq_modulus, writer=writer, fs_hz=model.fs_hz,
+                            monitor=watch.monitor, adapter=watch.adapter, tap=None if view is None else view.tap)
         if view is not None:
             view.counters = lambda: {**counters_of.counters.as_dict(), "estimates": loop.stats.estimates}
-            loop.tap = view.tap
         t0 = time.perf_counter()
         control = None
         try:
             if commands is None:
                 loop.run(samples)
             else:
-                control = _rerun_control(args, *commands, loop, model, calibration, samples, source.kind)
+                control = _rerun_control(args, *commands, loop, watch, model, calibration, samples, source.kind)
         except KeyboardInterrupt:
             loop.stats.end = "interrupted"
         finally:
-            if writer is not None:
-                writer.close()
+            loop.stop()             # the listeners' on_stop: the estimates file closed
         seconds = time.perf_counter() - t0
         data = summary(counters_of.counters.as_dict(), loop.stats, loop.observer, model=str(args.model),
                        log=str(args.log), realtime=bool(args.realtime), host_seconds=seconds,
