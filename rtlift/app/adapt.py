@@ -325,11 +325,15 @@ class Adapter:
         self._busy = False
 
     def close(self, timeout: float = 0.0) -> None:
-        """The run ended: wait up to ``timeout`` for a diagnosis in flight, then end the worker."""
+        """The run ended: wait up to ``timeout`` for a diagnosis in flight, then end the worker. A
+        diagnosis the run's end cut off is one event (``reason``: the run ended first), so the
+        summary and the events file say it was started and not finished."""
         if self._thread is not None and timeout > 0:
             self._thread.join(timeout)
         if self._worker is not None:
             self._worker.close()
+        if self._thread is not None and self._thread.is_alive():
+            self._thread.join(1.0)                  # its request answered "closed": its event is written
 
 
 def _catch_up(obs: Any, rows: np.ndarray) -> None:

@@ -91,7 +91,9 @@ class DiagnoseWorker:
                 answer = json.loads(line)
                 return int(answer["code"]), str(answer["stderr"])
             self._end()
-        return 1, "diagnose worker: no answer (closed, or the worker process ended twice)\n"
+        if self.closed:
+            return 1, "the run ended before the window's diagnosis did\n"
+        return 1, "diagnose worker: no answer (the worker process ended twice)\n"
 
     def close(self) -> None:
         """EOF to the worker (it ends after the request in hand, killed after 5 s); no more requests."""
