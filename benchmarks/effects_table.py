@@ -24,7 +24,7 @@ import numpy as np
 from hil_sim.effects import EFFECTS
 from hil_sim.experiments import run_experiment
 from rtlift.diagnose import diagnose
-from rtlift.diagnose.catalog import predict
+from rtlift.effects.surgery import predict
 from rtlift.identify import identify_hybrid
 
 

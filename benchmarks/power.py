@@ -2,7 +2,7 @@
 
 The hybrid model is identified once on the bench's clean standard campaign (seed 1, as
 ``benchmarks/effects_table.py``'s ``bench_model``). For every effect of the catalog and each of
-a few sizes spanning its documented range (``rtlift.core.registry.SCHEMAS``; the other parameters
+a few sizes spanning its documented range (``rtlift.effects.SCHEMAS``; the other parameters
 at their defaults), the bench measures, with the effect, a ``random`` record (the training
 record: it repeats no identification input, as a user's run would) and a ``sine_k0125`` and a
 ``sine_k025`` record (the validation records), each at its own noise seed. The training record
@@ -53,7 +53,7 @@ SIZES: dict[str, tuple[str, list[float], str]] = {
 
 
 def effect_spec(name: str, size: float) -> str:
-    from rtlift.core.registry import SCHEMAS
+    from rtlift.effects import SCHEMAS
 
     params = dict(SCHEMAS[name].defaults)
     params[SIZES[name][0]] = size

@@ -16,10 +16,13 @@ name                      stage      what it does (SI units; ΔCL-valued amplitu
                                      sampled, e.g. 420 Hz mains aliased to 20 Hz)
 ========================  =========  =====================================================
 
-``EFFECTS[name]`` holds the bench stage and the shared schema of the effect registry
-(:mod:`rtlift.core.registry`: defaults, documented ranges ``ranges[param] = (lo, hi)``,
-``draw(rng)``, the intervals the bench accepts, the bench-only parameters);
-``parse_effect(spec)`` raises :class:`~rtlift.core.errors.UserError` on a bad spec.
+``EFFECTS[name]`` holds how the bench injects it (:class:`Bench`: the stage, the intervals the
+bench accepts, the bench-only parameters) and its parameter schema (defaults, documented ranges
+``ranges[param] = (lo, hi)``, ``draw(rng)``): the bench is the truth plant and declares its own,
+which ``tests/test_effects_modules.py`` checks against the effects of :mod:`rtlift.effects`
+(the same names, parameters, defaults and ranges; every interval the bench accepts holds the
+documented range). ``parse_effect(spec)`` raises :class:`~rtlift.core.errors.UserError` on a
+bad spec.
 """
 
 from __future__ import annotations
@@ -32,17 +35,30 @@ from types import MappingProxyType
 import numpy as np
 from scipy import signal
 
-from rtlift.core.effects import EffectSchema
+from rtlift.core.effects import EffectSchema, Interval, schema
 from rtlift.core.errors import UserError
-from rtlift.core.registry import EFFECTS as REGISTERED
-from rtlift.core.registry import Bench
+
+
+@dataclass(frozen=True)
+class Bench:
+    """How the simulated bench injects an effect: its stage here (``actuator``, ``plant``,
+    ``force``, ``offset``), the interval each parameter must lie in, the parameters the bench
+    takes beyond the schema (what the plant does, not what a model fits), with defaults, and for
+    a ``plant`` effect the plant parameter each of its parameters adds to."""
+
+    stage: str
+    accepts: Mapping[str, Interval] = field(default_factory=dict)
+    only: Mapping[str, float] = field(default_factory=dict)
+    plant: Mapping[str, str] = field(default_factory=dict)
+    """(``plant`` stage) ``{effect parameter: the plant parameter it adds to}``
+    (:class:`hil_sim.plant.PlantParams`; the bench's other stages have their own processors)."""
 
 
 @dataclass(frozen=True)
 class EffectInfo:
-    """One effect kind on the bench: how it is injected here (:class:`rtlift.core.registry.Bench`:
-    the stage, the intervals its parameters must lie in, the bench-only parameters) and its shared
-    parameter schema (meaning, defaults, documented ranges)."""
+    """One effect kind on the bench: how it is injected here (:class:`Bench`: the stage, the
+    intervals its parameters must lie in, the bench-only parameters) and its parameter schema
+    (meaning on the bench, defaults, documented ranges)."""
 
     bench: Bench
     schema: EffectSchema
@@ -59,9 +75,38 @@ class EffectInfo:
         return Effect(self.name, self.schema.draw(rng))
 
 
-EFFECTS: Mapping[str, EffectInfo] = MappingProxyType({e.name: EffectInfo(e.bench, e.schema)
-                                                      for e in REGISTERED if e.bench is not None})
-"""The registry's effects the bench injects, in its order."""
+def _info(name: str, stage: str, meaning: str, params: dict[str, tuple[float, float, float, str]],
+          alternatives: dict[str, tuple[float, float, float, str]] | None = None,
+          only: dict[str, float] | None = None, plant: dict[str, str] | None = None,
+          **accepts: str) -> EffectInfo:
+    """One injection from its ``{param: (default, lo, hi, unit)}`` (and one alternative set
+    alike) and the intervals the bench accepts (``param="(lo, hi]"``)."""
+    bench = Bench(stage, MappingProxyType({k: Interval(v) for k, v in accepts.items()}),
+                  MappingProxyType(only or {}), MappingProxyType(plant or {}))
+    return EffectInfo(bench, schema(name, meaning, params, alternatives))
+
+
+POSITIVE = "(0, inf)"
+EFFECTS: Mapping[str, EffectInfo] = MappingProxyType({i.name: i for i in (      # INTERFACES.md's order
+    _info("delay", "force", "measured forces lag by round(seconds · fs) samples",
+          {"seconds": (0.025, 0.005, 0.1, "s")}, seconds="(0, 10]"),
+    _info("sensor_resonance", "force", "a second-order mode on the measured forces",
+          {"frequency_hz": (30.0, 12.0, 80.0, "Hz"), "damping_ratio": (0.05, 0.02, 0.3, "1")},
+          frequency_hz="(0, 190)", damping_ratio=POSITIVE),
+    _info("actuator_fade", "actuator", "Cμ delivered fades with the accumulated burst on-time",
+          {"final_fraction": (0.6, 0.4, 0.9, "1"), "time_constant_s": (3.0, 1.0, 10.0, "s")},
+          only={"onset_s": 0.0}, final_fraction="[0, 1]", time_constant_s=POSITIVE, onset_s="[0, inf)"),
+    _info("zero_drift", "offset", "the lift zero drifts",
+          {"rate_per_s": (4.0e-4, 2.0e-4, 1.5e-3, "ΔCL/s")},
+          {"amplitude": (0.02, 0.01, 0.05, "ΔCL"), "time_constant_s": (20.0, 5.0, 60.0, "s")},
+          time_constant_s=POSITIVE),
+    _info("periodic_disturbance", "offset", "a sinusoid added to the lift (pickup as sampled)",
+          {"frequency_hz": (20.0, 1.0, 190.0, "Hz"), "amplitude": (0.006, 0.002, 0.02, "ΔCL")},
+          frequency_hz=POSITIVE),
+    _info("hysteresis", "plant", "the static gain on falling Cμ is (1 + m) × that on rising",
+          {"magnitude": (0.15, 0.05, 0.3, "1")}, plant={"magnitude": "hysteresis"}, magnitude="(-0.9, 5)"),
+)})
+"""The effects the bench injects, in INTERFACES.md's order."""
 STAGE_ON_BENCH: Mapping[str, str] = MappingProxyType({n: i.stage for n, i in EFFECTS.items()})
 BENCH_ONLY: Mapping[str, Mapping[str, float]] = MappingProxyType(
     {n: i.bench.only for n, i in EFFECTS.items() if i.bench.only})
@@ -237,7 +282,7 @@ class PeriodicDisturbance:
 
 PROCESSORS = {c.name: c for c in (ActuatorFade, Delay, SensorResonance, ZeroDrift, PeriodicDisturbance)}
 """The bench's own physics of each effect it injects at an ``actuator``, ``force`` or ``offset``
-stage (tests/test_registry.py checks these against the registry)."""
+stage (tests/test_effects_modules.py checks these against the effects)."""
 
 
 def processor(effect: Effect, fs_hz: float, rng: np.random.Generator):

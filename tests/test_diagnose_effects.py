@@ -19,7 +19,7 @@ from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import OutputHysteresis
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.diagnose import diagnose
-from rtlift.diagnose.catalog import augment, predict
+from rtlift.effects.surgery import augment, predict
 
 EXPERIMENT = "sine_k0125"
 

@@ -15,8 +15,8 @@ from scipy import signal
 from rtlift.blocks.sensor_resonance import resonance_ba
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.core.records import Record
-from rtlift.diagnose.catalog import Context
-from rtlift.diagnose.fits import _spectral_mode
+from rtlift.effects.sensor_resonance import _spectral_mode
+from rtlift.effects.surgery import Context
 from rtlift.residual.fingerprint import (
     Z_DEPART,
     coef_departure,

@@ -201,7 +201,7 @@ def test_an_effects_input_stage_goes_before_the_structures_own_and_acts_on_what_
     fade was taken for a drift while the fade came after the stage). The augmented model equals the
     model run on the faded inputs."""
     from rtlift.blocks.actuator_fade import ActuatorFade
-    from rtlift.diagnose.surgery import augment
+    from rtlift.effects.surgery import augment
 
     rng = np.random.default_rng(5)
     m = interaction_model(rng, 40, 2)

@@ -179,12 +179,13 @@ def test_importing_firmware_io_loads_neither_scipy_nor_the_model():
 
 
 LAYERS = (("rtlift.core",), ("rtlift.blocks",), ("rtlift.model",), ("rtlift.residual",), ("rtlift.identify",),
-          ("rtlift.diagnose",), ("rtlift.sysid",), ("rtlift.observer",), ("rtlift.export",),
+          ("rtlift.effects",), ("rtlift.diagnose",), ("rtlift.sysid",), ("rtlift.observer",), ("rtlift.export",),
           ("rtlift.app", "rtlift.api"))
 """rtlift's folders bottom up, the data flow: the core; the model's blocks; the model (hybrid,
 file, domain, prediction, the single-input models); the model's own residual (its tests and
 fingerprint, which identification stores and diagnosis compares with); identification (which
-diagnosis uses to re-fit); diagnosis; the generic ``t,u,y`` systems (identified and diagnosed
+diagnosis uses to re-fit); the effects and structures, one module each (their fits re-identify;
+the diagnosis and the observer use them); diagnosis; the generic ``t,u,y`` systems (identified and diagnosed
 with both); the observer (run on an identified model); its export to C and MATLAB; the
 applications and their Python API.
 ``rtlift`` itself and ``rtlift.data`` hold no code of a layer."""

@@ -16,7 +16,7 @@ from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
 from rtlift.blocks.stage import OutputStage
 from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import OutputHysteresis
-from rtlift.diagnose.catalog import augment
+from rtlift.effects.surgery import augment
 from rtlift.observer import (
     FLAG_GATE_RELEASED,
     FLAG_MISSING,

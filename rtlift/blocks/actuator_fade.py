@@ -41,7 +41,7 @@ class ActuatorFade(InputStage):
         self.dt = 1.0 / self.fs_hz
         # the compiled step's view of this stage (rtlift.blocks.compiled._faded): its parameters
         # [on, f, τ, 1/fs, clock is "time"] and its state [E], the arrays themselves, so that a fit
-        # that sets f or τ (rtlift.diagnose.fits) is seen by the compiled model at once
+        # that sets f or τ (rtlift.effects.actuator_fade) is seen by the compiled model at once
         self._par = np.array([1.0, f, tau, self.dt, float(self._always)])
         self._state = np.zeros(1)
 

@@ -21,7 +21,7 @@ from rtlift.blocks.wiener import _check_table, _Table
 
 STRUCTURE_STAGES = ("delivered_momentum", "delivered_envelope")
 """The interaction structure's own input stages (not effects): an effect's input stage (a fade,
-a delay) acts on the actuation they see, so it goes before them (:func:`rtlift.diagnose.surgery.augment`)."""
+a delay) acts on the actuation they see, so it goes before them (:func:`rtlift.effects.surgery.augment`)."""
 
 
 class DeliveredMomentum(InputStage):

@@ -34,6 +34,9 @@ class PeriodicDisturbance(OutputStage):
     """
 
     name = "periodic_disturbance"
+    per_record = ("phase_rad",)
+    """Parameters of a record's own, not of the pickup: re-estimated on each record
+    (:func:`rtlift.model.validation.predict_record`)."""
     kind = "additive"
     compiled_form = True
 

@@ -5,8 +5,9 @@ An *input stage* maps the actuation record before the model sees it,
 model's ΔCL to what the balance reports, ``ΔCL → ΔCL′`` (a sensor mode, a drift, a pickup).
 Every stage is a streaming block (``step``, batch twin ``simulate``, explicit state) and is
 named and parametrised as in INTERFACES.md, so a model file can list it and
-:data:`rtlift.blocks.stages.STAGES` (built from the effect registry, :mod:`rtlift.core.registry`)
-can rebuild it with ``from_params(params, fs_hz)``. Each stage lives in a module of its own
+:data:`rtlift.blocks.stages.STAGES` (derived from the stage classes; the effect of
+:mod:`rtlift.effects` that adds a stage takes the stage's name) can rebuild it with
+``from_params(params, fs_hz)``. Each stage lives in a module of its own
 (:mod:`rtlift.blocks.delay`, :mod:`rtlift.blocks.actuator_fade`, :mod:`rtlift.blocks.sensor_resonance`,
 :mod:`rtlift.blocks.zero_drift`, :mod:`rtlift.blocks.periodic_disturbance`; the ``interaction``
 structure's in :mod:`rtlift.blocks.delivered`), its docstring holding its equation.

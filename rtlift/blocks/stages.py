@@ -1,7 +1,9 @@
 """Every augmentation stage by name (:data:`STAGES`), as a model file lists it, and
 :func:`stage_from_spec`, which rebuilds one from its entry. The interface is
-:mod:`rtlift.blocks.stage`; each stage lives in a module of its own, named by the effect
-registry (:mod:`rtlift.core.registry`), which this table is built from.
+:mod:`rtlift.blocks.stage`; each stage lives in a module of its own, and the table is derived
+from the stage classes of this package (every :class:`~rtlift.blocks.stage.InputStage` subclass
+with a ``name``: the model file's key, which the effect of :mod:`rtlift.effects` that adds the
+stage takes as its own).
 
 Catalog (``name``: equation; k = 0 is the first sample after ``reset()``, t_k = k / fs):
 
@@ -28,17 +30,31 @@ together): ``hysteresis`` is :class:`rtlift.blocks.wiener.HysteresisGain`,
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
 from typing import Any
 
-from rtlift.blocks.delivered import DeliveredEnvelope, DeliveredMomentum
+import rtlift.blocks
 from rtlift.blocks.stage import InputStage
-from rtlift.core.registry import EFFECTS, resolve
 
-STAGES: dict[str, Any] = {**{e.name: resolve(e.stages[0]) for e in EFFECTS if e.path != "nonlinearity"},
-                          DeliveredMomentum.name: DeliveredMomentum, DeliveredEnvelope.name: DeliveredEnvelope}
-"""Every stage by name: the effects' stages as the registry (:mod:`rtlift.core.registry`) names them
-(the static-gain effects' are Wiener nonlinearities instead), and the interaction structure's
-``delivered_envelope`` (and ``delivered_momentum``, as first merged), which are not effects."""
+
+def _named_stages() -> dict[str, Any]:
+    """Every stage class of :mod:`rtlift.blocks` by its ``name`` (each module imported)."""
+    for module in pkgutil.iter_modules(rtlift.blocks.__path__):
+        importlib.import_module(f"{rtlift.blocks.__name__}.{module.name}")
+    found, todo = {}, [InputStage]
+    while todo:
+        cls = todo.pop()
+        todo += cls.__subclasses__()
+        if cls.__dict__.get("name"):
+            found[cls.name] = cls
+    return found
+
+
+STAGES: dict[str, Any] = _named_stages()
+"""Every stage by name: the effects' stages (the static-gain effects' are Wiener nonlinearities
+instead) and the interaction structure's ``delivered_envelope`` (and ``delivered_momentum``, as
+first merged), which are not effects."""
 
 
 def stage_from_spec(name: str, params: dict[str, Any], fs_hz: float) -> InputStage:

@@ -6,7 +6,7 @@
 - :mod:`rtlift.core.effects` one parameter schema per effect (shared by the model and the bench);
 - :mod:`rtlift.core.rate`    the 400 Hz sample rate;
 - :mod:`rtlift.core.programs` experiment programs (time, envelope, burst period) for the rig and the bench;
-- :mod:`rtlift.core.registry` the registry of effects and structures;
+- :mod:`rtlift.core.registry` the generic model structures (the effects: :mod:`rtlift.effects`);
 - :mod:`rtlift.core.jsonfile` JSON files written whole or not at all;
 - :mod:`rtlift.core.jit`     numba functions compiled with a cache safe across processes;
 - :mod:`rtlift.core.threads` one BLAS thread for identification and diagnosis.

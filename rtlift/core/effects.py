@@ -1,8 +1,8 @@
 """An effect's parameter schema: defaults, units, documented ranges, alternative sets, and the
 intervals a parameter may take.
 
-The schemas themselves are part of each effect's record in :mod:`rtlift.core.registry`
-(:data:`rtlift.core.registry.SCHEMAS` by name); this module holds only their form. The simulated
+The schemas themselves are declared by each effect's class in :mod:`rtlift.effects`
+(:data:`rtlift.effects.SCHEMAS` by name); this module holds only their form. The simulated
 bench draws and checks its injected effects against these ranges (it keeps its own truth
 physics), the model's stages take these parameter names, and the diagnosis's catalog adds to
 each the fit and the evidence that point at it.

@@ -3,7 +3,7 @@
 (The residual tests and the model's own residual at identification, its fingerprint, live in
 :mod:`rtlift.residual`, below identification, which stores the fingerprint in the model file.)
 
-- :mod:`.catalog` — one :class:`~.catalog.Effect` record per INTERFACES.md effect;
+- the effects it tries are :mod:`rtlift.effects` (one module per INTERFACES.md effect);
 - :mod:`.selection` — combinations compared on held-out records, every member earning its place;
 - :mod:`.significance` — the test a member passes on the held-out records, the table of combinations;
 - :mod:`.unexplained` — what the diagnosis leaves unexplained, the report's ``unexplained`` lines;
@@ -13,8 +13,8 @@
 - :mod:`.sources` — the records a diagnosis is given, or one long run split in two (``--run``).
 """
 
-from rtlift.diagnose.catalog import EFFECT_NAMES
 from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis
 from rtlift.diagnose.selection import diagnose
+from rtlift.effects import EFFECT_NAMES
 
 __all__ = ["EFFECT_NAMES", "DiagnoseOptions", "Diagnosis", "diagnose"]

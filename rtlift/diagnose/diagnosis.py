@@ -46,6 +46,29 @@ class Trial:
                 "validation_rmse_before": self.rmse_before, "validation_rmse_after": self.rmse_after}
 
 
+def report_dict(baseline: dict[str, Any], augmented: dict[str, Any], trials: list[Trial], unexplained: Any,
+                fingerprint: Any, references: Any, fit_target: Any, reestimation: Any, selection: dict[str, Any],
+                scoring: str, not_built: list[str] | None) -> dict[str, Any]:
+    """The report (INTERFACES.md's keys, in this order) of a diagnosis of either kind: ρ, NRMSE and
+    RMSE per record before and after (``baseline``, ``augmented``: ``{record: scores}``), every
+    entry tried, what stays unexplained, what the residual was compared with, the selection, how
+    the records were scored, and (generic models) the structures not built."""
+    return {
+        "version": REPORT_VERSION,
+        "baseline": {"records": baseline},
+        "augmented": {"records": augmented},
+        "effects": [t.to_dict() for t in trials],
+        "unexplained": unexplained,
+        "fingerprint": fingerprint,
+        "references": references,
+        "fit_target": fit_target,
+        "reestimation": reestimation,
+        "selection": selection,
+        "scoring": scoring,
+        "not_built": not_built,
+    }
+
+
 @dataclass
 class Diagnosis:
     """A diagnosis of either kind, as :mod:`rtlift.diagnose.report` writes it: the report (the same

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.core.registry import ENTRIES
 from rtlift.diagnose.diagnosis import Diagnosis
+from rtlift.effects import BY_NAME
 from rtlift.model.modelfile import save_model
 from rtlift.model.siso_file import save_siso_model
 from rtlift.residual.stats import welch_psd
@@ -142,7 +142,7 @@ def markdown(diag: Diagnosis, figures: dict[str, str]) -> str:
         lines.append(f"| {' + '.join(c['members'])} | {count} | {c['validation_rmse']:{num}} | "
                      f"{c['level_free_rmse']:{num}} | "
                      f"{'yes' if c['admissible'] else 'no'} | {c['why']} |")
-    lines += ["", "Evidence:", ""] + [f"- **{e['name']}** ({ENTRIES[e['name']].schema.meaning}): {e['evidence']}"
+    lines += ["", "Evidence:", ""] + [f"- **{e['name']}** ({BY_NAME[e['name']].meaning}): {e['evidence']}"
                                       for e in r["effects"]]
     lines += ["", "## Unexplained", ""] + ([f"- {u}" for u in r["unexplained"]] or ["- nothing"])
     first = next(iter(diag.tests_before))

@@ -52,7 +52,7 @@
    stronger (Σ|z|): two explanations that fit alike are told apart by what points at them.
 
 6. **Re-estimation.** With the chosen effects in, φ and the Wiener part's scale are
-   re-estimated jointly on the training record (:func:`.catalog.reestimate`), kept only if
+   re-estimated jointly on the training record (:func:`rtlift.effects.surgery.reestimate`), kept only if
    the validation error is lower and no record worse by more than 1 %.
 
 Scores everywhere are :func:`rtlift.model.validation.predict_record` over whole records: the
@@ -72,10 +72,12 @@ import numpy as np
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
 from rtlift.core.threads import one_blas_thread
-from rtlift.diagnose.catalog import CATALOG, EFFECT_NAMES, EFFECTS, Context, Fitted, predict, reestimate
-from rtlift.diagnose.diagnosis import REPORT_VERSION, DiagnoseOptions, Diagnosis, Trial
+from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial, report_dict
 from rtlift.diagnose.significance import combination, level_free_rmse, pooled_rmse, significant_gain
 from rtlift.diagnose.unexplained import unexplained
+from rtlift.effects import BY_NAME as EFFECTS
+from rtlift.effects import CATALOG, EFFECT_NAMES, Context, Fitted, predict, reestimate
+from rtlift.effects.zero_drift import ZeroDriftEffect
 from rtlift.model.hybrid import HybridModel
 from rtlift.residual.fingerprint import (
     FINGERPRINT_START_S,
@@ -376,27 +378,26 @@ def diagnose(model: HybridModel, train: Record, validate: list[Record],
     resid_before = {r.name: (r.dcl - predict(model, r).total)[first.get(r.name, 0):] for r in records}
     resid_after = {r.name: (r.dcl - predict(augmented, r).total)[first.get(r.name, 0):] for r in records}
     measured = {r.name: r.dcl[first.get(r.name, 0):] for r in records}
-    report = {
-        "version": REPORT_VERSION,
-        "baseline": {"records": {n: scores(z, z - resid_before[n]) for n, z in measured.items()}},
-        "augmented": {"records": {n: scores(z, z - resid_after[n]) for n, z in measured.items()}},
-        "effects": [t.to_dict() for t in trials],
-        "unexplained": unexplained(search.tests(best.members), fp, trials, (len(train) - start) / fs,
-                                   drift_holds=_holds_out(singles["zero_drift"], judge, base, opt)),
-        "fingerprint": fp_note,
-        "references": {train.name: ref.to_dict(),
-                       **{r.name: reference(model.fingerprint, model, r, start).to_dict() for r in validate}},
-        "fit_target": target_note,
-        "reestimation": refit,
-        "selection": {"pool": pool, "chosen": list(best.members), "combinations": table,
-                      "rule": "every member lowers the validation error significantly; within "
-                              f"{100 * opt.parsimony:g} % of the lowest level-free validation RMSE (each "
-                              "record's mean error taken out), the most members whose evidence departs from "
-                              "the fingerprint, then the fewest parameters"},
-        "scoring": "whole records from rest (rtlift validate's numbers); a periodic_disturbance's "
-                   "line phases are estimated on each record itself, as rtlift validate does",
-        "not_built": None,        # the generic diagnosis's list; every lift effect is in the catalog
-    }
+    report = report_dict(
+        baseline={n: scores(z, z - resid_before[n]) for n, z in measured.items()},
+        augmented={n: scores(z, z - resid_after[n]) for n, z in measured.items()},
+        trials=trials,
+        unexplained=unexplained(search.tests(best.members), fp, trials, (len(train) - start) / fs,
+                                drift_holds=_holds_out(singles[ZeroDriftEffect.name], judge, base, opt)),
+        fingerprint=fp_note,
+        references={train.name: ref.to_dict(),
+                    **{r.name: reference(model.fingerprint, model, r, start).to_dict() for r in validate}},
+        fit_target=target_note,
+        reestimation=refit,
+        selection={"pool": pool, "chosen": list(best.members), "combinations": table,
+                   "rule": "every member lowers the validation error significantly; within "
+                           f"{100 * opt.parsimony:g} % of the lowest level-free validation RMSE (each "
+                           "record's mean error taken out), the most members whose evidence departs from "
+                           "the fingerprint, then the fewest parameters"},
+        scoring="whole records from rest (rtlift validate's numbers); a periodic_disturbance's "
+                "line phases are estimated on each record itself, as rtlift validate does",
+        not_built=None,        # the generic diagnosis's list; every lift effect is in the catalog
+    )
     return Diagnosis(report, model, augmented, trials, tests_before, tests_after, resid_before,
                      resid_after, start, table)
 

@@ -12,8 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.diagnose.catalog import EFFECTS
 from rtlift.diagnose.diagnosis import Trial
+from rtlift.effects import BY_NAME
+from rtlift.effects.zero_drift import ZeroDriftEffect
 from rtlift.residual.fingerprint import Z_DEPART, coef_departure, level_departure, psd_departure
 from rtlift.residual.stats import TestResult
 
@@ -55,11 +56,11 @@ def explained_bands(trials: list[Trial], df: float) -> list[tuple[float, float]]
     """Frequency bands (Hz) an accepted entry accounts for: a ``sensor_resonance``'s half-power
     band f(1 ± ζ), a ``periodic_disturbance``'s lines (the fundamental and its harmonics as
     sampled) ± 1.5 bins (the window its fit searches); each widened by half a spectrum bin
-    ``df``, the width of the bin a line is reported at. Each effect's own, as its registry record
-    names them (:attr:`rtlift.core.registry.Diagnosis.bands`)."""
+    ``df``, the width of the bin a line is reported at. Each effect's own
+    (:attr:`rtlift.effects.base.Effect.bands`)."""
     bands = []
     for t in trials:
-        of = EFFECTS[t.name].bands if t.accepted and t.name in EFFECTS else None    # the registry's
+        of = getattr(BY_NAME.get(t.name), "bands", None) if t.accepted else None    # the effect's own
         if of is not None:
             bands += of(t.params, df)
     return bands
@@ -84,7 +85,7 @@ def slow_trend_line(test: TestResult, fp: dict[str, Any] | None, seconds: float,
     end value (the slow kind: thermal) adds a fixed change Δ = b T however long the record, its
     slope falls as 1/T, so z grows as √T and reaches ``Z_DEPART`` at
     N = T (Z_DEPART / |z|)² (a drift that kept its rate would tell sooner: T (Z_DEPART/|z|)^(2/3))."""
-    if fp is None or seconds <= 0 or any(t.accepted and t.name == "zero_drift" for t in trials):
+    if fp is None or seconds <= 0 or any(t.accepted and t.name == ZeroDriftEffect.name for t in trials):
         return ""
     dep = coef_departure(test, fp, "offset drift", "/s")
     z = dep.z

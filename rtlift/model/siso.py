@@ -25,12 +25,12 @@ from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.jit import njit_cached
-from rtlift.core.registry import ENTRIES, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES, resolve
+from rtlift.core.registry import LIMIT_FORMS, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES, resolve
 from rtlift.model.siso_file import FORMAT, VERSION, _finite, _limit_pair, model_from_dict
 
 STRUCTURES = MODEL_STRUCTURE_NAMES
 """The structures a generic record is identified in (:data:`rtlift.core.registry.MODEL_STRUCTURES`)."""
-LIMITED: dict[str, tuple[str, ...]] = {where: tuple(s for s, at in ENTRIES["saturation"].forms if at == where)
+LIMITED: dict[str, tuple[str, ...]] = {where: tuple(s for s, at in LIMIT_FORMS if at == where)
                                        for where in ("output", "state")}
 """Where a limit is built, and in which structures: the registry's ``saturation`` forms."""
 

@@ -19,7 +19,6 @@ import numpy as np
 
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record, SisoRecord
-from rtlift.core.registry import ENTRIES
 from rtlift.model.hybrid import HybridModel, HybridOutput
 
 VALIDATE_VERSION = 1
@@ -43,9 +42,9 @@ def simulate_record(model: HybridModel, record: Record) -> HybridOutput:
 
 
 def per_record_stages(model: HybridModel) -> list:
-    """The output stages whose effect has parameters of the record's own (the registry's
-    ``per_record``: a pickup's line phases)."""
-    return [s for s in model.output_stages if s.name in ENTRIES and ENTRIES[s.name].per_record == ("phase_rad",)]
+    """The output stages with parameters of the record's own (the stage's ``per_record``: a
+    pickup's line phases)."""
+    return [s for s in model.output_stages if getattr(s, "per_record", ()) == ("phase_rad",)]
 
 
 def pickup_phases(model: HybridModel, record: Record, total: np.ndarray) -> list[np.ndarray]:

@@ -12,54 +12,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
-from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
-from rtlift.core.registry import EFFECTS, resolve
+from rtlift.effects import EFFECTS, StateBlock
 from rtlift.model.hybrid import HybridModel
 from rtlift.observer.config import ObserverConfig, ObserverError
 
-
-@dataclass(frozen=True)
-class StateBlock:
-    """States an accepted effect adds: ``s(k) = F s(k−1) + w``, ``w ~ N(0, Q)``, seen in the
-    measurement through ``h · s(k)``; ``in_estimate`` if they are part of the lift ΔĈL."""
-
-    name: str
-    F: np.ndarray
-    Q: np.ndarray
-    h: np.ndarray
-    P0: np.ndarray
-    in_estimate: bool = False
-
-    @property
-    def size(self) -> int:
-        return int(self.h.size)
-
-
-def oscillator(params: dict[str, Any], fs_hz: float) -> StateBlock:
-    """A periodic disturbance Σ A_i sin(ω_i k + φ_i) as rotating 2-state oscillators, one per
-    line (the stage's own state space); the phases are the observer's to track."""
-    stage = PeriodicDisturbance.from_params(params, fs_hz)
-    F, _, h, _ = stage.statespace()
-    amp = np.repeat(np.maximum(np.abs(stage.amplitudes), 1e-6), 2)
-    return StateBlock("periodic_disturbance", F, np.diag((1e-3 * amp) ** 2), h, np.diag(amp**2))
-
-
-def absorbed_by_bias(params: dict[str, Any], fs_hz: float) -> None:
-    """No states of its own: the random-walk bias state covers the effect (a drift)."""
-    return None
-
-
 OBSERVER_FORMS: dict[str, Callable[[dict[str, float], float], StateBlock | None]] = {
-    e.name: resolve(e.observer) for e in EFFECTS if e.observer}
-"""Output stages the observer represents by states, as the registry (:mod:`rtlift.core.registry`)
-names them: a factory returning a :class:`StateBlock`, or ``None`` when the bias state already
-covers the effect. Other output stages are applied as known corrections (module docstring)."""
+    e.name: e.observer_form for e in EFFECTS if e.observed}
+"""Output stages the observer represents by states, by name: each effect's own observer form
+(:meth:`rtlift.effects.base.Effect.observer_form`, a :class:`StateBlock` or ``None`` when the
+bias state already covers the effect). Other output stages are applied as known corrections
+(module docstring)."""
 
 
 class BurstPhase:

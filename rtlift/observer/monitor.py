@@ -94,6 +94,9 @@ from typing import Any
 import numpy as np
 
 from rtlift.core.rate import FS_HZ
+from rtlift.effects.actuator_fade import ActuatorFadeEffect
+from rtlift.effects.periodic_disturbance import PeriodicDisturbanceEffect
+from rtlift.effects.zero_drift import ZeroDriftEffect
 
 TESTS = ("bias", "gain", "level", "whiteness", "line", "trend", "hold")
 MARGIN = 1.25
@@ -590,20 +593,24 @@ class DepartureMonitor:
                     self._active[test] = False
 
     def suspect(self, test: str) -> str:
+        """The effect a departure of ``test`` points at (its name, :mod:`rtlift.effects`), or what
+        no effect models: ``gain_increase`` (the gain rose; a fade only lowers it) and
+        ``resonance or added noise``."""
+        fade, drift = ActuatorFadeEffect.name, ZeroDriftEffect.name
         if test == "bias":
             kind, t = self._fit
             if kind == "proportional" and t < 0:
-                return "actuator_fade"
+                return fade
             # else by the shift's sign, as ``hold`` (a fade cannot raise the lift)
-            return "actuator_fade" if self._bias_shift < 0 else "zero_drift"
+            return fade if self._bias_shift < 0 else drift
         if test == "gain":
-            return "actuator_fade" if self._gain_sign < 0 else "gain_increase"
+            return fade if self._gain_sign < 0 else "gain_increase"
         if test == "line":
-            return f"periodic_disturbance at {getattr(self, '_line_hz', math.nan):.2f} Hz"
+            return f"{PeriodicDisturbanceEffect.name} at {getattr(self, '_line_hz', math.nan):.2f} Hz"
         if test == "trend":
-            return "zero_drift"
+            return drift
         if test == "hold":
-            return "actuator_fade" if self._hold < 0 else "zero_drift"
+            return fade if self._hold < 0 else drift
         return "resonance or added noise"
 
     def _raise(self, t_s: float, test: str, value: float, threshold: float) -> None:

@@ -49,10 +49,10 @@ import numpy as np
 
 from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
-from rtlift.core.registry import STRUCTURES
 from rtlift.core.threads import one_blas_thread
-from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial
+from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial, report_dict
 from rtlift.diagnose.significance import combination, lowest_admissible, pooled_rmse, significant_gain
+from rtlift.effects import STRUCTURES
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import TestResult, higher_order, input_crosscorr, whiteness
 from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions
@@ -60,7 +60,7 @@ from rtlift.sysid.identify import identify_siso
 from rtlift.sysid.initial import initial_state
 
 HOW = {e.name: e.how for e in STRUCTURES}
-"""How each structure of the registry (:mod:`rtlift.core.registry`) is fitted, for the report."""
+"""How each structure (:mod:`rtlift.effects`) is fitted, for the report."""
 SATURATION = next(e for e in STRUCTURES if any(where for _, where in e.forms))
 """The structure that limits (``saturation``): tried only where the output piles up at a level."""
 FORMS = tuple((e.name, e.forms[0][0]) for e in STRUCTURES if e is not SATURATION)
@@ -224,24 +224,23 @@ def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRec
 
     def scored_from(out: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:   # record_scores' numbers
         return {r.name: scores(r.y[scored[r.name]:], out[r.name][scored[r.name]:]) for r in records}
-    report = {
-        "version": 1,
-        "baseline": {"records": scored_from(outputs)},
-        "augmented": {"records": scored_from(after_out)},
-        "effects": [t.to_dict() for t in trials],
-        "unexplained": unexplained,
-        "fingerprint": FINGERPRINT,
-        "references": None,
-        "fit_target": FIT_TARGET,
-        "reestimation": None,
-        "selection": {"pool": [r["members"][0] for r in rows], "chosen": [] if chosen is None else chosen["members"],
-                      "combinations": rows, "rule": RULE},
-        "scoring": (f"free run over whole records from the state estimated on the first {skip} samples, "
-                    "which are unscored (rtlift validate --skip --init-state)" if init_state else
-                    f"free run from rest over whole records, the first {skip} samples unscored "
-                    "(rtlift validate --skip)"),
-        "not_built": not_built,
-    }
+    report = report_dict(
+        baseline=scored_from(outputs),
+        augmented=scored_from(after_out),
+        trials=trials,
+        unexplained=unexplained,
+        fingerprint=FINGERPRINT,
+        references=None,
+        fit_target=FIT_TARGET,
+        reestimation=None,
+        selection={"pool": [r["members"][0] for r in rows], "chosen": [] if chosen is None else chosen["members"],
+                   "combinations": rows, "rule": RULE},
+        scoring=(f"free run over whole records from the state estimated on the first {skip} samples, "
+                 "which are unscored (rtlift validate --skip --init-state)" if init_state else
+                 f"free run from rest over whole records, the first {skip} samples unscored "
+                 "(rtlift validate --skip)"),
+        not_built=not_built,
+    )
     return Diagnosis(
         report, model, augmented, trials,
         {r.name: residual_tests(model, r, max(s, first.get(r.name, 0)), outputs[r.name]) for r in records},
