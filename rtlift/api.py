@@ -148,23 +148,11 @@ def identify_record(record: Any, *, structure: str = "wiener", order: int | None
 
 def read_records(records: Sequence[Any], model: Any, min_samples: int = 2) -> list:
     """The records (paths read, objects as given) of the kind ``model`` takes, at its rate, with
-    distinct names (one-line :class:`UserError` otherwise)."""
-    from rtlift.core.records import record_kind
+    distinct names (one-line :class:`UserError` otherwise): the check a diagnosis's records pass
+    too (:func:`rtlift.diagnose.sources.read_all`)."""
+    from rtlift.diagnose.sources import read_all
 
-    generic = is_generic(model)
-    for r in records:
-        if isinstance(r, (str, os.PathLike)) and (record_kind(r) == "siso") != generic:
-            raise UserError(f"{r}: a {'generic t,u,y' if record_kind(r) == 'siso' else 'lift'} record, "
-                            f"but the model is a {'generic' if generic else 'lift'} model")
-    recs = [(_generic if generic else _lift)(r, min_samples) for r in records]
-    stems = [r.name for r in recs]
-    dup = {s for s in stems if stems.count(s) > 1}
-    if dup:
-        raise UserError(f"two records share the stem {sorted(dup)[0]!r}; the results are keyed by stem")
-    for r in recs:
-        if abs(r.fs_hz - model.fs_hz) > 1e-6 * model.fs_hz:
-            raise UserError(f"{r.name}: sampled at {r.fs_hz:g} Hz, the model at {model.fs_hz:g} Hz")
-    return recs
+    return read_all(list(records), model, is_generic(model), min_samples)
 
 
 def validate(model: Any, records: Sequence[Any], *, skip: int = 0, figures: PathLike | None = None,

@@ -49,7 +49,7 @@ def test_validate_takes_loaded_objects_and_refuses_the_other_kind_with_one_line(
     model = make_model(np.random.default_rng(3))
     write_siso_record(tmp_path / "g.csv", SisoRecord(np.arange(10) / 400.0, np.zeros(10), np.zeros(10),
                                                      {"fs_hz": "400"}, "g"))
-    with pytest.raises(UserError, match="a generic t,u,y record, but the model is a lift model"):
+    with pytest.raises(UserError, match="a generic \\(t,u,y\\) record, but the model is a lift model"):
         read_records([tmp_path / "g.csv"], model)
     from hil_sim.experiments import run_experiment
 

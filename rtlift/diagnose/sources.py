@@ -73,17 +73,23 @@ def _provenance(model_name: str | None, **sources: Any) -> dict[str, Any]:
                   for k, v in sources.items()}
 
 
-def records(train: Any, validate: list[Any], model: Any, generic: bool, skip: int = 0,
-            model_name: str | None = None) -> Sources:
-    """A training record and validation records (``rtlift diagnose --train --validate``)."""
-    need = least_samples(model, generic, skip)
-    train_rec = read(train, model, generic, need, model_name)
-    recs = [train_rec, *(read(r, model, generic, need, model_name) for r in validate)]
+def read_all(records: list[Any], model: Any, generic: bool, min_samples: int,
+             model_name: str | None = None) -> list[Record | SisoRecord]:
+    """Each record :func:`read` (the one check of a record a command is given: its kind, rate and
+    length), and their stems distinct (the results are keyed by stem)."""
+    recs = [read(r, model, generic, min_samples, model_name) for r in records]
     names = [r.name for r in recs]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
-        raise UserError(f"two records share the stem {sorted(dup)[0]!r}; the report is keyed by stem")
-    return Sources(train_rec, recs[1:], provenance=_provenance(model_name, train=train, validate=list(validate)))
+        raise UserError(f"two records share the stem {sorted(dup)[0]!r}; the results are keyed by stem")
+    return recs
+
+
+def records(train: Any, validate: list[Any], model: Any, generic: bool, skip: int = 0,
+            model_name: str | None = None) -> Sources:
+    """A training record and validation records (``rtlift diagnose --train --validate``)."""
+    train_rec, *recs = read_all([train, *validate], model, generic, least_samples(model, generic, skip), model_name)
+    return Sources(train_rec, recs, provenance=_provenance(model_name, train=train, validate=list(validate)))
 
 
 def split_index(n: int, fs: float, fraction: float, path: str) -> int:
