@@ -70,7 +70,8 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
     return {"draw": n, "identify_s": t1 - t0, "design_s": t2 - t1, "measure_s": time.perf_counter() - t2,
             "violations": s["violations"], "refused_by_control": bool(s["violations"]),
             "pm_deg_min": s["pm_deg_min"], "gm_db_min": s["gm_db_min"], "peak_s_db_max": s["peak_s_db_max"],
-            "robust_max": s["robust_max"], "f6_predicted_hz": point.f6_hz, "limit_f6_hz": point.limit_f6_hz,
+            "robust_max": s["robust_max"], "f6_predicted_hz": point.f6_hz,
+            "limit_f6_hz": design.nearest(0.08).limit_f6_hz,    # computed at the scheduled points
             "limit_f6_hz_min": s["limit_f6_hz_min"], "predicted_peak_db_at_0p08": point.peak_s_db,
             "predicted_point_dcl": point.dcl, "predicted_point_scheduled": point.designed,
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],

@@ -137,7 +137,7 @@ def main() -> None:
     ap.add_argument("--plant-draw", type=int, default=0, help="plant N of the bench's family (default 0: our bench)")
     ap.add_argument("--hand", action="store_true", help="the hand-set PI instead of the design")
     ap.add_argument("--figure", metavar="PNG", help="Bode plot with the measured points, envelope traces")
-    ap.add_argument("--peak-db", type=float, default=4.0, help="the design's |S| bound (dB, default 4)")
+    ap.add_argument("--peak-db", type=float, help="the design's |S| bound (dB, default: the design's own)")
     ap.add_argument("--pty", metavar="F,F,...", help="also measure these frequencies live over the serial pty")
     ap.add_argument("--design", metavar="REPORT.json", help="a saved design (rtlift design's report.json or the "
                     "cache beside the model) instead of designing")
@@ -148,11 +148,11 @@ def main() -> None:
         from rtlift.app.control_design import load_design
         design = load_design(args.design, accept_warnings=True)
     else:
-        design = design_loop(model, Targets(peak_db=args.peak_db))
+        design = design_loop(model, None if args.peak_db is None else Targets(peak_db=args.peak_db))
     design_s = time.perf_counter() - t0
     fb_config = (ControlConfig(fs_hz=model.fs_hz) if args.hand
                  else ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule()))
-    point = design.nearest(args.level)
+    point = min(design.points, key=lambda pt: abs(pt.dcl - args.level))   # a half-way check: the gains run there
     if args.hand:   # the prediction for the hand-set gains on the same lifted plant
         from rtlift.app.control_design import Gains, check_point
         point = check_point(point.cmu, point.dcl, np.asarray(point.plant), np.asarray(point.plant_point),
@@ -183,7 +183,8 @@ def main() -> None:
     if args.figure:
         _figure(args.figure, design, point, rows, quiet, args)
     emit({**res, "gains": "hand" if args.hand else "design", "level": args.level, "plant_draw": args.plant_draw,
-          "amplitude": args.amplitude, "peak_db_target": args.peak_db, "loop": "in-process (InProcessTracking)",
+          "amplitude": args.amplitude, "peak_db_target": design.targets.peak_db,
+          "loop": "in-process (InProcessTracking)",
           "f6_hz_predicted": point.f6_hz, "limit_f6_hz": point.limit_f6_hz,
           "design": {"gm_db": point.gm_db, "pm_deg": point.pm_deg, "crossover_hz": point.crossover_hz,
                      "peak_s_db": point.peak_s_db, "seconds": design_s, "violations": design.violations()},

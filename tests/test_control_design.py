@@ -18,6 +18,7 @@ import pytest
 
 from rtlift.app.control import ControlConfig, LiftController, config_from_gains_text, gains_text
 from rtlift.app.control_design import (
+    NYQUIST_GAIN_MAX,
     Design,
     Gains,
     Targets,
@@ -182,11 +183,13 @@ def test_the_design_is_cached_beside_the_model_keyed_by_its_content(model, desig
 
 
 def test_the_limit_bounds_the_design_and_falls_with_one_more_period_of_delay(design):
-    """Any causal controller: at least the band the design reaches (the design is one of them; the
-    limit's grid is 6 % coarse), and less with the plant one burst period later."""
+    """Any causal controller under the design's own bounds (|S|, |S_o|, |W T|, the gain margin at 4 Hz,
+    the controller's gain at 4 Hz): at least the band the design reaches (the design is one of them;
+    the limit's grid is 6 % coarse), and less with the plant one burst period later."""
     pt = design.scheduled[0]
     p, q = np.asarray(pt.plant), np.asarray(pt.plant_point)
-    args = {"f_o": pt.observer_response, "unc": design.uncertainty}
+    args = {"f_o": pt.observer_response, "unc": design.uncertainty, "gm_db": design.targets.gm_db,
+            "nyquist_gain": NYQUIST_GAIN_MAX}
     lim = rejection_limit(p, q, design.dt, design.targets.peak_db, **args)
     later = rejection_limit(np.r_[0.0, p[:-1]], np.r_[0.0, q[:-1]], design.dt, design.targets.peak_db, **args)
     assert lim >= pt.f6_hz / 1.07

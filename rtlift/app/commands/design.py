@@ -32,9 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
     p.add_argument("--gm-db", type=float, default=6.0, help="gain margin at least (dB, default 6)")
     p.add_argument("--pm-deg", type=float, default=45.0, help="phase margin at least (degrees, default 45)")
-    p.add_argument("--peak-db", type=float, default=4.0,
-                   help="largest predicted |S| at any frequency (dB, default 4: the model over-predicts "
-                        "the bench's loop gain by about 1.5 dB)")
+    p.add_argument("--peak-db", type=float,
+                   help="largest predicted |S| at any frequency (dB; default: the target set on the plant "
+                        "family's calibration draws, docs/results/control.md)")
     p.set_defaults(func=run)
 
 
@@ -42,6 +42,8 @@ def run(args: argparse.Namespace) -> int:
     from rtlift.app.control_design import Targets, design_loop
     from rtlift.model.modelfile import load_model
 
+    if args.peak_db is None:
+        args.peak_db = Targets().peak_db
     for name, lo, hi in (("gm_db", 0.0, 40.0), ("pm_deg", 0.0, 89.0), ("peak_db", 0.5, 20.0)):
         v = getattr(args, name)
         if not (math.isfinite(v) and lo <= v <= hi):
