@@ -112,16 +112,22 @@ class PacedAdapter(Adapter):
             total += int(fields[11]) + int(fields[12])      # utime, stime
         return total / ticks
 
+    def diagnosing(self) -> bool:
+        """A window is being diagnosed or its swap prepared (not yet ready: a ready swap waits for
+        the loop's next burst onset, which only the loop's own samples bring)."""
+        thread = self._thread
+        return self.busy and self._ready is None and thread is not None and thread.is_alive()
+
     def after_step(self, index: int, cmu: float, env: float, dcl: float | None) -> None:
         super().after_step(index, cmu, env, dcl)
-        if not self.busy:
+        if not self.diagnosing():
             self._paced_from = None
             return
         if self._paced_from is None:
             self._paced_from = (index, self._clock())
             return
         due = self._paced_from[1] + (index - self._paced_from[0]) / self.fs_hz
-        while self.busy and self._clock() < due:
+        while self.diagnosing() and self._clock() < due:
             time.sleep(0.0025 if self.pace == "wall" else 0.01)
 
 
