@@ -37,6 +37,16 @@ so both are measured in one run under the same machine load; the JSON keeps the 
 for the phases without the view and gains ``view`` (the same keys with it) and
 ``view_server`` (batches sent, pages, batches dropped).
 
+``--monitor`` runs the same live loop alternately without and with the departure monitor
+(:class:`rtlift.observer.monitor.DepartureMonitor` on the loop, as ``rtlift observe`` has it on by
+default; ``PAIRS`` pairs, ``--seconds`` of each in all, same link, same observer): the JSON keeps
+the keys above for the phases without it and gains ``monitor`` (the same keys with it, plus the
+monitor's own per-call times: ``monitor_step_median_us``/``_p99_us`` over the samples that end no
+block, ``monitor_block_end_median_us``/``_max_us`` over those that do, and the observer step's
+p99 on the sample right after a block end, ``observer_step_after_block_p99_us``) and ``gc`` (the
+interpreter's garbage collections per generation in each condition). Needs a model file with a
+fingerprint (``--model``, e.g. one from ``rtlift identify``).
+
 ``--model MODEL.json`` uses a model file with observer settings; by default the model is
 identified from the bench (seed 1, 2nd-order Wiener) and the observer tuned on a seed-1
 ``random`` record first (≈ 15 s, not timed).
@@ -56,6 +66,28 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit, percentiles_us  # noqa: E402
+
+
+class TimedMonitor:
+    """The departure monitor as the loop steps it, each ``step`` call timed (s) into preallocated
+    arrays with whether it ended a block (the once-a-second statistics); nothing else changes."""
+
+    def __init__(self, monitor, capacity: int) -> None:
+        self.monitor = monitor
+        self.times = np.zeros(capacity)
+        self.block_end = np.zeros(capacity, dtype=bool)
+        self.n = 0
+
+    def step(self, dcl, model_dcl: float, innovation: float) -> None:
+        mon, k = self.monitor, self.n
+        nb = mon._nb
+        t0 = time.perf_counter()
+        mon.step(dcl, model_dcl, innovation)
+        dt = time.perf_counter() - t0
+        if k < self.times.size:
+            self.times[k] = dt
+            self.block_end[k] = mon._nb != nb
+            self.n = k + 1
 
 
 def default_model():
@@ -188,25 +220,37 @@ SPIN_WINDOW_S = 0.0005
 """``--view``: the run alternates this many (without, with) pairs of phases."""
 
 
-def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | None, spin: bool = False) -> dict:
+def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | None, spin: bool = False,
+               monitor: TimedMonitor | None = None) -> dict:
     """The live loop for ``seconds`` of device time; with ``view_dir`` (a scratch folder for the
-    browser's profile) alternately without and with the view's tap, ``seconds`` of each."""
+    browser's profile) alternately without and with the view's tap, ``seconds`` of each; with
+    ``monitor`` alternately without and with it."""
+    import gc
+
     from firmware_io import Converter
     from firmware_io.latency import LatencyRecorder
     from rtlift.app.live import ObserverLoop
 
     converter = Converter()
     stream = link.samples(0.5)
-    runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "cpu": 0.0, "steps": [], "latencies": LatencyRecorder()}
-            for c in ("warm-up", "off", "view", "spin", "spin_touch", "spin_tail")}
+    runs = {c: {"samples": 0, "lost": 0, "wall": 0.0, "cpu": 0.0, "steps": [], "latencies": LatencyRecorder(),
+                "gc": [0, 0, 0], "after_block": []}
+            for c in ("warm-up", "off", "view", "spin", "spin_touch", "spin_tail", "monitor")}
 
-    def phase(condition: str, n: int, tap) -> None:
+    def phase(condition: str, n: int, tap, mon: TimedMonitor | None = None) -> None:
         lost0 = link.counters.lost
         loop = ObserverLoop(observer, converter, link.seq_modulus, fs_hz=fs_hz, max_samples=n, time_steps=True,
-                            tap=tap)
+                            tap=tap, monitor=mon)
+        k0 = mon.n if mon is not None else 0
+        gc0 = [g["collections"] for g in gc.get_stats()]
         t0, c0 = time.perf_counter(), time.process_time()
         loop.run(stream, silence_s=10.0)
         r = runs[condition]
+        r["gc"] = [a + g["collections"] - b for a, g, b in zip(r["gc"], gc.get_stats(), gc0, strict=True)]
+        if mon is not None and loop.stats.filled == 0:     # step i+1 follows monitor call i
+            steps = np.frombuffer(loop.stats.step_times, dtype=float)
+            ends = mon.block_end[k0:k0 + steps.size - 1]
+            r["after_block"].append(steps[1:][ends])
         r["wall"] += time.perf_counter() - t0
         r["cpu"] += time.process_time() - c0
         r["samples"] += loop.stats.samples
@@ -218,6 +262,10 @@ def run_phases(link, observer, fs_hz: float, seconds: float, view_dir: str | Non
         h.n += loop.stats.latencies.n
 
     n = int(round(seconds * fs_hz))
+    if monitor is not None:
+        for condition in ("off", "monitor") * PAIRS:          # alternated: same load
+            phase(condition, n // PAIRS, None, monitor if condition == "monitor" else None)
+        return runs
     if spin:
         for condition in ("off", "spin", "spin_touch", "spin_tail") * PAIRS:   # alternated: same load
             link.spin = condition != "off"
@@ -265,6 +313,19 @@ def loop_figures(run: dict) -> dict:
             "cpu_share": round(run["cpu"] / run["wall"], 3) if run["wall"] > 0 else None}
 
 
+def monitor_figures(run: dict, mon: TimedMonitor) -> dict:
+    """The monitor's own per-call times and the observer step right after a block end (µs)."""
+    t, ends = mon.times[:mon.n] * 1e6, mon.block_end[:mon.n]
+    after = np.concatenate(run["after_block"]) * 1e6 if run["after_block"] else np.zeros(0)
+    return {"monitor_step_median_us": round(float(np.median(t[~ends])), 2),
+            "monitor_step_p99_us": round(float(np.percentile(t[~ends], 99)), 2),
+            "monitor_block_end_median_us": round(float(np.median(t[ends])), 1) if ends.any() else None,
+            "monitor_block_end_max_us": round(float(t[ends].max()), 1) if ends.any() else None,
+            "monitor_block_ends": int(ends.sum()),
+            "observer_step_after_block_p99_us": round(float(np.percentile(after, 99)), 2) if after.size else None,
+            "observer_step_after_block_n": int(after.size)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="device seconds to run (default 20)")
@@ -273,6 +334,8 @@ def main() -> None:
     ap.add_argument("--burst-mb", type=int, default=64, help="MB per disk burst with --load (default 64)")
     ap.add_argument("--burst-every", type=float, default=1.0, help="seconds between disk bursts (default 1)")
     ap.add_argument("--view", action="store_true", help="also run with the live view and a headless Chromium on it")
+    ap.add_argument("--monitor", action="store_true",
+                    help="also run with the departure monitor on the loop, alternating (needs --model)")
     ap.add_argument("--spin", action="store_true",
                     help="also run with the link busy-polling the port (rtlift observe --spin), alternating")
     args = ap.parse_args()
@@ -283,6 +346,11 @@ def main() -> None:
     from rtlift.observer import Observer
 
     model = load_model(args.model) if args.model else default_model()
+    timed = None
+    if args.monitor:
+        from rtlift.observer.monitor import DepartureMonitor
+
+        timed = TimedMonitor(DepartureMonitor.for_model(model), int(args.seconds * model.fs_hz) + 1000)
     observer = Observer.from_model(model)
     warm_up_s = observer.warm_up()
     tight = tight_loop(model)
@@ -296,7 +364,7 @@ def main() -> None:
             load = start_load((2 if args.view else 1) * args.seconds + 2.0, args.burst_mb, args.burst_every, tmp.name)
         with open_link({"kind": "serial", "port": path}) as link:
             runs = run_phases(link, observer, model.fs_hz, args.seconds, tmp.name if args.view else None,
-                              spin=args.spin)
+                              spin=args.spin, monitor=timed)
             counters = link.counters.as_dict()
     finally:
         serve.terminate()
@@ -312,7 +380,11 @@ def main() -> None:
         **{k: v for k, v in counters.items() if k != "lost"},
         **allocation(model),
     }
-    if args.spin:
+    if timed is not None:
+        result["monitor"] = {**loop_figures(runs["monitor"]), **monitor_figures(runs["monitor"], timed)}
+        result["gc"] = {"off": runs["off"]["gc"], "monitor": runs["monitor"]["gc"]}
+        result["lost_samples"] = counters["lost"]
+    elif args.spin:
         result["spin"] = loop_figures(runs["spin"])
         result["spin_touch"] = loop_figures(runs["spin_touch"])
         result["spin_tail"] = loop_figures(runs["spin_tail"])
