@@ -25,7 +25,7 @@ from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import NONLINEARITIES
 from rtlift.core.effects import Interval
 from rtlift.core.rate import FS_HZ as FS
-from rtlift.core.registry import LIMIT_FORMS, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES, resolve
+from rtlift.core.registry import LIMIT_FORMS, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES
 from rtlift.effects import BY_NAME, CATALOG, EFFECT_NAMES, EFFECTS, ENTRIES, PATHS, SCHEMAS, STRUCTURES
 from rtlift.effects.base import Effect, StateBlock, Structure
 from rtlift.observer.layout import OBSERVER_FORMS
@@ -215,10 +215,12 @@ def test_the_model_structures_are_built_by_their_classes():
 
     assert STRUCTURES == MODEL_STRUCTURE_NAMES == tuple(MODEL_CLASSES)
     for s in MODEL_STRUCTURES:
-        cls = resolve(s.model)
+        cls = MODEL_CLASSES[s.name]
         own = cls.structure if isinstance(cls.structure, str) else None   # SisoModel's: by its g2
-        assert cls in SISO_MODELS and own in (s.name, None)
-        assert MODEL_CLASSES[s.name] is cls and callable(cls.from_dict)    # what a model file is built with
+        assert cls in SISO_MODELS and own in (s.name, None) and callable(cls.from_dict)   # what a file is built with
+    assert {s: c.__name__ for s, c in MODEL_CLASSES.items()} == {
+        "wiener": "SisoModel", "wiener_hammerstein": "SisoModel", "nonlinear_feedback": "FeedbackModel",
+        "store_chain": "StoreChainModel"}
 
 
 def _interfaces_table() -> list[str]:

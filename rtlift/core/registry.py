@@ -2,15 +2,13 @@
 limit can sit in them (the effects and the diagnosis's structures are classes of their own, one
 module each: :mod:`rtlift.effects`).
 
-The model classes are named ``"module:attribute"`` and resolved by the model layer itself
-(:data:`rtlift.model.siso.MODEL_CLASSES`, the only caller of :func:`resolve`).
+Each structure's model class is the model layer's own (:data:`rtlift.model.siso.MODEL_CLASSES`,
+from the classes' ``structure``): the core names nothing above it.
 """
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
-from typing import Any
 
 
 @dataclass(frozen=True)
@@ -19,16 +17,14 @@ class ModelStructure:
 
     name: str
     doc: str
-    model: str
 
 
 MODEL_STRUCTURES: tuple[ModelStructure, ...] = (     # the first is the default
-    ModelStructure("wiener", "an LTI then a static map", "rtlift.model.siso:SisoModel"),
-    ModelStructure("wiener_hammerstein", "a second LTI after the map", "rtlift.model.siso:SisoModel"),
-    ModelStructure("nonlinear_feedback", "the output fed back through a cubic map into the LTI's input",
-                   "rtlift.model.siso:FeedbackModel"),
+    ModelStructure("wiener", "an LTI then a static map"),
+    ModelStructure("wiener_hammerstein", "a second LTI after the map"),
+    ModelStructure("nonlinear_feedback", "the output fed back through a cubic map into the LTI's input"),
     ModelStructure("store_chain", "two stores in cascade, each draining through a power-law outflow, "
-                   "like two tanks", "rtlift.model.siso:StoreChainModel"),
+                   "like two tanks"),
 )
 
 LIMIT_FORMS: tuple[tuple[str, str], ...] = (
@@ -39,9 +35,3 @@ form's state: one store, or two in cascade): what identification takes and the g
 diagnosis's saturation structure tries (:mod:`rtlift.effects.saturation`)."""
 MODEL_STRUCTURE_NAMES: tuple[str, ...] = tuple(s.name for s in MODEL_STRUCTURES)
 
-
-def resolve(path: str) -> Any:
-    """The object ``"module:attribute"`` names (imports the module: call it from the layer the
-    module belongs to or above)."""
-    mod, _, attr = path.partition(":")
-    return getattr(importlib.import_module(mod), attr)

@@ -25,7 +25,7 @@ from rtlift.blocks.chain import BlockChain
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.jit import njit_cached
-from rtlift.core.registry import LIMIT_FORMS, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES, resolve
+from rtlift.core.registry import LIMIT_FORMS, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES
 from rtlift.model.siso_file import FORMAT, VERSION, _finite, _limit_pair, model_from_dict
 
 STRUCTURES = MODEL_STRUCTURE_NAMES
@@ -403,6 +403,7 @@ class SaturatedModel:
 
 SISO_MODELS = (SisoModel, FeedbackModel, StoreChainModel, SaturatedModel)
 """The single-input model classes (``isinstance(model, SISO_MODELS)``: a generic model)."""
-MODEL_CLASSES: dict[str, Any] = {s.name: resolve(s.model) for s in MODEL_STRUCTURES}
+MODEL_CLASSES: dict[str, Any] = {s.name: next((c for c in (FeedbackModel, StoreChainModel) if c.structure == s.name),
+                                               SisoModel) for s in MODEL_STRUCTURES}
 """Each structure's model class, as the registry names it (:data:`rtlift.core.registry.MODEL_STRUCTURES`):
 what :func:`~rtlift.model.siso_file.model_from_dict` builds a file of that ``structure`` with (its ``from_dict``)."""
