@@ -26,7 +26,21 @@ from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
 from rtlift.core.jit import njit_cached
 from rtlift.core.registry import LIMIT_FORMS, MODEL_STRUCTURE_NAMES, MODEL_STRUCTURES
-from rtlift.model.siso_file import FORMAT, VERSION, _finite, _limit_pair, model_from_dict
+
+FORMAT = "rtlift-siso-model"
+VERSION = 1
+"""The file form every model here writes with ``to_dict`` (:mod:`rtlift.model.siso_file` reads it)."""
+
+
+def _finite(v: float) -> float | None:
+    """A limit as the file form gives it: ``None`` for an infinite one."""
+    return float(v) if np.isfinite(v) else None
+
+
+def _limit_pair(sat: dict[str, Any]) -> tuple[float, float]:
+    """(lower, upper) of a file form's ``saturation``, ``None`` read as infinite."""
+    lo, hi = sat.get("lower"), sat.get("upper")
+    return -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi)
 
 STRUCTURES = MODEL_STRUCTURE_NAMES
 """The structures a generic record is identified in (:data:`rtlift.core.registry.MODEL_STRUCTURES`)."""
@@ -74,11 +88,15 @@ class SisoModel(BlockChain):
                 "provenance": self.provenance, "metrics": self.metrics}
 
     def copy(self) -> SisoModel:
-        return model_from_dict(self.to_dict())
+        """The same model, its own blocks (the same coefficients, a zero state)."""
+        return type(self)(HighPassFilter(self.g1.sos.copy()), OutputNonlinearity(self.f.y.copy(), self.f.f.copy()),
+                          None if self.g2 is None else HighPassFilter(self.g2.sos.copy()), self.fs_hz,
+                          dict(self.provenance), dict(self.metrics))
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> SisoModel:
-        """From its file form (:func:`model_from_dict`; KeyError, TypeError or ValueError if wrong)."""
+        """From its file form (:func:`~rtlift.model.siso_file.model_from_dict`; KeyError, TypeError or
+        ValueError if wrong)."""
         g1 = HighPassFilter(np.asarray(d["g1_sos"], dtype=float))
         f = OutputNonlinearity(d["f"]["x"], d["f"]["y"])
         g2 = None if d.get("g2_sos") is None else HighPassFilter(np.asarray(d["g2_sos"], dtype=float))
@@ -193,12 +211,14 @@ class FeedbackModel:
         return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> FeedbackModel:
-        return model_from_dict(self.to_dict())
+        """The same model (coefficients, limits, offset, feedthrough), a zero state."""
+        return FeedbackModel(self.a.copy(), self.b.copy(), self.k.copy(), self.fs_hz, self.provenance, self.metrics,
+                             self.state_limits, self.offset, self.b0)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FeedbackModel:
-        """From its file form, a state limit its own (:func:`model_from_dict`; KeyError, TypeError or
-        ValueError if wrong; a file without ``offset``, written before it existed, has none)."""
+        """From its file form, a state limit its own (:func:`~rtlift.model.siso_file.model_from_dict`; KeyError,
+        TypeError or ValueError if wrong; a file without ``offset``, written before it existed, has none)."""
         sat = d.get("saturation")
         return cls(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"), d.get("metrics"),
                    _limit_pair(sat) if sat is not None else (-np.inf, np.inf), float(d.get("offset", 0.0)),
@@ -340,11 +360,12 @@ class StoreChainModel:
         return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> StoreChainModel:
-        return model_from_dict(self.to_dict())
+        """The same model (parameters, substeps), a zero state."""
+        return StoreChainModel(self.params, self.fs_hz, self.substeps, self.provenance, self.metrics)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> StoreChainModel:
-        """From its file form, the brims its own parameters (:func:`model_from_dict`; KeyError,
+        """From its file form, the brims its own parameters (:func:`~rtlift.model.siso_file.model_from_dict`; KeyError,
         TypeError or ValueError if wrong)."""
         return cls(d["params"], float(d["fs_hz"]), int(d.get("substeps", 2)), d.get("provenance"), d.get("metrics"))
 
@@ -398,7 +419,8 @@ class SaturatedModel:
         return {**self.inner.to_dict(), "saturation": self.limits()}
 
     def copy(self) -> SaturatedModel:
-        return model_from_dict(self.to_dict())
+        """The same limits around a copy of the inner model."""
+        return SaturatedModel(self.inner.copy(), self.lower, self.upper)
 
 
 SISO_MODELS = (SisoModel, FeedbackModel, StoreChainModel, SaturatedModel)

@@ -1,36 +1,37 @@
 """The single-input models' file form (:mod:`rtlift.model.siso`): JSON with ``"format":
 "rtlift-siso-model"``, ``"version"``, ``"kind": "siso"`` and the ``"structure"`` whose model class
 (:data:`rtlift.model.siso.MODEL_CLASSES`) reads the rest with its ``from_dict`` and writes it with
-its ``to_dict``; a limit as ``"saturation": {"lower", "upper", "where"}``, infinite limits as
-``null``.
+its ``to_dict`` (the models and their file form live in :mod:`rtlift.model.siso`, which imports
+nothing of this module: a model copies itself without it); a limit as
+``"saturation": {"lower", "upper", "where"}``, infinite limits as ``null``.
 """
 
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any
-
-import numpy as np
+from typing import Any
 
 from rtlift.core.errors import ModelFileError
 from rtlift.core.jsonfile import write_json_atomic
+from rtlift.model.siso import (
+    FORMAT,
+    LIMITED,
+    MODEL_CLASSES,
+    VERSION,
+    FeedbackModel,
+    SaturatedModel,
+    SisoModel,
+    StoreChainModel,
+    _limit_pair,
+    listed,
+)
 
-if TYPE_CHECKING:
-    from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel
-
-FORMAT = "rtlift-siso-model"
-VERSION = 1
+__all__ = ["FORMAT", "VERSION", "model_from_dict", "save_siso_model"]
 
 
-def _finite(v: float) -> float | None:
-    return float(v) if np.isfinite(v) else None
-
-
-def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | FeedbackModel | SaturatedModel:
+def model_from_dict(d: dict[str, Any], source: str = "model"
+                    ) -> SisoModel | FeedbackModel | StoreChainModel | SaturatedModel:
     """Build and check a model from its file form; :class:`ModelFileError` (one line) if wrong."""
-    # the models import this module, so it imports them when called (tests/test_layers.py, LAZY_CYCLES)
-    from rtlift.model.siso import LIMITED, MODEL_CLASSES, SaturatedModel, SisoModel, listed
-
     if d.get("format") != FORMAT or d.get("version") != VERSION:
         raise ModelFileError(f"{source}: not an rtlift single-input model file of version {VERSION}")
     sat = d.get("saturation")
@@ -56,10 +57,7 @@ def model_from_dict(d: dict[str, Any], source: str = "model") -> SisoModel | Fee
         raise ModelFileError(f"{source}: {exc}") from None
 
 
-def _limit_pair(sat: dict[str, Any]) -> tuple[float, float]:
-    lo, hi = sat.get("lower"), sat.get("upper")
-    return -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi)
-
-
-def save_siso_model(model: SisoModel | FeedbackModel | SaturatedModel, path: str | os.PathLike) -> None:
+def save_siso_model(model: SisoModel | FeedbackModel | StoreChainModel | SaturatedModel,
+                    path: str | os.PathLike) -> None:
+    """The model's file form (its ``to_dict``) written whole or not at all."""
     write_json_atomic(path, model.to_dict(), stage="model file")
