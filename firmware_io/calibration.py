@@ -24,8 +24,8 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
+from rtlift.core import wing
 from rtlift.core.errors import UserError
-from rtlift.core.programs import CMU_AT_60V as CMU_AT_60V  # 60 V ↔ Cμ 0.0022 (the paper's actuators)
 
 try:
     import tomllib
@@ -43,21 +43,22 @@ class CalibrationError(UserError):
 
 @dataclass(frozen=True)
 class Calibration:
-    """One bench's calibration; defaults are the paper's wing and PROTOCOL.md's transducer."""
+    """One bench's calibration; defaults are the paper's wing and PROTOCOL.md's transducer
+    (:mod:`rtlift.core.wing`)."""
 
-    counts_per_n: float = 1.0e6
-    counts_per_nm: float = 1.0e9
+    counts_per_n: float = wing.COUNTS_PER_N
+    counts_per_nm: float = wing.COUNTS_PER_NM
     matrix: tuple[tuple[float, ...], ...] | None = None
-    chord_m: float = 0.245
-    span_m: float = 0.596
-    alpha_deg: float = 20.0
-    u_inf_m_s: float = 3.0
-    rho_kg_m3: float = 1.2
+    chord_m: float = wing.CHORD_M
+    span_m: float = wing.SPAN_M
+    alpha_deg: float = wing.ALPHA_DEG
+    u_inf_m_s: float = wing.U_INF_M_S
+    rho_kg_m3: float = wing.RHO_KG_M3
     sign_fx: float = 1.0
     sign_fz: float = 1.0
     tare_cl: float | None = None
     tare_seconds: float = 2.0
-    kappa: float = CMU_AT_60V / 60.0**2
+    kappa: float = wing.CMU_PER_VOLT2
     cmu_table_v: tuple[float, ...] = field(default=())
     cmu_table: tuple[float, ...] = field(default=())
 

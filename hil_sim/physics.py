@@ -1,8 +1,9 @@
 """The simulated rig's own physical constants: the wing in the tunnel, the actuators' law and the
 transducer's scaling, as the bench's physics sees them.
 
-They are written here, apart from the host's :class:`firmware_io.calibration.Calibration`, so that
-the truth of the bench does not borrow the host's conversions: a mistake in the host's calibration
+The conversions are written here, apart from the host's :class:`firmware_io.calibration.Calibration`,
+so that the truth of the bench does not borrow the host's conversion code (the paper's numbers, the
+defaults of both, are :mod:`rtlift.core.wing`'s): a mistake in the host's calibration
 code (a sign, an angle, a scale) shows in every record the host writes, instead of cancelling in
 the round trip. The defaults are the paper's wing and PROTOCOL.md's transducer, the rig the host's
 default calibration describes; :meth:`BenchPhysics.calibration` is the host calibration that
@@ -24,21 +25,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rtlift.core import wing
+
 
 @dataclass(frozen=True)
 class BenchPhysics:
-    """The simulated rig (module docstring): wing, tunnel, mounting, actuators, transducer scaling."""
+    """The simulated rig (module docstring): wing, tunnel, mounting, actuators, transducer scaling;
+    the defaults are the paper's (:mod:`rtlift.core.wing`)."""
 
-    chord_m: float = 0.245
-    span_m: float = 0.596
-    alpha_deg: float = 20.0
-    u_inf_m_s: float = 3.0
-    rho_kg_m3: float = 1.2
+    chord_m: float = wing.CHORD_M
+    span_m: float = wing.SPAN_M
+    alpha_deg: float = wing.ALPHA_DEG
+    u_inf_m_s: float = wing.U_INF_M_S
+    rho_kg_m3: float = wing.RHO_KG_M3
     sign_fx: float = 1.0
     sign_fz: float = 1.0
-    cmu_per_volt2: float = 0.0022 / 60.0**2
-    counts_per_n: float = 1.0e6
-    counts_per_nm: float = 1.0e9
+    cmu_per_volt2: float = wing.CMU_PER_VOLT2
+    counts_per_n: float = wing.COUNTS_PER_N
+    counts_per_nm: float = wing.COUNTS_PER_NM
 
     @property
     def q_area(self) -> float:

@@ -137,12 +137,16 @@ def test_a_generic_run_too_short_to_split_is_one_line_and_exit_2(tmp_path, capsy
     assert "none.csv: no such file" in err
 
 
-def test_the_command_says_the_apis_split_default():
-    from rtlift.app.commands import diagnose as command
+def test_the_adapters_window_splits_into_parts_the_diagnosis_accepts():
+    """One split (rtlift.core.split) for the command, the diagnosis and ``--adapt``: the adapter's
+    window (2 s before a departure, 24 s after) split at it leaves both parts long enough."""
+    from rtlift.app import adapt
     from rtlift.diagnose import sources
 
-    assert command.SPLIT_DEFAULT == sources.SPLIT_DEFAULT
-    assert (command.MIN_TRAIN_S, command.MIN_VALIDATE_S) == (sources.MIN_TRAIN_S, sources.MIN_VALIDATE_S)
+    fs = 400.0
+    n = int(round((adapt.BEFORE_S + adapt.AFTER_S) * fs))
+    k = sources.split_index(n, fs, adapt.SPLIT, "window")
+    assert k / fs >= sources.MIN_TRAIN_S and (n - k) / fs >= sources.MIN_VALIDATE_S
 
 
 def test_the_help_states_the_least_run_and_the_split_agrees():

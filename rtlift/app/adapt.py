@@ -55,6 +55,7 @@ import numpy as np
 
 from rtlift.app.diagnose_worker import DiagnoseWorker
 from rtlift.core.rate import FS_HZ
+from rtlift.core.split import SPLIT_DEFAULT
 
 BEFORE_S = 2.0
 AFTER_S = 24.0
@@ -65,7 +66,8 @@ test raises a fade 3–4 s after its onset; an effect whose model starts at the 
 (a fade's on-time clock, a drift's ramp) fits a window that starts after the onset (a fade already
 under way is the same curve with a smaller initial loss) but not one whose first seconds precede it
 (with the window 8 s before the departure, the bench's fade was fitted as a ``zero_drift``)."""
-SPLIT = 0.6
+SPLIT = SPLIT_DEFAULT
+"""The window's share the diagnosis fits on (:data:`rtlift.core.split.SPLIT_DEFAULT`, as ``rtlift diagnose --run``)."""
 RING_S = 240.0
 """Rows kept: the window plus up to ~3 minutes of diagnosis."""
 SWITCH_INTERVAL_S = 5e-5

@@ -6,6 +6,8 @@
 - :mod:`rtlift.core.effects` one parameter schema per effect (shared by the model and the bench);
 - :mod:`rtlift.core.rate`    the 400 Hz sample rate;
 - :mod:`rtlift.core.programs` experiment programs (time, envelope, burst period) for the rig and the bench;
+- :mod:`rtlift.core.wing`    the paper's wing, flow, actuators and transducer (calibration and bench defaults);
+- :mod:`rtlift.core.split`   how a run is split for diagnosis (the share fitted on, the least parts);
 - :mod:`rtlift.core.registry` the generic model structures (the effects: :mod:`rtlift.effects`);
 - :mod:`rtlift.core.jsonfile` JSON files written whole or not at all;
 - :mod:`rtlift.core.jit`     numba functions compiled with a cache safe across processes;

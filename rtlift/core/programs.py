@@ -29,9 +29,10 @@ import numpy as np
 
 from rtlift.core.errors import RecordError
 from rtlift.core.rate import FS_HZ
+from rtlift.core.wing import CHORD_M as CHORD_M  # the paper's wing and flow
+from rtlift.core.wing import CMU_AT_60V as CMU_AT_60V
+from rtlift.core.wing import U_INF_M_S as U_INF_M_S
 
-CHORD_M = 0.245
-U_INF_M_S = 3.0
 T_CONV_S = CHORD_M / U_INF_M_S
 """Convective time c/U∞ ≈ 0.0817 s (the paper's t_convect); t⁺ = t / T_CONV_S."""
 
@@ -44,8 +45,6 @@ OPTIMAL_PERIOD_MS = 125
 """The lift-optimal 8 Hz burst rate (paper: T = 1.56 t⁺)."""
 CMU_MAX = 0.022
 """Top of the paper's static map."""
-CMU_AT_60V = 0.0022
-"""The paper's single-burst and burst-train amplitude: 60 V ↔ Cμ 0.0022."""
 STATIC_RAMP_S = 40.0
 STATIC_HOLD_S = 2.0
 SINE_CMU_MEAN = 0.011

@@ -15,15 +15,8 @@ from typing import Any
 
 from rtlift.core.errors import UserError
 from rtlift.core.records import Record, SisoRecord, read_record, read_siso_record, record_kind
+from rtlift.core.split import MIN_TRAIN_S, MIN_VALIDATE_S, SPLIT_DEFAULT
 
-SPLIT_DEFAULT = 0.6
-"""``--run``: the share of the run the effects are fitted on. The fits carry the diagnosis (a
-fade's time constant, a drift's course need the longer part); 40 % left is still ≥ 10 one-second
-significance blocks on a run of 25 s, and ≥ 24 on a minute's run."""
-MIN_TRAIN_S = 12.0
-"""A lift training record's least length: 2 s from rest left out of the residual tests, 10 s tested."""
-MIN_VALIDATE_S = 10.0
-"""A lift run's validation part's least length: ten 1 s blocks for the significance test."""
 MIN_PART = 50
 """A generic record's least samples past ``skip``, and each part of a generic run's."""
 

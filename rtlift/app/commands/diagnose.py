@@ -6,12 +6,8 @@ from __future__ import annotations
 import argparse
 
 from rtlift.core.errors import UserError
+from rtlift.core.split import MIN_TRAIN_S, MIN_VALIDATE_S, SPLIT_DEFAULT
 
-SPLIT_DEFAULT = 0.6
-"""``--split``'s default, as the help says it: :data:`rtlift.diagnose.sources.SPLIT_DEFAULT` (not
-imported here: the diagnosis package loads scipy, and every command's parser is built at start)."""
-MIN_TRAIN_S, MIN_VALIDATE_S = 12.0, 10.0
-"""``--run``'s least parts of a lift run, as the help says them: those of :mod:`rtlift.diagnose.sources`."""
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
