@@ -32,7 +32,10 @@ experiments of one system (each its own run from rest, one cost pooled over them
    :mod:`.feedback`; a store chain: :mod:`.store_chain`).
 
 5. **Integrating outputs** (no limit): the BLA of every order is also fitted on the differenced
-   output Δy(k) = y(k) − y(k − 1) (each run from rest) and run integrated, y = Δŷ/(1 − q⁻¹);
+   output Δy(k) = y(k) − y(k − 1) (each run from rest), with a constant d (Δy ≈ B/A u + d: a
+   force offset or a friction the input works against, a drift once integrated), and run
+   integrated, y = Δŷ/(1 − q⁻¹) (the model fitted on y itself is left out where its linear model
+   holds out no better than the mean and the integrating one does);
    where the best such linear model has the lower held-out RMSE, the W-block model is also
    fitted on Δy and closed by the integrator (G₂ = 1/(1 − q⁻¹), or G₂/(1 − q⁻¹)), and the one of
    the two with the lower held-out RMSE is kept. A pole at z = 1 in a model fitted on y itself
@@ -240,31 +243,38 @@ def _penalty(runs: _Runs) -> np.ndarray:
     return np.full(y.size, 1e3 * (1.0 + float(np.max(np.abs(y)))))
 
 
-def fit_bla(runs: _Runs, n: int, max_nfev: int = 300) -> tuple[np.ndarray, np.ndarray]:
-    """Output-error linear model of order n (numerator n + 1 taps) over the runs, each from rest:
-    (b, a). Started from ARX least squares (each run's own regressors), its poles pulled inside
+def fit_bla(runs: _Runs, n: int, max_nfev: int = 300, offset: bool = False
+            ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Output-error linear model of order n (numerator n + 1 taps) over the runs, each from rest,
+    y ≈ B(q)/A(q) u + d: (b, a, d), d = 0 unless ``offset`` (a constant the differenced output of
+    an integrating system carries: a force offset or friction, which run integrated is a drift).
+    Started from ARX least squares (each run's own regressors), its poles pulled inside
     |z| ≤ 0.995; ValueError where the data give no finite start."""
     u, y = runs.u, runs.y
     rows = np.concatenate([np.arange(lo + n, hi) for lo, hi in runs.pairs])
-    if rows.size < 2 * n + 1:
-        raise ValueError(f"order {n}: {rows.size} samples for {2 * n + 1} coefficients")
-    X = np.column_stack([-y[rows - k] for k in range(1, n + 1)] + [u[rows - k] for k in range(n + 1)])
+    if rows.size < 2 * n + 1 + offset:
+        raise ValueError(f"order {n}: {rows.size} samples for {2 * n + 1 + offset} coefficients")
+    X = np.column_stack([-y[rows - k] for k in range(1, n + 1)] + [u[rows - k] for k in range(n + 1)]
+                        + ([np.ones(rows.size)] if offset else []))
     th, *_ = np.linalg.lstsq(X, y[rows], rcond=None)
     if not np.all(np.isfinite(th)):
         raise ValueError(f"order {n}: the least-squares start is not finite")
     a0 = np.concatenate([[1.0], th[:n]])
     a0 = np.poly(np.clip(np.abs(np.roots(a0)), 0, 0.995) * np.exp(1j * np.angle(np.roots(a0)))).real
-    b0 = th[n:]
+    b0 = th[n:2 * n + 1]
     bad = _penalty(runs)
+    p0 = np.concatenate([theta_from_poles(np.roots(a0)), b0])
+    if offset:      # the ARX intercept is d·A(1); the output-error offset is d
+        p0 = np.append(p0, th[-1] / np.sum(a0) if abs(np.sum(a0)) > 1e-6 else 0.0)
 
     def res(p: np.ndarray) -> np.ndarray:
         a = np.concatenate([[1.0], denominator_from_theta(p[:n], n)])
-        r = (runs.lfilter(p[n:], a, u) - y)[runs.rows]
+        r = (runs.lfilter(p[n:2 * n + 1], a, u) + (p[-1] if offset else 0.0) - y)[runs.rows]
         return r if np.all(np.isfinite(r)) else bad
 
-    sol = optimize.least_squares(res, np.concatenate([theta_from_poles(np.roots(a0)), b0]), x_scale="jac",
-                                 max_nfev=max_nfev)
-    return sol.x[n:], np.concatenate([[1.0], denominator_from_theta(sol.x[:n], n)])
+    sol = optimize.least_squares(res, p0, x_scale="jac", max_nfev=max_nfev)
+    return (sol.x[n:2 * n + 1], np.concatenate([[1.0], denominator_from_theta(sol.x[:n], n)]),
+            float(sol.x[-1]) if offset else 0.0)
 
 
 def _groups(roots: np.ndarray) -> list[np.ndarray]:
@@ -425,8 +435,8 @@ def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure:
     def linear(n: int, integrating: bool) -> None:
         """The linear model of order n (on Δy where ``integrating``) into ``bla``, or its failure into ``skipped``."""
         try:
-            b, a = fit_bla(runs[integrating][0], n)
-            lin = SisoModel(HighPassFilter.from_ba(b, a), OutputNonlinearity([0.0, 1.0], [0.0, 1.0]),
+            b, a, d = fit_bla(runs[integrating][0], n, offset=integrating)
+            lin = SisoModel(HighPassFilter.from_ba(b, a), OutputNonlinearity([0.0, 1.0], [d, 1.0 + d]),
                             HighPassFilter.from_ba(*INTEGRATOR) if integrating else None, fs)
             held = _pooled_rmse(lin, held_parts)
             if not np.isfinite(held):
@@ -447,14 +457,18 @@ def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure:
     # a linear model that holds out no better than the estimation data's mean says nothing of G₁ (an
     # even map: the BLA of |x| is 0): then the Wiener fit also starts from random poles (module docstring, 6)
     level = float(np.mean(est.y[est.rows]))
-    blind = bla[tried[0]][2] >= float(np.sqrt(np.mean(np.concatenate([y[k:] - level for _, y, k in held_parts]) ** 2)))
+    mean_rmse = float(np.sqrt(np.mean(np.concatenate([y[k:] - level for _, y, k in held_parts]) ** 2)))
+    blind = bla[best_bla][2] >= mean_rmse
+    if best_bla[1] and not blind and bla[tried[0]][2] >= mean_rmse:
+        tried = [best_bla]      # the plain linear model holds out no better than the mean, the integrating one does
     if blind and structure == "wiener" and not order:
         # the linear model's order says nothing either: every order of BLIND_ORDERS is started blind, and the
         # held-out error chooses among them (module docstring, 6)
-        for n in BLIND_ORDERS:
-            if 2 * n + 1 <= budget and (n, tried[0][1]) not in bla:
-                linear(n, tried[0][1])
-        tried = [(n, tried[0][1]) for n in BLIND_ORDERS if (n, tried[0][1]) in bla] or tried
+        blind_orders = [n for n in BLIND_ORDERS if n <= max(opt.orders) and 2 * n + 1 <= budget]
+        for n in blind_orders:
+            if (n, False) not in bla:
+                linear(n, False)
+        tried = [(n, False) for n in blind_orders if (n, False) in bla] or tried
     best = None
     for n, integrating in dict.fromkeys(tried):
         b, a, bla_holdout = bla[n, integrating]
@@ -542,10 +556,11 @@ def _w_stage(structure: str, b: np.ndarray, a: np.ndarray, cost: _Runs, est: _Ru
 MULTI_STARTS = 8
 """Random pole sets a blind Wiener fit starts from (module docstring, 6)."""
 BLIND_ORDERS = (1, 2, 3, 4)
-"""The orders a blind Wiener fit is started at, each from :data:`MULTI_STARTS` random pole sets
-(module docstring, 6). Not beyond 4: a random start in more dimensions rarely reaches the optimum
-(on the simulated coupled-drives case, calibration seed 1, order 4 from 8 starts held out 0.32,
-order 3 0.045, at a noise level of 0.03; order 6 took 46 s)."""
+"""The orders a blind Wiener fit is started at (those up to the largest of ``orders``), each
+from :data:`MULTI_STARTS` random pole sets (module docstring, 6). Not beyond 4: a random start in
+more dimensions rarely reaches the optimum (on the simulated coupled-drives case, calibration
+seed 1, order 4 from 8 starts held out 0.32, order 3 0.045, at a noise level of 0.03; order 6
+took 46 s)."""
 
 
 def _random_starts(dims: _Dims, cost: _Runs, knots: int, opt: SisoOptions, limits: Limits, count: int) -> list:
