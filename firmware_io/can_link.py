@@ -12,7 +12,7 @@ from firmware_io.can_codec import CMD_ID, CanAssembler, encode_command_frame
 from firmware_io.can_codec import SEQ_MODULUS as CAN_SEQ_MODULUS
 from firmware_io.commands import CAN_CMD_SEQ_MODULUS, CommandTracker
 from firmware_io.errors import LinkError
-from firmware_io.link import CAN_BITRATE, CAN_SAMPLE_WIRE_BYTES, Link, Reconnect, one_line
+from firmware_io.link_base import CAN_BITRATE, CAN_SAMPLE_WIRE_BYTES, Link, Reconnect, one_line
 from firmware_io.samples import Sample
 from firmware_io.slcan import ChunkedSlcanBus
 

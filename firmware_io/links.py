@@ -35,7 +35,7 @@ from typing import Any
 from firmware_io.calibration import Calibration
 from firmware_io.can_link import CanLink
 from firmware_io.errors import LinkError
-from firmware_io.link import CAN_BITRATE, Link, Reconnect
+from firmware_io.link_base import CAN_BITRATE, Link, Reconnect
 from firmware_io.serial_link import SerialLink
 from rtlift.core.rate import FS_HZ
 

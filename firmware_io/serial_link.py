@@ -13,7 +13,7 @@ import serial
 from firmware_io.calibration import Calibration
 from firmware_io.commands import SERIAL_CMD_SEQ_MODULUS, CommandTracker
 from firmware_io.errors import LinkError
-from firmware_io.link import POLL_S, SAMPLE_WIRE_BYTES, SERIAL_BAUD, Link, Reconnect, one_line
+from firmware_io.link_base import POLL_S, SAMPLE_WIRE_BYTES, SERIAL_BAUD, Link, Reconnect, one_line
 from firmware_io.samples import Sample
 from firmware_io.serial_codec import SEQ_MODULUS as SERIAL_SEQ_MODULUS
 from firmware_io.serial_codec import SerialDecoder, encode_command

@@ -120,7 +120,16 @@ class EstimateWriter(FlushedFile):
         self.close()
 
 
-class MonitorListener:
+class _NothingToStop:
+    """A :class:`Listener` with nothing to close when the run ends."""
+
+    __slots__ = ()
+
+    def on_stop(self) -> None:
+        pass
+
+
+class MonitorListener(_NothingToStop):
     """A :class:`Monitor` as a :class:`Listener`: ``monitor.step(dcl, est.model_dcl, est.innovation)``."""
 
     __slots__ = ("monitor", "_step")
@@ -133,11 +142,8 @@ class MonitorListener:
                   dcl: float | None, est: Estimate) -> None:
         self._step(dcl, est.model_dcl, est.innovation)
 
-    def on_stop(self) -> None:
-        pass
 
-
-class SwapperListener:
+class SwapperListener(_NothingToStop):
     """A :class:`Swapper`'s rows as a :class:`Listener`: ``after_step(index, cmu, env, dcl)``."""
 
     __slots__ = ("_after",)
@@ -149,11 +155,8 @@ class SwapperListener:
                   dcl: float | None, est: Estimate) -> None:
         self._after(index, cmu, env, dcl)
 
-    def on_stop(self) -> None:
-        pass
 
-
-class Tap:
+class Tap(_NothingToStop):
     """A live view's drop-oldest ``deque(maxlen=...)`` (:attr:`rtlift.app.view.LiveView.tap`) as a
     :class:`Listener`: one ``(index, dcl | None, ΔĈL, model ΔCL, ν, NIS)`` tuple per estimate,
     never a wait, never I/O."""
@@ -167,9 +170,6 @@ class Tap:
     def on_sample(self, index: int, t: float, seq: int | None, t_us: int | None, cmu: float, env: float,
                   dcl: float | None, est: Estimate) -> None:
         self._append((index, dcl, est.dcl, est.model_dcl, est.innovation, est.nis))
-
-    def on_stop(self) -> None:
-        pass
 
 
 @dataclass

@@ -263,7 +263,7 @@ def print_for(fp: dict[str, Any] | None, rec: Record) -> tuple[dict[str, Any] | 
 
 
 @dataclass(frozen=True)
-class Reference:
+class PrintReference:
     """What a record is compared with, and why: ``source`` is ``repeat`` (its input is an
     identification record's, bit for bit), ``input`` (its input descriptor matches an
     identification record's, :mod:`.inputs`), ``predicted`` (it matches none: the print of the
@@ -298,26 +298,26 @@ def predicted_print(fp: dict[str, Any], model: HybridModel, rec: Record, start: 
     return {**summarize(tests, e[s:], rec.fs_hz), "input": input_descriptor(rec)}
 
 
-def reference(fp: dict[str, Any] | None, model: HybridModel, rec: Record, start: int) -> Reference:
-    """The fingerprint entry to compare ``rec`` with, found from its input (:class:`Reference`)."""
+def reference(fp: dict[str, Any] | None, model: HybridModel, rec: Record, start: int) -> PrintReference:
+    """The fingerprint entry to compare ``rec`` with, found from its input (:class:`PrintReference`)."""
     recs = (fp or {}).get("records") or {}
     if not recs:
         entry, note = print_for(fp, rec)
-        return Reference(entry, "none", None, None, None, note)
+        return PrintReference(entry, "none", None, None, None, note)
     if not all("input" in r for r in recs.values()):           # a model file from before descriptors
         entry, note = print_for(fp, rec)
         key = record_type(rec) if record_type(rec) in recs else max(recs, key=lambda k: recs[k]["n"])
-        return Reference(entry, "name" if key == record_type(rec) else "largest", key, None, None, note)
+        return PrintReference(entry, "name" if key == record_type(rec) else "largest", key, None, None, note)
     digest = input_digest(rec)
     for r in fp.get("repeats", []):
         if r.get("input_sha256") == digest and r.get("type") in recs:
-            return Reference(recs[r["type"]], "repeat", r["type"], r["type"], 0.0,
+            return PrintReference(recs[r["type"]], "repeat", r["type"], r["type"], 0.0,
                              f"its input repeats the identification's {r['type']} record bit for bit: compared "
                              f"with the model's residual there")
     d = input_descriptor(rec)
     key, dist, worst = best_match({k: v["input"] for k, v in recs.items()}, d)
     if dist <= 1.0:
-        return Reference(recs[key], "input", key, key, dist,
+        return PrintReference(recs[key], "input", key, key, dist,
                          f"its input ({describe(d)}) is of the identification's {key} kind (distance "
                          f"{dist:.2f} <= 1): compared with the model's residual there")
     away = f"its input ({describe(d)}) matches no identification record (nearest {key}, distance {dist:.1f}, " \
@@ -326,16 +326,16 @@ def reference(fp: dict[str, Any] | None, model: HybridModel, rec: Record, start:
     like = nearest_dynamics({k: v["input"] for k, v in recs.items() if k in noise}, d)
     if like is not None:
         lam = fp["misfit"]["transfer"]
-        return Reference(predicted_print(fp, model, rec, start, like), "predicted", None, key, dist,
+        return PrintReference(predicted_print(fp, model, rec, start, like), "predicted", None, key, dist,
                          f"{away}: compared with the residual the model is predicted to have on this input "
                          f"(its misfit carried over from the campaign at lambda = {lam:.2f}, the noise of "
                          f"{like}, the identification input of the same burst setting and nearest envelope "
                          f"bandwidth)")
-    return Reference(recs[key], "nearest", key, key, dist, f"{away}: compared with the nearest")
+    return PrintReference(recs[key], "nearest", key, key, dist, f"{away}: compared with the nearest")
 
 
 def change_misfit(fp: dict[str, Any] | None, model: HybridModel, rec: Record,
-                  ref: Reference) -> tuple[np.ndarray | None, str]:
+                  ref: PrintReference) -> tuple[np.ndarray | None, str]:
     """The model's own misfit m on ``rec``'s input, which the map-shaped effects are fitted
     around (ΔCL − m: what changed since identification), and a line saying where it comes from:
     the identification run itself where ``rec`` repeats it (:func:`repeat_misfit`, the best
