@@ -80,7 +80,7 @@ def test_the_design_meets_every_target_at_every_operating_point(design):
         assert pt.stable and m.pm_deg >= t.pm_deg and min(m.gm_db, m.gm_low_db) >= t.gm_db
         assert max(m.peak_s_db, m.peak_gust_db) <= t.peak_db and m.robust < 1.0
         assert np.all(np.abs(ct.feedback(pt.loop(design.dt), 1).poles()) < 1.0)
-        assert pt.f6_hz >= 0.30            # predicted with the observer's lag (0.32-0.38 Hz on this model)
+        assert pt.f6_hz >= 0.20            # with the observer's lag: 0.21-0.24 Hz at +2.85 dB (0.32-0.38 at +4)
 
 
 def test_every_crossover_found_is_one_and_python_control_s_interpolated_margins_agree(design, poor):
@@ -342,24 +342,24 @@ def test_a_saved_design_is_checked_again_without_importing_python_control():
 
 
 def test_the_predicted_band_is_the_measured_one_on_our_bench(model, design):
-    """Plant draw 0 (our bench), constant reference 0.08, gust 0.01 at 0.25 and 0.5 Hz, either side of
-    the predicted 6 dB band's edge: each suppression within 1.5 dB of the predicted |S_o| at the
+    """Plant draw 0 (our bench), constant reference 0.08, gust 0.01 at f₆/1.4 and 1.4 f₆, either side
+    of the predicted 6 dB band's edge f₆: each suppression within 1.5 dB of the predicted |S_o| at the
     checked point nearest ΔCL 0.08 (docs/results/control.md: within 1.35 dB below 1 Hz), and the
     band where the measured line crosses −6 dB (log-interpolated) within 15 % of the predicted one
     (the limit above both: test_the_limit_bounds_the_design...)."""
     point = min(design.points, key=lambda pt: abs(pt.dcl - 0.08))
     plant = design.control_model(model)
-    db = []
-    for f in (0.25, 0.5):
+    db, freqs = [], (round(point.f6_hz / 1.4, 4), round(point.f6_hz * 1.4, 4))
+    for f in freqs:
         amp = {}
         for fb, cfg in ((False, ControlConfig(feedback=False)), (True, ControlConfig(schedule=design.schedule()))):
-            run = InProcessTracking(plant, LiftController(plant, cfg), "steps:0.08@0", 6.0 + 4 / f + 8.0, effects=(),
-                                    gust=f"{f:g}:0.01").run()
+            run = InProcessTracking(plant, LiftController(plant, cfg), "steps:0.08@0", 6.0 + 4 / f + 8.0,
+                                    effects=(), gust=f"{f:.4f}:0.01").run()
             t, y, _ = run.traces()
             sel = t < 6.0 + math.floor((t[-1] - 6.0) * f) / f        # whole periods after 6 s
             amp[fb] = _amplitude(t[sel], y[sel], f, 6.0)
         db.append(20 * math.log10(amp[True] / amp[False]))
         assert db[-1] == pytest.approx(20 * math.log10(abs(point.sensitivity(np.array([f]), design.dt)[0])), abs=1.5)
     assert db[0] < -6.0 < db[1]
-    f6 = math.exp(math.log(0.25) + (-6.0 - db[0]) / (db[1] - db[0]) * math.log(2.0))
+    f6 = math.exp(math.log(freqs[0]) + (-6.0 - db[0]) / (db[1] - db[0]) * math.log(1.4 ** 2))
     assert f6 == pytest.approx(point.f6_hz, rel=0.15)

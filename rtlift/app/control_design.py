@@ -112,9 +112,13 @@ for slow drifts (an actuator fade). The lag pole b stays on the positive axis: a
 Z = −1 would amplify the estimate's noise at the burst rate's Nyquist frequency (4 Hz), an
 envelope alternating from one burst to the next."""
 PEAK_MARGIN_DB = 0.15
-"""The search holds the |S| peaks this far below the target at the scheduled points: the gains
-interpolated half-way between two of them gave 0.03–0.34 dB more on the bench model and plant
-draws 101 and 110 (the peak sits at 4 Hz, where the interpolated lead-lag and K_x do not add up to
+"""The search holds the |S| peaks this far below the target at the scheduled points: on calibration
+draws 1–3 (the schedule continued point to point) each design's largest peak over every checked
+point came out 3.87, 3.94 and 3.96 dB at a +4 dB target: 0.02–0.11 dB over the 3.85 the search
+holds, within this margin.
+First set from the gains interpolated half-way, which gave 0.03–0.34 dB more on the bench model and
+on plant draws 101 and 110 (reporting draws: the value is kept because the calibration draws confirm
+it) (the peak sits at 4 Hz, where the interpolated lead-lag and K_x do not add up to
 either neighbour's); a half-way point still over is designed and joins the schedule. 0.3 dB
 cost the bench model's predicted band 0.05 Hz (0.27–0.33 Hz)."""
 HAND_START = (0.5, 0.5, 0.0, 0.0, 0.0)
@@ -155,21 +159,27 @@ LIMIT_SIDES = 12
 the bound is optimistic by at most 1/cos(π/12) − 1 = 3.5 %, 0.3 dB)."""
 
 
+PEAK_DB = 2.85
+"""The predicted |S| and |S_o| peak a design may reach (dB): 3 dB (the goal for the *measured* lift)
+less the largest excess of the measured amplification over the predicted peak at the point the loop
+runs, on calibration draws 1–3 of the plant family (+0.15, +0.01 and −0.64 dB: draws 1, 2, 3,
+designs to +4 dB, gust at ten frequencies 0.05–2 Hz, seed 11; docs/results/control.md). It was 4
+from our bench alone (its model over-predicted the bench's loop gain by 1.5 dB); the family's models
+do not, and the reporting draws measured up to +3.9 dB against it."""
+
+
 @dataclass(frozen=True)
 class Targets:
     """Design targets: gain margin (dB, both ways: the loop gain may rise or fall by that much),
     phase margin (deg), largest predicted |S| anywhere (dB, both the loop's 1/(1 + L) and the
     gust's map with the observer), and robust stability max |W T| < 1 with W the uncertainty weight.
 
-    ``peak_db`` 4: the goal is at most 3 dB of amplification of the *measured* lift, and the
-    bench-identified model over-predicts the bench's loop gain by about 1.5 dB at ΔCL 0.08
-    (measured suppression 1–2 dB weaker than predicted below 0.5 Hz, amplification 1–1.6 dB
-    smaller near 1 Hz; docs/results/control.md): a design to a predicted 4 dB measured +1.9 dB,
-    one to a predicted 3 dB measured +1.6 dB with a 6 dB band of 0.26 Hz instead of 0.35 Hz."""
+    ``peak_db`` :data:`PEAK_DB`: the goal is at most 3 dB of amplification of the *measured* lift.
+    """
 
     gm_db: float = 6.0
     pm_deg: float = 45.0
-    peak_db: float = 4.0
+    peak_db: float = PEAK_DB
 
 
 @dataclass(frozen=True)
@@ -857,7 +867,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
 
 
-DESIGN_VERSION = 5
+DESIGN_VERSION = 6
 """Changes when the design computes something else: a cached design of another version is redone."""
 REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 
