@@ -14,7 +14,7 @@ first sample after it. ``--view`` serves the live page of ``rtlift observe``.
 
 The feedback gains are designed from the model with python-control before the link opens
 (:mod:`rtlift.app.control_design`: PI with a lead–lag at the burst rate, gain margin ≥ 6 dB,
-phase margin ≥ 45°, predicted |S| ≤ 4 dB, robust to the model's error, scheduled over Cμ; a minute
+phase margin ≥ 45°, predicted |S| ≤ +2.85 dB, robust to the model's error, scheduled over Cμ; a minute
 on a loaded machine) and cached beside the model (``MODEL.design-<sha12>.json``, keyed by the model
 file's bytes): a later start with the same model reads it. A design that misses a target (a
 saved one included: its margins are computed again) is refused unless
