@@ -145,3 +145,22 @@ def test_a_gap_longer_than_a_second_is_not_filled(tmp_path):
     loop.feed(_sample(0))
     loop.feed(_sample(MAX_FILL + 10))
     assert loop.stats.filled == MAX_FILL - 1 and len(first.rows) == MAX_FILL + 1
+
+
+def test_the_domain_watch_is_the_converter_the_loop_is_given(capsys):
+    """``watch_domain`` wraps the converter before the loop is made (nothing attached afterwards):
+    one stderr line the first time Cμ leaves the model's domain; no domain, the converter itself."""
+    from rtlift.model.domain import watch_domain
+
+    domain = {"cmu_max": 0.01, "cmu_envelope_max": 0.01, "burst_periods_s": [0.125], "isolated_bursts": True,
+              "isolated_after_s": 1.0}
+    assert watch_domain(_converter, SimpleNamespace(provenance={}, fs_hz=400.0), "t") is _converter
+    first = Recorder([], "first")
+    conv = watch_domain(lambda s: (0.02 if s.seq >= 3 else 0.0, 0.0, 0.1), SimpleNamespace(
+        provenance={"domain": domain}, fs_hz=400.0), "rtlift observe")
+    loop = ObserverLoop(Observer.from_model(load_model(MODEL)), conv, 1 << 16, listeners=[first])
+    for seq in range(6):
+        loop.feed(_sample(seq))
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("rtlift observe: warning: outside the model's domain at sample 3")
+    assert [r[4] for r in first.rows] == [0.0, 0.0, 0.0, 0.02, 0.02, 0.02]

@@ -132,11 +132,12 @@ class WatchedConverter:
         return getattr(self._converter, name)
 
 
-def watch_domain(loop: Any, model: Any, command: str) -> None:
-    """Make an observer loop's converter (``loop.converter``) say on stderr, once, when the live
-    stream leaves ``model``'s domain (a model file without one: nothing is watched)."""
+def watch_domain(converter: Any, model: Any, command: str) -> Any:
+    """``converter`` (for an observer loop, given to it when it is made) that also says on stderr,
+    once, when the live stream leaves ``model``'s domain; a model file without one: ``converter``
+    itself (nothing is watched)."""
     domain = model.provenance.get("domain")
-    if domain:
-        loop.converter = WatchedConverter(
-            loop.converter, DomainWatch(domain, model.fs_hz),
-            lambda line: print(f"{command}: warning: {line}", file=sys.stderr, flush=True))
+    if not domain:
+        return converter
+    return WatchedConverter(converter, DomainWatch(domain, model.fs_hz),
+                            lambda line: print(f"{command}: warning: {line}", file=sys.stderr, flush=True))

@@ -105,10 +105,10 @@ def run(args: argparse.Namespace) -> int:
     view = start_view(args, f"rtlift control {where}", fs,
                       lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates if loop else 0,
                                **(watch.counts() if watch else {})})
-    loop = ObserverLoop(observer, Converter(calibration, fs), link.seq_modulus, fs_hz=fs, step_stats=True,
+    loop = ObserverLoop(observer, watch_domain(Converter(calibration, fs), model, "rtlift control"), link.seq_modulus,
+                        fs_hz=fs, step_stats=True,
                         monitor=watch.monitor, adapter=watch.adapter, tap=None if view is None else view.tap)
     link.on_gap = loop.bridge
-    watch_domain(loop, model, "rtlift control")
     tracking = None if args.seconds is None else int(round(args.seconds * fs))
     closed = ControlLoop(link, loop, controller, reference, calibration, fs, tracking)
     watch.follow(closed)

@@ -96,12 +96,12 @@ def run(args: argparse.Namespace) -> int:
         view = start_view(args, f"rtlift observe {where}", model.fs_hz,
                           lambda: {**link.counters.as_dict(), "estimates": loop.stats.estimates if loop else 0,
                                    **(watch.counts() if watch else {})})
-        loop = ObserverLoop(observer, Converter(calibration, model.fs_hz), link.seq_modulus, writer=writer,
+        loop = ObserverLoop(observer, watch_domain(Converter(calibration, model.fs_hz), model, "rtlift observe"),
+                            link.seq_modulus, writer=writer,
                             fs_hz=model.fs_hz, step_stats=True, monitor=watch.monitor, adapter=watch.adapter,
                             tap=None if view is None else view.tap,
                             max_samples=None if args.seconds is None else int(round(args.seconds * model.fs_hz)))
         link.on_gap = loop.bridge
-        watch_domain(loop, model, "rtlift observe")
         code, message = run_live("rtlift observe", loop.stats, link, loop.feed, lambda: loop.done,
                                  lambda: loop.stats.samples, args.seconds)
     finally:
