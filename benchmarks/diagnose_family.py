@@ -44,7 +44,7 @@ import pickle
 from pathlib import Path
 
 from benchmarks._common import emit
-from benchmarks.family import parse_draws, run_tasks
+from benchmarks.family import add_run_options, parse_draws, run_tasks
 
 FORMS = ("development", "user")
 TRAIN = {"development": ("sine_k0125", "sine_k025", "random"), "user": ("random", "sine_k0125", "sine_k025")}
@@ -177,10 +177,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default="family_diagnose.jsonl", help="JSONL of the tasks' results (resumed)")
     ap.add_argument("--models", help="folder of the draws' pickled models (default: beside --out)")
     ap.add_argument("--summarise", action="store_true", help="only the summary of the tasks already in --out")
-    how = ap.add_mutually_exclusive_group()
-    how.add_argument("--serial", action="store_true", help="run the tasks here, one after another")
-    how.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:port)")
-    ap.add_argument("--workers", type=int, default=2, help="LocalCluster workers (default 2, one thread each)")
+    add_run_options(ap)
     args = ap.parse_args(argv)
     draws = parse_draws(args.draws) if args.draws else list(REPORTING_DRAWS[:DEFAULT_DRAWS])
     models = args.models or str(Path(args.out).resolve().parent / "family_models")

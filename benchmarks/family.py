@@ -179,6 +179,14 @@ def print_tables(results: dict[int, dict], summary: dict) -> None:
                                                             else "   goal not met"))
 
 
+def add_run_options(ap: argparse.ArgumentParser) -> None:
+    """Where the tasks run (:func:`run_tasks`): ``--serial``, ``--scheduler ADDRESS`` or ``--workers N``."""
+    how = ap.add_mutually_exclusive_group()
+    how.add_argument("--serial", action="store_true", help="run the tasks here, one after another")
+    how.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:port)")
+    ap.add_argument("--workers", type=int, default=2, help="LocalCluster workers (default 2, one thread each)")
+
+
 def parse_draws(text: str) -> list[int]:
     """``A-B`` or ``A,B,C`` (or a mix) → draw numbers."""
     draws: list[int] = []
@@ -197,10 +205,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--draws", help=f"plant draws (default: the first {DEFAULT_DRAWS} reporting draws)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the identification campaign (validation: +1)")
     ap.add_argument("--out", default="family_identify.jsonl", help="JSONL of the tasks' results (resumed)")
-    how = ap.add_mutually_exclusive_group()
-    how.add_argument("--serial", action="store_true", help="run the tasks here, one after another")
-    how.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:port)")
-    ap.add_argument("--workers", type=int, default=2, help="LocalCluster workers (default 2, one thread each)")
+    add_run_options(ap)
     args = ap.parse_args(argv)
     draws = parse_draws(args.draws) if args.draws else list(REPORTING_DRAWS[:DEFAULT_DRAWS])
     print(draws_line(draws) + f"; identification seed {args.seed}, validation seed {args.seed + 1}", flush=True)
