@@ -14,7 +14,7 @@
 """
 
 from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis
-from rtlift.diagnose.selection import diagnose
+from rtlift.diagnose.lift import diagnose
 from rtlift.effects import EFFECT_NAMES
 
 __all__ = ["EFFECT_NAMES", "DiagnoseOptions", "Diagnosis", "diagnose"]
