@@ -77,6 +77,23 @@ def test_a_gain_change_is_named_a_fade():
     assert not [d for d in mon.departures if d["t_s"] <= 60.0]
 
 
+def test_bias_and_trend_name_one_level_shift_by_its_evidence_not_their_own_name():
+    # a slow fade (the lift's part proportional to the model's lift) and a rising zero, both over
+    # 30 s from t = 60 s: each is raised by `bias` and by `trend`, and both tests name it alike
+    m, noise = _synthetic(120, seed=4)
+    t = np.arange(m.size) / FS_HZ
+    ramp = np.clip((t - 60.0) / 30.0, 0.0, 1.0)
+    for z, name in ((m * (1.0 - 0.25 * ramp) + noise, "actuator_fade"), (m + noise + 2.5 * SIGMA * ramp, "zero_drift")):
+        mon = monitor_arrays(DepartureMonitor(SIGMA), z, m, noise)
+        tests = {d["test"] for d in mon.departures}
+        assert {"bias", "trend"} <= tests, mon.departures
+        assert all(60.0 < d["t_s"] <= 95.0 for d in mon.departures), mon.departures
+        assert [d["suspect"] for d in mon.departures] == [name] * len(mon.departures), mon.departures
+        trend = next(d for d in mon.departures if d["test"] == "trend")
+        # the evidence it was named by: the trend's signed slope (ΔCL/s) has the shift's sign
+        assert math.copysign(1.0, trend["evidence"]["trend_slope"]) == (-1.0 if name == "actuator_fade" else 1.0)
+
+
 def _psd_print(e: np.ndarray) -> dict:
     f, p = welch_psd(e, FS_HZ)
     return {"f_hz": f.tolist(), "log10": np.log10(p).tolist(), "segments": 1}

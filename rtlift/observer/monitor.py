@@ -69,19 +69,22 @@ constants :data:`THRESHOLDS`, set from clean runs of our bench and the independe
 :data:`MARGIN`). The summary says which were in force (``thresholds_from``).
 
 The suspect named with a departure is what the diagnosis would try first (the diagnosis that
-``--adapt`` runs decides): ``bias`` is an ``actuator_fade`` when the residual's block means follow
-the model's lift with a significant negative slope beside an offset and a trend in time, else (in a
-closed loop the two look alike at first: the controller raises Cμ as the lift falls, and a fade's
-first seconds are too few blocks for the slope) by the shift's sign as ``hold``:
-``actuator_fade`` when the lift fell below the model's, ``zero_drift`` when it rose (on the
-calibration draws 1 and 2, a fade's first ``bias`` 5 s after its onset was named ``zero_drift`` by
-the earlier rule "the lift moved and the block means did not follow"); ``gain`` < 0 an ``actuator_fade``;
-``line`` a ``periodic_disturbance`` at the peak's frequency; ``level`` and ``whiteness`` an
-unmodelled ``resonance`` or noise; ``trend`` a ``zero_drift``; ``hold`` an ``actuator_fade`` when
-the lift fell below the model's (a fade cannot raise it), a ``zero_drift`` when it rose. A balance
-zero falling during a hold looks the same to a loop until its next reference step (the fade's part
-scales with the lift, the drift's does not): the name is the likelier cause on a rig whose
-actuators heat as they run, and the diagnosis ``--adapt`` runs decides.
+``--adapt`` runs decides). ``bias``, ``trend`` and ``hold`` see one thing — the residual's level
+moved — and name it by one rule (:meth:`DepartureMonitor.level_suspect`), from the evidence rather
+than the test's name: an ``actuator_fade`` when the residual's block means follow the model's lift
+with a significant negative slope beside an offset and a trend in time (the shift scales with the
+delivered actuation), else by the test's own signed shift: ``actuator_fade`` when the lift fell
+below the model's, ``zero_drift`` when it rose (a fade cannot raise the lift). In a closed loop a
+fade's first seconds are too few blocks for the slope, and the controller raising Cμ as the lift
+falls makes a fade and a falling zero look alike until the next reference step (the fade's part
+scales with the lift, the drift's does not): the name is then the likelier cause on a rig whose
+actuators heat as they run. (On the calibration draws 1 and 2, a fade's first ``bias`` 5 s after
+its onset was named ``zero_drift`` by the earlier rule "the lift moved and the block means did not
+follow"; until issue 46's third pass ``trend`` always named ``zero_drift``, and on the reporting
+draws a fade's ``trend`` departure 9 s after its onset named it so beside the ``bias`` naming the
+fade.) ``gain`` < 0 an ``actuator_fade``; ``line`` a ``periodic_disturbance`` at the peak's
+frequency; ``level`` and ``whiteness`` an unmodelled ``resonance`` or noise. Each departure carries
+the evidence it was named by (``evidence``: the regression's verdict and t_b, the signed shifts).
 """
 
 from __future__ import annotations
@@ -336,6 +339,7 @@ class DepartureMonitor:
         self._prev_nu = math.nan
         self._bias_ref: float | None = None
         self._bias_shift = 0.0
+        self._trend_slope = 0.0         # the trend's signed slope of the block means (ΔCL/s)
         self._fit = ("none", 0.0)
         self._held: list[str] = []
         self._gain_sign = 0.0
@@ -519,6 +523,7 @@ class DepartureMonitor:
                 x = -np.arange(len(t), dtype=float)[ok] * self.config.block_s
                 xc = x - x.mean()
                 slope = float(xc @ (means - means.mean()) / (xc @ xc))
+                self._trend_slope = slope
                 out["trend"] = abs(slope) * self.config.trend_window_s / sc
         out["hold"] = abs(self._hold)
         return out
@@ -592,30 +597,48 @@ class DepartureMonitor:
                 if self._quiet[test] >= self.window_blocks:
                     self._active[test] = False
 
+    def level_suspect(self, change: float) -> str:
+        """The one naming of a shift of the residual's level, whichever test saw it (``bias``,
+        ``trend``, ``hold``): the evidence, not the statistic's name.
+
+        - the residual follows the delivered actuation — the block regression over the trend
+          window (:meth:`_block_slope`) finds its part proportional to the model's lift with
+          t_b ≤ −3: a gain change that lowers the lift, ``actuator_fade``;
+        - else by the sign of ``change`` (the test's own signed shift, in ΔCL: e = z − ΔCL_m):
+          the lift fell below the model's, ``actuator_fade``; it rose, ``zero_drift`` (a fade
+          cannot raise the lift).
+
+        What this cannot tell: a zero *falling* while a loop holds its operating point. The loop
+        raises Cμ to hold the lift either way, so the residual falls as the model's lift rises
+        for both, and a drift's not scaling with the actuation shows only across the next
+        reference step; until then it is named ``actuator_fade`` (the likelier cause on a rig
+        whose actuators heat as they run) and the diagnosis ``--adapt`` runs decides."""
+        kind, t = self._fit
+        if kind == "proportional" and t < 0:
+            return ActuatorFadeEffect.name
+        return ActuatorFadeEffect.name if change < 0 else ZeroDriftEffect.name
+
     def suspect(self, test: str) -> str:
         """The effect a departure of ``test`` points at (its name, :mod:`rtlift.effects`), or what
         no effect models: ``gain_increase`` (the gain rose; a fade only lowers it) and
-        ``resonance or added noise``."""
-        fade, drift = ActuatorFadeEffect.name, ZeroDriftEffect.name
-        if test == "bias":
-            kind, t = self._fit
-            if kind == "proportional" and t < 0:
-                return fade
-            # else by the shift's sign, as ``hold`` (a fade cannot raise the lift)
-            return fade if self._bias_shift < 0 else drift
+        ``resonance or added noise``. ``bias``, ``trend`` and ``hold`` are one naming
+        (:meth:`level_suspect`) of their own signed shift."""
+        if test in ("bias", "trend", "hold"):
+            return self.level_suspect({"bias": self._bias_shift, "trend": self._trend_slope,
+                                       "hold": self._hold}[test])
         if test == "gain":
-            return fade if self._gain_sign < 0 else "gain_increase"
+            return ActuatorFadeEffect.name if self._gain_sign < 0 else "gain_increase"
         if test == "line":
             return f"{PeriodicDisturbanceEffect.name} at {getattr(self, '_line_hz', math.nan):.2f} Hz"
-        if test == "trend":
-            return drift
-        if test == "hold":
-            return fade if self._hold < 0 else drift
         return "resonance or added noise"
 
     def _raise(self, t_s: float, test: str, value: float, threshold: float) -> None:
+        kind, tb = self._fit
         d = {"t_s": round(t_s, 6), "test": test, "statistic": float(value), "threshold": threshold,
-             "suspect": self.suspect(test), "sample": self._sample}
+             "suspect": self.suspect(test), "sample": self._sample,
+             "evidence": {"fit": kind, "t_b": round(float(tb), 3) if math.isfinite(tb) else None,
+                          "bias_shift": float(self._bias_shift),
+                          "trend_slope": float(self._trend_slope), "hold": float(self._hold)}}
         self.departures.append(d)
         if self.on_departure is not None:
             self.on_departure(d)
