@@ -18,7 +18,10 @@ burst onset; a ``structure`` is reported, not swapped, as by default): while a w
 diagnosed the loop runs on a clock (:class:`PacedAdapter`, ``--pace``: the host's, or the
 diagnosis's CPU seconds), so the diagnosis takes as much of the loop's time as it would live. ``--out FILE``
 appends each draw's line to FILE and skips the draws already there (a run stopped and resumed);
-the totals are over every line in it.
+the totals are over every line in it. ``--fault SPEC`` adds a closed loop per draw with that bench
+effect (a ``zero_drift`` of either sign: what its departures name); ``--open-loop TYPE ...`` adds
+clean open-loop streams of those experiments on the draw's plant, stepped as ``rtlift observe``
+steps them (no controller), and their false departures per hour.
 
 Per draw one JSON line: the model's thresholds and where they came from; per run the departures
 (time on the monitor's clock, test, statistic, suspect), every evaluation's statistics (so other
@@ -154,7 +157,7 @@ def one_run(model, draw: int, seed: int, seconds: float, effects: tuple[str, ...
     t, truth, _ = runs[0].traces()
     err = lowpass(truth) - lowpass(reference_values(REFERENCE, len(truth)))
     out = {"seed": seed, "seconds": seconds, "wall_s": time.perf_counter() - t0,
-           "departures": [{k: d[k] for k in ("t_s", "test", "statistic", "threshold", "suspect")}
+           "departures": [{k: d[k] for k in ("t_s", "test", "statistic", "threshold", "suspect", "evidence")}
                           for d in mon.departures],
            "max": {k: max((h[k] for h in mon.history), default=0.0) for k in TESTS},
            "history": [{k: round(float(h[k]), 5) for k in TESTS} for h in mon.history],
@@ -187,6 +190,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--adapt", action="store_true", help="--adapt on every run (the swap measured)")
     ap.add_argument("--pace", choices=("wall", "cpu"), default="wall",
                     help="the loop's clock while a window is diagnosed (PacedAdapter; default wall)")
+    ap.add_argument("--fault", action="append", default=[],
+                    help="one more closed loop per draw with this bench effect (e.g. zero_drift:rate_per_s=4e-4; "
+                         "seeds 7000 + N, 17000 + N, ...): what its departures name")
+    ap.add_argument("--open-loop", nargs="*", default=[], metavar="TYPE",
+                    help="clean open-loop streams per draw (rtlift observe's loop, no controller): random sine_k025")
+    ap.add_argument("--open-seconds", type=float, default=600.0, help="each open-loop stream's length (default 600)")
+    ap.add_argument("--open-seeds", type=int, default=1, help="open-loop streams of each type per draw (default 1)")
     ap.add_argument("--out", default=None, help="append each draw's line here; skip the draws already there")
     args = ap.parse_args(argv)
     work = Path(args.work or tempfile.mkdtemp(prefix="rtlift-family-"))
@@ -218,6 +228,10 @@ def main(argv: list[str] | None = None) -> int:
                    "clean": [run(5000 + draw + 10000 * j, (), "clean") for j in range(args.clean_seeds)]}
             if not args.no_fade:
                 row["fade"] = run(6000 + draw, (FADE,), "fade")
+            row["faults"] = [dict(run(7000 + draw + 10000 * j, (spec,), f"fault{j}"), spec=spec)
+                             for j, spec in enumerate(args.fault)]
+            row["open_loop"] = [open_loop(model, draw, kind, 8000 + draw + 10000 * j, args.open_seconds)
+                                for j in range(args.open_seeds) for kind in args.open_loop]
         except Exception as exc:  # noqa: BLE001 - a failed draw is listed, the others go on
             row = {"draw": draw, "error": f"{type(exc).__name__}: {exc}", "trace": traceback.format_exc()[-2000:]}
         row["wall_s"] = time.perf_counter() - t0
@@ -265,7 +279,8 @@ def totals(rows: list[dict]) -> dict:
                       "diagnoses": len(run.get("adaptations", [])),
                       "swap_s": swaps[0]["t_s"] - onset if swaps else None,
                       "swap_accepted": swaps[0].get("accepted") if swaps else None,
-                      "rmse_last40_ratio": run["rmse_last40"] / clean_runs(r)[0]["rmse_last40"]})
+                      "rmse_last40_ratio": (run["rmse_last40"] / clean_runs(r)[0]["rmse_last40"]
+                                            if clean_runs(r) else None)})
     named = [f for f in fades if f["suspect"] == "actuator_fade" and f["delay_s"] is not None
              and f["delay_s"] <= 10.0 and f["before_onset"] == 0]
     alone = [f for f in named if f["suspects_within_10s"] == ["actuator_fade"]]
@@ -282,7 +297,36 @@ def totals(rows: list[dict]) -> dict:
             "clean_swaps": sum(1 for a in diag if a.get("swapped")),
             "fades": fades, "fade_named_within_10s": len(named), "fade_named_alone_within_10s": len(alone),
             "fade_swapped_within_60s": len(swapped60),
-            "fade_ratio_le_1p3": sum(1 for f in fades if f["rmse_last40_ratio"] <= 1.3), "fade_runs": len(fades)}
+            "fade_ratio_le_1p3": sum(1 for f in fades if (f["rmse_last40_ratio"] or math.inf) <= 1.3),
+            "fade_runs": len(fades),
+            "faults": [{"draw": r["draw"], "spec": f["spec"], "named": [(d["t_s"], d["test"], d["suspect"])
+                                                                        for d in f["departures"]]}
+                       for r in ok for f in r.get("faults", [])],
+            **open_totals([o for r in ok for o in r.get("open_loop", [])])}
+
+
+def open_loop(model, draw: int, kind: str, seed: int, seconds: float) -> dict:
+    """A clean open-loop stream of plant ``draw`` (the bench running experiment ``kind`` over and
+    over, ``seconds`` long, no controller) through the observer and the monitor as ``rtlift
+    observe``'s loop steps them (:func:`benchmarks.monitor_null.monitor_record`): its departures."""
+    from benchmarks.monitor_null import bench_stream, monitor_record
+
+    t0 = time.perf_counter()
+    mon = monitor_record(model, bench_stream(kind, seed, seconds, plant_draw=draw), history=True)
+    return {"kind": kind, "seed": seed, "seconds": seconds, "wall_s": time.perf_counter() - t0,
+            "departures": [{k: d[k] for k in ("t_s", "test", "statistic", "threshold", "suspect")}
+                           for d in mon.departures],
+            "max": {k: max((h[k] for h in mon.history), default=0.0) for k in TESTS}}
+
+
+def open_totals(runs: list[dict]) -> dict:
+    """False departures over the clean open-loop streams: count, hours, rate and its 95 % bound."""
+    if not runs:
+        return {}
+    n = sum(len(o["departures"]) for o in runs)
+    hours = sum(o["seconds"] for o in runs) / 3600.0
+    return {"open_runs": len(runs), "open_hours": hours, "open_false_departures": n,
+            "open_per_hour": n / hours, "open_per_hour_95_upper": poisson_upper(n) / hours}
 
 
 def poisson_upper(n: int, level: float = 0.95) -> float:

@@ -39,11 +39,12 @@ IP_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "independent
 TYPES = tuple(t for t in EXPERIMENTS if t != "static")
 
 
-def bench_stream(name: str, seed: int, seconds: float) -> Record:
-    """``seconds`` of the bench running experiment ``name`` over and over (one tare at the start)."""
+def bench_stream(name: str, seed: int, seconds: float, plant_draw: int = 0) -> Record:
+    """``seconds`` of the bench running experiment ``name`` over and over (one tare at the start),
+    on plant ``plant_draw`` of the family (0: the bench's own plant)."""
     chunks = []
     need = int(seconds)
-    for chunk in daq_stream(name, seed):
+    for chunk in daq_stream(name, seed, plant_draw=plant_draw):
         chunks.append(chunk)
         if len(chunks) >= need:
             break
