@@ -57,7 +57,7 @@ def test_a_diagnosis_the_runs_end_cuts_off_is_an_event(tmp_path, monkeypatch):
     for i in range(start + int(AFTER_S * FS_HZ) + 1):
         ad.after_step(i, 0.02, 0.01, 0.1 + 1e-3 * rng.standard_normal())
     assert ad.busy and events == []
-    ad.close()
+    ad.close(0.0)                   # the run's end cuts the diagnosis off at once (no wait)
     assert not ad.busy
     assert len(events) == 1 and events[0]["event"] == "diagnosis" and not events[0].get("swapped")
     assert events[0]["reason"] == "RuntimeError: the run ended before the window's diagnosis did"

@@ -68,6 +68,9 @@ under way is the same curve with a smaller initial loss) but not one whose first
 (with the window 8 s before the departure, the bench's fade was fitted as a ``zero_drift``)."""
 SPLIT = SPLIT_DEFAULT
 """The window's share the diagnosis fits on (:data:`rtlift.core.split.SPLIT_DEFAULT`, as ``rtlift diagnose --run``)."""
+END_WAIT_S = 120.0
+"""How long the run's end waits for a diagnosis in flight (:meth:`Adapter.close`) so that its event
+says what it found: at a load average of 16 a window's diagnosis took 95 s of wall time."""
 RING_S = 240.0
 """Rows kept: the window plus up to ~3 minutes of diagnosis."""
 SWITCH_INTERVAL_S = 5e-5
@@ -326,16 +329,28 @@ class Adapter:
         self.events(ev)
         self._busy = False
 
-    def close(self, timeout: float = 0.0) -> None:
-        """The run ended: wait up to ``timeout`` for a diagnosis in flight, then end the worker. A
-        diagnosis the run's end cut off is one event (``reason``: the run ended first), so the
-        summary and the events file say it was started and not finished."""
-        if self._thread is not None and timeout > 0:
-            self._thread.join(timeout)
+    def close(self, timeout: float | None = None) -> None:
+        """The run ended: wait for a diagnosis in flight (up to ``timeout`` s; ``None``:
+        :data:`END_WAIT_S`), then end the worker. Every diagnosis started is one event: one the
+        wait cut off says so (``reason``: the run ended before the window's diagnosis did); one
+        that finished (its swap prepared) after the loop's last burst onset says what it accepted
+        and that the run ended before the swap — so a run that ends first, on a loaded machine,
+        still tells what its diagnosis found."""
+        wait = END_WAIT_S if timeout is None else timeout
+        if self._thread is not None and self._thread.is_alive() and wait > 0:
+            self.log(f"the run ended with window {self.count}'s diagnosis in flight: waiting up to {wait:g} s for it")
+            self._thread.join(wait)
         if self._worker is not None:
             self._worker.close()
         if self._thread is not None and self._thread.is_alive():
             self._thread.join(1.0)                  # its request answered "closed": its event is written
+        with self._lock:
+            ready, self._ready = self._ready, None
+        if ready is not None and not self.replaying:
+            event = dict(ready.get("event") or {"event": "diagnosis"})
+            event["reason"] = ("the run ended before the swap (the window's diagnosis finished after the "
+                               "loop's last burst)")
+            self._finish(event)
 
 
 def _catch_up(obs: Any, rows: np.ndarray) -> None:

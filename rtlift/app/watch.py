@@ -196,7 +196,9 @@ class Watch:
             out["adaptations"] = list(self.adapter.adaptations)
         return out
 
-    def close(self, wait_s: float = 0.0) -> None:
+    def close(self, wait_s: float | None = None) -> None:
+        """The run ended: the adapter waits for a diagnosis in flight (``wait_s``; ``None``: its own
+        bound, :data:`rtlift.app.adapt.END_WAIT_S`), then the thresholds and events files are written."""
         if self.adapter is not None:
             self.adapter.close(wait_s)
         if self.calibrate_to and self.monitor is not None:
