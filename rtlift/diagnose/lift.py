@@ -1,4 +1,6 @@
-"""Closing the loop: residual tests → candidate effects → model selection on held-out records.
+"""A lift model's candidates for the selection engine (:mod:`rtlift.diagnose.selection`): the
+effects of :mod:`rtlift.effects`, residual tests → candidate effects → model selection on
+held-out records.
 
 0. **Reference.** The training record is compared with the fingerprint entry its *input*
    points at (:func:`.fingerprint.reference`): an identification run it repeats bit for bit, else
@@ -15,25 +17,15 @@
    noise of both runs, which costs more than it gains for a slow additive or linear effect
    (fitted so everywhere, a fade took a drift's place on the independent plant). The residual
    tests and the fingerprint comparison use the record as measured.
-2. **Pool.** A candidate enters the pool when its fit is interior (no parameter on a bound of
-   its range: a fade to 0, a "mode" damped like a lag) and it either lowers the validation
-   error or its evidence departs from the fingerprint; then each other candidate fitted beside
-   the best of them that lowers the validation error further (a strong effect can hide a weak
-   one from a fit on the baseline); at most ``pool_size``, best first.
-3. **Combinations** of up to ``max_effects`` pool members (exclusive pairs left out) are built
-   in the catalog's order, each member fitted on the model with the ones before it, and scored
-   on the validation records, which no fit ever sees.
-4. **Every member earns its place.** A combination is admissible only if removing any one
-   member makes the validation error significantly worse (:meth:`_Judge.verdict`: relative
-   RMSE gain ≥ ``min_gain``, a Diebold–Mariano t ≥ ``min_t`` over 1 s blocks, no record worse
-   by more than 1 %, ρ not lower by more than 0.005). A member whose own evidence departs from
-   the fingerprint (step 5) needs t ≥ ``min_t_confirm`` only: the training record formed the
-   hypothesis, independently of the held-out records, which then confirm it; a member without
-   such evidence is a search over the catalog and needs the stricter ``min_t``
-   (:meth:`_Search.earns`). Among the admissible combinations (the
-   empty one included) within ``parsimony`` of the lowest *level-free* validation RMSE (each
-   record's own mean error taken out, :meth:`_Judge.level_free`), the one the others cannot
-   replace wins (an encompassing test on the held-out records, :meth:`_Judge.encompassing`),
+2. **Pool**, 3. **combinations** in the catalog's order (the signal path's), each effect fitted
+   on the model with the ones before it, and 4. **every member earns its place**: the engine's
+   (:mod:`rtlift.diagnose.selection`), a lift model screening its pool (the effects stack) and
+   combining up to ``max_effects``, the significance test over 1 s blocks. A member whose own
+   evidence departs from the fingerprint (step 5) is confirmed at ``min_t_confirm``. Among the
+   admissible combinations (the empty one included) within ``parsimony`` of the lowest
+   *level-free* validation RMSE (each record's own mean error taken out,
+   :func:`~rtlift.diagnose.significance.level_free_rmse`), the one the others cannot replace
+   wins (an encompassing test on the held-out records, :meth:`.selection.Judge.encompassing`),
    then the one ranked first by step 5, then the one with fewer parameters. Why level-free:
    the model's own level misfit differs between record types and is unknown on a type the
    campaign lacks, and an effect that shifts the lift can win on it without being there. The
@@ -62,9 +54,7 @@ report's numbers are the ones ``rtlift validate`` prints for the same model file
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
-from itertools import combinations
 from typing import Any
 
 import numpy as np
@@ -72,11 +62,12 @@ import numpy as np
 from rtlift.core.metrics import scores
 from rtlift.core.records import Record
 from rtlift.core.threads import one_blas_thread
-from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial, report_dict
-from rtlift.diagnose.significance import combination, level_free_rmse, pooled_rmse, significant_gain
+from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial
+from rtlift.diagnose.selection import Errors, Node, Search, Selection, Single, run
+from rtlift.diagnose.significance import level_free_rmse
 from rtlift.diagnose.unexplained import unexplained
 from rtlift.effects import BY_NAME as EFFECTS
-from rtlift.effects import CATALOG, EFFECT_NAMES, Context, Fitted, predict, reestimate
+from rtlift.effects import EFFECT_NAMES, Context, Fitted, predict, reestimate
 from rtlift.effects.zero_drift import ZeroDriftEffect
 from rtlift.model.hybrid import HybridModel
 from rtlift.residual.fingerprint import (
@@ -89,66 +80,10 @@ from rtlift.residual.fingerprint import (
     record_tests,
     reference,
 )
-from rtlift.residual.stats import TestResult, cluster_ols
+from rtlift.residual.stats import TestResult
 
-
-class _Judge:
-    """Scores models on the validation records (:func:`predict` over whole records from rest,
-    each scored from its ``score_from`` sample on: 0 for a record of its own)."""
-
-    def __init__(self, records: list[Record], fs: float, score_from: list[int]) -> None:
-        self.records, self.block, self.score_from = records, int(fs), score_from
-        self._meas = np.concatenate([r.dcl[k:] for r, k in zip(records, score_from, strict=True)])
-
-    def errors(self, model: HybridModel) -> list[np.ndarray]:
-        return [(r.dcl - predict(model, r).total)[k:] for r, k in zip(self.records, self.score_from, strict=True)]
-
-    pooled = staticmethod(pooled_rmse)
-    level_free = staticmethod(level_free_rmse)
-
-    def encompassing(self, node: _Node, rivals: list[_Node], search: _Search) -> float:
-        """How well ``node`` holds against each rival that is not nested in it or around it
-        (Davidson & MacKinnon's J test, 1981, on the held-out records): with c_A, c_B the two
-        combinations' corrections to what they share, z − ŷ_shared ≈ α c_A + β c_B by least
-        squares (cluster-robust over 1 s blocks); the t of α. Returns the smallest over the
-        rivals (inf without one): two explanations that fit alike are told apart by which of
-        them the other cannot replace."""
-        worst = math.inf
-        mine = set(node.members)
-        for other in rivals:
-            theirs = set(other.members)
-            if mine <= theirs or theirs <= mine:
-                continue
-            shared = search.node(_ordered(mine & theirs))
-            e = np.concatenate(shared.errors)            # z − ŷ_shared
-            c_a = e - np.concatenate(node.errors)         # ŷ_A − ŷ_shared
-            c_b = e - np.concatenate(other.errors)
-            beta, se = cluster_ols(np.column_stack([c_a, c_b]), e, self.block)
-            worst = min(worst, float(beta[0] / se[0]))
-        return worst
-
-    def verdict(self, before: list[np.ndarray], after: list[np.ndarray], opt: DiagnoseOptions) -> tuple[bool, str]:
-        """Is ``after`` significantly better than ``before`` on every count (module doc, 4)?"""
-        return significant_gain(before, after, self._meas, self.block, opt)
-
-
-@dataclass
-class _Node:
-    """A combination: its members in catalog order, their fits, the model and its errors."""
-
-    members: tuple[str, ...]
-    fits: dict[str, Fitted]
-    model: HybridModel
-    errors: list[np.ndarray]
-    failed: str = ""                     # why a member could not be fitted here
-
-    @property
-    def n_params(self) -> int:
-        return sum(EFFECTS[n].n_params(self.fits[n].params) for n in self.members)
-
-    @property
-    def on_bound(self) -> str:
-        return "; ".join(f"{n}: {self.fits[n].on_bound}" for n in self.members if self.fits[n].on_bound)
+SCORING = ("whole records from rest (rtlift validate's numbers); a periodic_disturbance's "
+           "line phases are estimated on each record itself, as rtlift validate does")
 
 
 @dataclass(frozen=True)
@@ -158,82 +93,110 @@ class _Kind:
     text: str
 
 
-class _Search:
-    """Fits combinations by extending their prefixes (each fitted once, cached)."""
+class LiftCandidates:
+    """A lift model's effects as the engine's :class:`~rtlift.diagnose.selection.Candidates`
+    (module docstring): each fitted on the model with the ones before it
+    (:meth:`rtlift.effects.base.Effect.fit`), to the training residual or to what changed since
+    identification (step 1); evidence against the model's fingerprint."""
 
-    def __init__(self, base: HybridModel, train: Record, judge: _Judge, start: int,
-                 fp: dict[str, Any] | None, target: Record | None = None) -> None:
-        self.train, self.judge, self.start, self.fp = train, judge, start, fp
-        self.target = target or train          # what the fits explain (module docstring, 1)
+    name = "lift"
+    screened = True
+    score = staticmethod(level_free_rmse)
+    not_built = None                 # every lift effect is in the catalog
+    scoring = SCORING
+
+    def __init__(self, model: HybridModel, train: Record, validate: list[Record],
+                 options: DiagnoseOptions | None = None, score_from: list[int] | None = None) -> None:
+        self.options = opt = options or DiagnoseOptions()
+        fs = model.fs_hz
+        self.base, self.train, self.validate = model, train, validate
+        self.start = int(round(float(model.fingerprint.get("start", FINGERPRINT_START_S * fs))))
+        self.score_from = list(score_from) if score_from is not None else [0] * len(validate)
+        self.first = {r.name: k for r, k in zip(validate, self.score_from, strict=True)}
+        ref = reference(model.fingerprint, model, train, self.start)
+        self.fp, self.fingerprint = ref.entry, ref.text
+        misfit, self.fit_target = change_misfit(model.fingerprint, model, train, ref)
+        self.target = train if misfit is None else dataclasses.replace(train, dcl=train.dcl - misfit)
+        self.references = {train.name: ref.to_dict(),
+                           **{r.name: reference(model.fingerprint, model, r, self.start).to_dict()
+                              for r in validate}}
+        self.order = EFFECT_NAMES
+        self.max_members, self.parsimony = opt.max_effects, opt.parsimony
+        self.block = int(fs)
+        self.measured = np.concatenate([r.dcl[k:] for r, k in zip(validate, self.score_from, strict=True)])
         self.lines = input_lines_hz(train)
-        self.nodes: dict[tuple[str, ...], _Node] = {(): _Node((), {}, base, judge.errors(base))}
+        self.rule = ("every member lowers the validation error significantly; within "
+                     f"{100 * opt.parsimony:g} % of the lowest level-free validation RMSE (each "
+                     "record's mean error taken out), the most members whose evidence departs from "
+                     "the fingerprint, then the fewest parameters")
         self._tests: dict[tuple[str, ...], dict[str, TestResult]] = {}
 
-    def tests(self, members: tuple[str, ...]) -> dict[str, TestResult]:
-        if members not in self._tests:
-            self._tests[members] = record_tests(self.node(members).model, self.train, self.start)[0]
-        return self._tests[members]
+    # ------------------------------------------------------------------ the engine's questions
+    def errors(self, model: HybridModel) -> Errors:
+        return [(r.dcl - predict(model, r).total)[k:] for r, k in zip(self.validate, self.score_from, strict=True)]
 
-    def context(self, members: tuple[str, ...]) -> Context:
-        return Context(self.train.fs_hz, self.start, self.tests(members), self.fp, self.lines)
-
-    def node(self, members: tuple[str, ...]) -> _Node:
-        if members in self.nodes:
-            return self.nodes[members]
-        parent = self.node(members[:-1])
-        name = members[-1]
-        if parent.failed:
-            node = _Node(members, parent.fits, parent.model, parent.errors, parent.failed)
-        else:
-            fitted = self._fit(name, parent.model, self.context(members[:-1]))
-            if isinstance(fitted, tuple):
-                node = _Node(members, {**parent.fits, name: fitted[0]}, fitted[0].model, fitted[1])
-            else:
-                node = _Node(members, parent.fits, parent.model, parent.errors, f"{name}: {fitted}")
-        self.nodes[members] = node
-        return node
-
-    def _fit(self, name: str, model: HybridModel, ctx: Context) -> tuple[Fitted, list[np.ndarray]] | str:
-        """``name`` fitted on ``model``: to what changed since identification for an effect that
-        replaces the static map (``Effect.fits_change``) where the record repeats an identification
-        experiment, to the training residual otherwise (module docstring, 1); with its errors on
-        the validation records."""
+    def fit(self, name: str, parent: Node, search: Search) -> tuple[Fitted, HybridModel] | str:
+        """``name`` fitted on ``parent``'s model: to what changed since identification for an effect
+        that replaces the static map (``Effect.fits_change``) where the record repeats an
+        identification experiment, to the training residual otherwise (module docstring, 1)."""
+        ctx = self.context(parent.members, search)
         change = EFFECTS[name].fits_change and self.target is not self.train
-        fitted = EFFECTS[name].fit(model, self.target if change else self.train, ctx)
+        fitted = EFFECTS[name].fit(parent.model, self.target if change else self.train, ctx)
         if not isinstance(fitted, Fitted):
             return fitted
         if change:
             fitted = dataclasses.replace(fitted, note="; ".join(
                 n for n in (fitted.note, "fitted to what changed since identification") if n))
-        return fitted, self.judge.errors(fitted.model)
+        return fitted, fitted.model
 
-    def earns(self, node: _Node, name: str, opt: DiagnoseOptions) -> tuple[bool, str]:
-        """Does member ``name`` earn its place in ``node`` (module docstring, 4)? Its removal must
-        make the validation error significantly worse: t ≥ ``opt.min_t``, or t ≥
-        ``opt.min_t_confirm`` where its own evidence on the training record departs from the
-        fingerprint (the held-out records then confirm a hypothesis the training record formed)."""
-        before = self.without(node.members, name).errors
-        ok, why = self.judge.verdict(before, node.errors, opt)
-        if ok or opt.min_t_confirm >= opt.min_t or not self.classify(node, name).specific.departs:
-            return ok, why
-        ok, why = self.judge.verdict(before, node.errors, dataclasses.replace(opt, min_t=opt.min_t_confirm))
-        return ok, f"{why} (its evidence departs from the fingerprint: t >= {opt.min_t_confirm:g} confirms it)"
+    def excludes(self, name: str) -> tuple[str, ...]:
+        return EFFECTS[name].excludes
 
-    def without(self, members: tuple[str, ...], name: str) -> _Node:
-        return self.node(tuple(m for m in members if m != name))
+    def n_params(self, node: Node) -> int:
+        return sum(EFFECTS[n].n_params(node.fits[n].params) for n in node.members)
 
-    def level(self, members: tuple[str, ...]) -> Departure | None:
+    def on_bound(self, node: Node) -> str:
+        return "; ".join(f"{n}: {node.fits[n].on_bound}" for n in node.members if node.fits[n].on_bound)
+
+    def evidence(self, name: str, node: Node, search: Search) -> Departure:
+        return EFFECTS[name].evidence(self.tests((), search), self.fp, node.fits[name])
+
+    def confirmed(self, node: Node, name: str, search: Search) -> bool:
+        return self.classify(node, name, search).specific.departs
+
+    def rank(self, node: Node, near: list[Node], search: Search) -> tuple:
+        """The one the others cannot replace, the most effects, the strongest own evidence, the
+        fewest parameters (module docstring, 4–5)."""
+        kinds = [self.classify(node, m, search) for m in node.members]
+        return (-search.judge.encompassing(node, near, search), -sum(k.is_effect for k in kinds),
+                -sum(min(abs(k.specific.z), 50.0) for k in kinds), self.n_params(node))
+
+    def row_why(self, verdicts: list[tuple[str, bool, str]]) -> str:
+        lacking = [f"{m} ({why})" for m, ok, why in verdicts if not ok]
+        return ("every member lowers the error significantly" if not lacking else
+                "does not earn its place: " + "; ".join(lacking))
+
+    # ------------------------------------------------------------------ the lift model's own
+    def tests(self, members: tuple[str, ...], search: Search) -> dict[str, TestResult]:
+        if members not in self._tests:
+            self._tests[members] = record_tests(search.node(members).model, self.train, self.start)[0]
+        return self._tests[members]
+
+    def context(self, members: tuple[str, ...], search: Search) -> Context:
+        return Context(self.train.fs_hz, self.start, self.tests(members, search), self.fp, self.lines)
+
+    def level(self, members: tuple[str, ...], search: Search) -> Departure | None:
         """The training residual's error level against the print (None without a print)."""
         if self.fp is None:
             return None
-        e = self.train.dcl - predict(self.node(members).model, self.train).total
+        e = self.train.dcl - predict(search.node(members).model, self.train).total
         return error_departure(e[self.start:], self.fp, self.train.fs_hz)
 
-    def classify(self, node: _Node, name: str) -> _Kind:
+    def classify(self, node: Node, name: str, search: Search) -> _Kind:
         """Effect or structure for member ``name`` of ``node`` (module docstring, 5)."""
-        rest = self.without(node.members, name)
-        specific = EFFECTS[name].evidence(self.tests(rest.members), self.fp, node.fits[name])
-        before, after = self.level(rest.members), self.level(node.members)
+        rest = search.without(node.members, name)
+        specific = EFFECTS[name].evidence(self.tests(rest.members, search), self.fp, node.fits[name])
+        before, after = self.level(rest.members, search), self.level(node.members, search)
         restores = before is not None and before.departs and before.z - after.z >= Z_DEPART
         if specific.departs:
             text = f"{specific.text}: departs from the fingerprint"
@@ -244,168 +207,85 @@ class _Search:
             text = f"{specific.text}: within the fingerprint" + (f"; {after.text}" if after else "")
         return _Kind(specific.departs or restores, specific, text)
 
+    # ------------------------------------------------------------------ what the report says
+    def trials(self, sel: Selection) -> list[Trial]:
+        """Every effect of the catalog as reported (module docstring, 5)."""
+        search, judge, best, opt = sel.search, sel.judge, sel.best, self.options
+        rb = judge.pooled(sel.base.errors)
+        trials: list[Trial] = []
+        for name in self.order:
+            s = sel.singles[name]
+            if name in best.members:
+                rest = search.without(best.members, name)
+                fitted = best.fits[name]
+                verdict = self.classify(best, name, search)
+                _, why_in = search.earns(best, name, opt)
+                kind = "effect" if verdict.is_effect else "structure"
+                text = f"{verdict.text}; {why_in}" + (f"; {fitted.note}" if fitted.note else "")
+                trials.append(Trial(name, True, fitted.params, text, judge.pooled(rest.errors),
+                                    judge.pooled(best.errors), kind, why_in))
+                continue
+            if s.evidence is None:
+                trials.append(Trial(name, False, {}, f"not fitted: {s.why}", rb, rb, "effect", s.why))
+                continue
+            fitted, dep = s.node.fits[name], s.evidence
+            kind = "effect" if dep.departs else "structure"
+            bound = self.on_bound(s.node)
+            reason = (f"ended on a bound: {bound}" if bound else
+                      "not in the chosen combination" if name in sel.pool else
+                      "neither lowers the validation error significantly nor departs from the fingerprint"
+                      if not dep.departs else "does not lower the validation error significantly")
+            trials.append(Trial(name, False, fitted.params, f"{dep.text}; {s.why}; {reason}", rb,
+                                judge.pooled(s.node.errors), kind, s.why))
+        return trials
 
-def _ordered(names) -> tuple[str, ...]:
-    return tuple(n for n in EFFECT_NAMES if n in set(names))
+    def refine(self, sel: Selection) -> tuple[HybridModel, dict[str, Any]]:
+        """φ and the Wiener scale re-estimated with the chosen effects in (module docstring, 6)."""
+        best, judge = sel.best, sel.judge
+        refit: dict[str, Any] = {"tried": bool(best.members)}
+        if not best.members:
+            return best.model, refit
+        again, scales = reestimate(best.model, self.train, self.start)
+        after = judge.errors(again)
+        ok, why = judge.verdict(best.errors, after, DiagnoseOptions(min_gain=0.0, min_t=0.0))
+        better = ok and judge.pooled(after) < judge.pooled(best.errors)
+        refit.update(scales, kept=better, why=why)
+        return (again if better else best.model), refit
+
+    def unexplained(self, sel: Selection, trials: list[Trial]) -> list[str]:
+        return unexplained(self.tests(sel.best.members, sel.search), self.fp, trials,
+                           (len(self.train) - self.start) / self.train.fs_hz,
+                           drift_holds=_holds_out(sel.singles[ZeroDriftEffect.name], sel, self.options))
+
+    def evaluate(self, model: HybridModel) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray],
+                                                    dict[str, dict[str, TestResult]]]:
+        """Per record: scores, residual and tests from its first scored sample (0 but for the
+        validation part of a run)."""
+        recs = [self.train, *self.validate]
+        first = {r.name: self.first.get(r.name, 0) for r in recs}
+        tests = {r.name: record_tests(model, r, max(self.start, first[r.name]))[0] for r in recs}
+        resid = {r.name: (r.dcl - predict(model, r).total)[first[r.name]:] for r in recs}
+        measured = {r.name: r.dcl[first[r.name]:] for r in recs}
+        return {n: scores(z, z - resid[n]) for n, z in measured.items()}, resid, tests
 
 
-def _compatible(names: tuple[str, ...]) -> bool:
-    return not any(x in EFFECTS[n].excludes for n in names for x in names)
+def _holds_out(single: Single, sel: Selection, opt: DiagnoseOptions) -> bool:
+    """Does a candidate fitted alone lower the held-out error at the bar a member with departing
+    evidence needs (t ≥ ``min_t_confirm``)?"""
+    if single.evidence is None or single.node.failed:
+        return False
+    return sel.judge.verdict(sel.base.errors, single.node.errors,
+                             dataclasses.replace(opt, min_t=opt.min_t_confirm))[0]
 
 
 @one_blas_thread
 def diagnose(model: HybridModel, train: Record, validate: list[Record],
              options: DiagnoseOptions | None = None, score_from: list[int] | None = None) -> Diagnosis:
-    """Candidates, combinations, selection and classification (module docstring).
+    """The lift model's diagnosis (module docstring), walked by the engine
+    (:func:`rtlift.diagnose.selection.run`).
 
     ``score_from`` (one per validation record, default 0): the samples before it are run
     through from rest but not scored nor tested — the validation part of one long run is the
     whole run scored after its training part, so the model's state (a fade's accumulated
     on-time, a drift's clock, the slow states) at the split is the one the run led to."""
-    opt = options or DiagnoseOptions()
-    fs = model.fs_hz
-    start = int(round(float(model.fingerprint.get("start", FINGERPRINT_START_S * fs))))
-    score_from = list(score_from) if score_from is not None else [0] * len(validate)
-    first = {r.name: k for r, k in zip(validate, score_from, strict=True)}
-    ref = reference(model.fingerprint, model, train, start)
-    fp, fp_note = ref.entry, ref.text
-    misfit, target_note = change_misfit(model.fingerprint, model, train, ref)
-    target = train if misfit is None else dataclasses.replace(train, dcl=train.dcl - misfit)
-    judge = _Judge(validate, fs, score_from)
-    search = _Search(model, train, judge, start, fp, target)
-    base = search.node(())
-    rb = judge.pooled(base.errors)
-    tests_base = search.tests(())
-
-    # 1-2: candidates alone, and the pool
-    singles: dict[str, tuple[_Node, Departure | None, bool, str]] = {}
-    for eff in CATALOG:
-        node = search.node((eff.name,))
-        if node.failed:
-            singles[eff.name] = (node, None, False, node.failed.split(": ", 1)[1])
-            continue
-        dep = eff.evidence(tests_base, fp, node.fits[eff.name])
-        ok, why = judge.verdict(base.errors, node.errors, opt)
-        singles[eff.name] = (node, dep, ok, why)
-    pool = [n for n, (node, dep, ok, _) in singles.items()
-            if dep is not None and not node.on_bound and (ok or dep.departs)
-            and judge.pooled(node.errors) < rb]
-    pool = sorted(pool, key=lambda n: judge.pooled(singles[n][0].errors))[:opt.pool_size]
-    if pool:     # forward screening: a strong effect can hide a weak one from a fit on the baseline
-        lead = pool[0]
-        for eff in CATALOG:
-            if eff.name in pool or not _compatible((lead, eff.name)) or len(pool) >= opt.pool_size:
-                continue
-            pair = search.node(_ordered((lead, eff.name)))
-            if pair.failed or pair.on_bound:
-                continue
-            ok, _ = judge.verdict(singles[lead][0].errors, pair.errors, opt)
-            if ok:
-                pool.append(eff.name)
-
-    # 3-4: combinations, admissibility, choice
-    table = []
-    best: _Node = base
-    admissible_nodes = [base]
-    for size in range(1, min(opt.max_effects, len(pool)) + 1):
-        for combo in combinations(_ordered(pool), size):
-            if not _compatible(combo):
-                continue
-            node = search.node(combo)
-            count = node.n_params if not node.failed else None
-            if node.failed:
-                row = combination(combo, node.errors, count, False, f"not fitted: {node.failed}")
-            elif node.on_bound:
-                row = combination(combo, node.errors, count, False, f"on a bound: {node.on_bound}")
-            else:
-                weak = [(m, search.earns(node, m, opt)) for m in combo]
-                lacking = [f"{m} ({why})" for m, (ok, why) in weak if not ok]
-                row = combination(combo, node.errors, count, not lacking,
-                                  "every member lowers the error significantly" if not lacking else
-                                  "does not earn its place: " + "; ".join(lacking))
-                if not lacking:
-                    admissible_nodes.append(node)
-            table.append(row)
-    level_free = {n.members: judge.level_free(n.errors) for n in admissible_nodes}
-    lowest = min(level_free.values())
-    near = [n for n in admissible_nodes if level_free[n.members] <= lowest * (1 + opt.parsimony)]
-
-    def rank(node: _Node) -> tuple:
-        kinds = [search.classify(node, m) for m in node.members]
-        return (-judge.encompassing(node, near, search), -sum(k.is_effect for k in kinds),
-                -sum(min(abs(k.specific.z), 50.0) for k in kinds), node.n_params, level_free[node.members])
-    best = min(near, key=rank)
-
-    # 5: effect or structure, and the trials as reported
-    trials: list[Trial] = []
-    for eff in CATALOG:
-        node, dep, ok, why = singles[eff.name]
-        if eff.name in best.members:
-            rest = search.without(best.members, eff.name)
-            fitted = best.fits[eff.name]
-            verdict = search.classify(best, eff.name)
-            _, why_in = search.earns(best, eff.name, opt)
-            kind = "effect" if verdict.is_effect else "structure"
-            text = f"{verdict.text}; {why_in}" + (f"; {fitted.note}" if fitted.note else "")
-            trials.append(Trial(eff.name, True, fitted.params, text, judge.pooled(rest.errors),
-                                judge.pooled(best.errors), kind, why_in))
-            continue
-        if dep is None:
-            trials.append(Trial(eff.name, False, {}, f"not fitted: {why}", rb, rb, "effect", why))
-            continue
-        fitted = node.fits[eff.name]
-        kind = "effect" if dep.departs else "structure"
-        reason = (f"ended on a bound: {node.on_bound}" if node.on_bound else
-                  "not in the chosen combination" if eff.name in pool else
-                  "neither lowers the validation error significantly nor departs from the fingerprint"
-                  if not dep.departs else "does not lower the validation error significantly")
-        trials.append(Trial(eff.name, False, fitted.params, f"{dep.text}; {why}; {reason}", rb,
-                            judge.pooled(node.errors), kind, why))
-
-    records = [train, *validate]
-    augmented = best.model
-    refit = {"tried": bool(best.members)}
-    if best.members:          # 6: what the effects interact with, re-estimated with them in
-        again, scales = reestimate(best.model, train, start)
-        after = judge.errors(again)
-        ok, why = judge.verdict(best.errors, after, DiagnoseOptions(min_gain=0.0, min_t=0.0))
-        better = ok and judge.pooled(after) < judge.pooled(best.errors)
-        refit.update(scales, kept=better, why=why)
-        if better:
-            augmented = again
-    tests_before = {r.name: record_tests(model, r, max(start, first.get(r.name, 0)))[0] for r in records}
-    tests_after = {r.name: record_tests(augmented, r, max(start, first.get(r.name, 0)))[0] for r in records}
-    resid_before = {r.name: (r.dcl - predict(model, r).total)[first.get(r.name, 0):] for r in records}
-    resid_after = {r.name: (r.dcl - predict(augmented, r).total)[first.get(r.name, 0):] for r in records}
-    measured = {r.name: r.dcl[first.get(r.name, 0):] for r in records}
-    report = report_dict(
-        baseline={n: scores(z, z - resid_before[n]) for n, z in measured.items()},
-        augmented={n: scores(z, z - resid_after[n]) for n, z in measured.items()},
-        trials=trials,
-        unexplained=unexplained(search.tests(best.members), fp, trials, (len(train) - start) / fs,
-                                drift_holds=_holds_out(singles[ZeroDriftEffect.name], judge, base, opt)),
-        fingerprint=fp_note,
-        references={train.name: ref.to_dict(),
-                    **{r.name: reference(model.fingerprint, model, r, start).to_dict() for r in validate}},
-        fit_target=target_note,
-        reestimation=refit,
-        selection={"pool": pool, "chosen": list(best.members), "combinations": table,
-                   "rule": "every member lowers the validation error significantly; within "
-                           f"{100 * opt.parsimony:g} % of the lowest level-free validation RMSE (each "
-                           "record's mean error taken out), the most members whose evidence departs from "
-                           "the fingerprint, then the fewest parameters"},
-        scoring="whole records from rest (rtlift validate's numbers); a periodic_disturbance's "
-                "line phases are estimated on each record itself, as rtlift validate does",
-        not_built=None,        # the generic diagnosis's list; every lift effect is in the catalog
-    )
-    return Diagnosis(report, model, augmented, trials, tests_before, tests_after, resid_before,
-                     resid_after, start, table)
-
-
-def _holds_out(single: tuple, judge: _Judge, base: _Node, opt: DiagnoseOptions) -> bool:
-    """Does a candidate fitted alone (``singles`` entry) lower the held-out error at the bar a
-    member with departing evidence needs (t ≥ ``min_t_confirm``)?"""
-    node, dep, _, _ = single
-    if dep is None or node.failed:
-        return False
-    return judge.verdict(base.errors, node.errors, dataclasses.replace(opt, min_t=opt.min_t_confirm))[0]
+    return run(LiftCandidates(model, train, validate, options, score_from))

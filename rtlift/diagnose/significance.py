@@ -1,10 +1,9 @@
 """Is a change significant on the held-out records? The test every member of a combination must
-pass (:func:`significant_gain`: the relative RMSE gain, a Diebold–Mariano t over 1 s blocks, no
+pass (:func:`significant_gain`: the relative RMSE gain, a Diebold–Mariano t over blocks, no
 record worse, ρ not lower; :mod:`rtlift.diagnose.selection`'s module docstring, step 4), and the
-rows of the report's table of the combinations compared (:func:`combination`,
-:func:`lowest_admissible`), with the two errors a row carries (:func:`pooled_rmse`,
-:func:`level_free_rmse`); the lift diagnosis and the generic one (:mod:`rtlift.sysid.diagnose`)
-share them.
+rows of the report's table of the combinations compared (:func:`combination`), with the two
+errors a row carries (:func:`pooled_rmse`, :func:`level_free_rmse`): what the selection engine
+(:mod:`rtlift.diagnose.selection`) applies to every model kind.
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ def pooled_rmse(errs: list[np.ndarray]) -> float:
 
 def level_free_rmse(errs: list[np.ndarray]) -> float:
     """The pooled RMSE with each record's own mean error taken out: what the lift diagnosis's
-    choice between admissible combinations compares (:mod:`rtlift.diagnose.selection`, step 4)."""
+    choice between admissible combinations compares (:mod:`rtlift.diagnose.lift`, step 4)."""
     return pooled_rmse([e - np.mean(e) for e in errs])
 
 
@@ -62,9 +61,3 @@ def combination(members: tuple[str, ...] | list[str], errors: list[np.ndarray], 
             "level_free_rmse": level_free_rmse(errors), "parameters": parameters,
             "admissible": admissible, "why": why}
 
-
-def lowest_admissible(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The admissible row of ``rows`` (:func:`combination`) with the lowest pooled validation
-    RMSE, the first of equals; ``None`` when none is admissible."""
-    ok = [r for r in rows if r["admissible"]]
-    return min(ok, key=lambda r: r["validation_rmse"]) if ok else None

@@ -29,12 +29,12 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
   ``params.where``. A limit on the input is not a separate structure: a Wiener model's static
   map f already saturates where the input's effect does.
 
-Of the candidates that pass, the one with the lower validation error is added: each tried
-structure is a one-member combination of the lift diagnosis's selection
-(:func:`rtlift.diagnose.significance.combination`), the admissible one with the lowest pooled
-validation RMSE chosen (:func:`~rtlift.diagnose.significance.lowest_admissible`), and the
-diagnosis is a :class:`~rtlift.diagnose.diagnosis.Diagnosis` that
-:func:`rtlift.diagnose.report.write` writes as it writes a lift model's.
+Of the candidates that pass, the one with the lower validation error is added: the structures
+are :class:`GenericCandidates`, walked by the one selection engine the lift diagnosis walks too
+(:mod:`rtlift.diagnose.selection`): each tried structure a one-member combination, the admissible
+one with the lowest pooled validation RMSE chosen, and the diagnosis a
+:class:`~rtlift.diagnose.diagnosis.Diagnosis` that :func:`rtlift.diagnose.report.write` writes as
+it writes a lift model's.
 
 It is accepted only if it lowers the pooled error on the validation records significantly
 (:func:`rtlift.diagnose.significance.significant_gain`, the rule the lift diagnosis uses: ≥ 1.5 %
@@ -50,8 +50,9 @@ import numpy as np
 from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
 from rtlift.core.threads import one_blas_thread
-from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial, report_dict
-from rtlift.diagnose.significance import combination, lowest_admissible, pooled_rmse, significant_gain
+from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial
+from rtlift.diagnose.selection import run
+from rtlift.diagnose.significance import pooled_rmse
 from rtlift.effects import STRUCTURES
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
 from rtlift.residual.stats import TestResult, higher_order, input_crosscorr, whiteness
@@ -159,95 +160,146 @@ def diagnose_siso(model: SisoModel, train: SisoRecord, validate: list[SisoRecord
     return diag.report, diag.augmented
 
 
-@one_blas_thread
-def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
-                     skip: int = 0, options: SisoOptions | None = None,
-                     validate_skip: list[int] | None = None, init_state: bool = False) -> Diagnosis:
-    """The diagnosis (module docstring) as :func:`rtlift.diagnose.report.write` writes it.
+class GenericCandidates:
+    """A generic model's structures as the engine's :class:`~rtlift.diagnose.selection.Candidates`
+    (module docstring): each a whole model re-identified on the training record
+    (:func:`rtlift.sysid.identify.identify_siso`), so one member per combination, every one
+    fitted compared (no pool to screen), the lowest pooled validation RMSE among the admissible
+    (no fingerprint: no level-free score, no confirmation bar, no evidence to rank by).
     ``validate_skip``: per validation record, the samples left unscored (default ``skip``; one
     long run's validation part is the whole run scored after its training part). ``init_state``:
     every model runs over a record from the state estimated on its unscored samples
     (:func:`rtlift.sysid.initial.initial_state`) instead of from rest."""
-    vskip = list(validate_skip) if validate_skip is not None else [skip] * len(validate)
-    first = {r.name: k for r, k in zip(validate, vskip, strict=True)} if validate_skip is not None else {}
-    unscored = {train.name: skip, **{r.name: k for r, k in zip(validate, vskip, strict=True)}}
-    init = (lambda name: unscored[name]) if init_state else (lambda name: 0)   # noqa: E731
-    s = max(skip, 1)
-    outputs = {r.name: predict(model, r, init(r.name)) for r in (train, *validate)}
-    e = train.y - outputs[train.name]
-    tests = residual_tests(model, train, s, outputs[train.name])
-    evidence = "; ".join(f"{k} ({t.verdict}): {t.detail}" for k, t in tests.items()
-                         if k in ("input_crosscorr", "bv_u2_e", "bv_y2_e"))
-    # blocks for the significance test: about 40 over the validation data (the residual's
-    # correlation time is the system's, unknown here; a lift record's 1 s blocks are 400 samples)
-    block = max(50, sum(len(r) - k for r, k in zip(validate, vskip, strict=True)) // 40)
-    before = [(r.y - outputs[r.name])[k:] for r, k in zip(validate, vskip, strict=True)]
-    rb = pooled_rmse(before)
-    trials: list[Trial] = []
-    rows: list[dict[str, Any]] = []
-    models: dict[str, SisoModel] = {}
-    not_built: list[str] = []
-    if model.structure == "wiener" and not isinstance(model, SaturatedModel):
-        measured = np.concatenate([r.y[k:] for r, k in zip(validate, vskip, strict=True)])
-        limits, clip_evidence = clip_levels(train.y, e)
-        candidates = [(name, lambda structure=structure: identify_siso(train, structure, options=options))
-                      for name, structure in FORMS]
-        if limits != NO_LIMITS:
-            candidates.append((SATURATION.name,
-                               lambda: _best_saturated(train, validate, vskip, options, limits, init_state)))
-        for name, fit in candidates:
-            try:
-                candidate = models[name] = fit()
-            except ValueError as exc:        # a structure the data cannot be fitted in: said, not fatal
-                trials.append(Trial(name, False, {}, f"not fitted: {exc}", rb, rb, "structure", "not fitted"))
-                continue
-            after = [(r.y - predict(candidate, r, init(r.name)))[k:] for r, k in zip(validate, vskip, strict=True)]
-            ok, why = significant_gain(before, after, measured, block, DiagnoseOptions())
-            ra = pooled_rmse(after)
-            rows.append(combination((name,), after, None, ok, why))
-            trials.append(Trial(name, False, _structure_params(candidate),
-                                f"{clip_evidence}; {HOW[name]} (best form: {candidate.structure}, "
-                                f"limit on the {candidate.limits()['where']}); {why}"
-                                if name == SATURATION.name else f"{evidence}; {HOW[name]}; {why}",
-                                rb, ra, "structure", why))
-        if limits == NO_LIMITS:
-            trials.append(Trial(SATURATION.name, False, {"lower": None, "upper": None, "where": "output"},
-                                f"not tried: no clipping level ({clip_evidence})", rb, rb, "structure"))
-    chosen = lowest_admissible(rows)                     # the better of the admissible structures
-    augmented = model if chosen is None else models[chosen["members"][0]]
-    for t in trials:
-        t.accepted = chosen is not None and t.name == chosen["members"][0]
-    unexplained = [f"{k}: {t.detail}" for k, t in tests.items() if t.significant] if augmented is model else []
-    records = [train, *validate]
-    after_out = outputs if augmented is model else {r.name: predict(augmented, r, init(r.name)) for r in records}
-    scored = {train.name: skip, **{r.name: k for r, k in zip(validate, vskip, strict=True)}}
 
-    def scored_from(out: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:   # record_scores' numbers
-        return {r.name: scores(r.y[scored[r.name]:], out[r.name][scored[r.name]:]) for r in records}
-    report = report_dict(
-        baseline=scored_from(outputs),
-        augmented=scored_from(after_out),
-        trials=trials,
-        unexplained=unexplained,
-        fingerprint=FINGERPRINT,
-        references=None,
-        fit_target=FIT_TARGET,
-        reestimation=None,
-        selection={"pool": [r["members"][0] for r in rows], "chosen": [] if chosen is None else chosen["members"],
-                   "combinations": rows, "rule": RULE},
-        scoring=(f"free run over whole records from the state estimated on the first {skip} samples, "
-                 "which are unscored (rtlift validate --skip --init-state)" if init_state else
-                 f"free run from rest over whole records, the first {skip} samples unscored "
-                 "(rtlift validate --skip)"),
-        not_built=not_built,
-    )
-    return Diagnosis(
-        report, model, augmented, trials,
-        {r.name: residual_tests(model, r, max(s, first.get(r.name, 0)), outputs[r.name]) for r in records},
-        {r.name: residual_tests(augmented, r, max(s, first.get(r.name, 0)), after_out[r.name]) for r in records},
-        {r.name: (r.y - outputs[r.name])[first.get(r.name, 0):] for r in records},
-        {r.name: (r.y - after_out[r.name])[first.get(r.name, 0):] for r in records},
-        s, rows, "generic")
+    name = "generic"
+    screened = False
+    max_members = 1
+    parsimony = 0.0
+    score = staticmethod(pooled_rmse)
+    fingerprint = FINGERPRINT
+    references = None                # no fingerprint to compare with
+    fit_target = FIT_TARGET
+    rule = RULE
+
+    def __init__(self, model: SisoModel, train: SisoRecord, validate: list[SisoRecord], skip: int = 0,
+                 options: SisoOptions | None = None, validate_skip: list[int] | None = None,
+                 init_state: bool = False) -> None:
+        self.base, self.train, self.validate, self.skip = model, train, validate, skip
+        self.options = DiagnoseOptions()
+        self.vskip = list(validate_skip) if validate_skip is not None else [skip] * len(validate)
+        self.first = {r.name: k for r, k in zip(validate, self.vskip, strict=True)} if validate_skip is not None else {}
+        self.unscored = {train.name: skip, **{r.name: k for r, k in zip(validate, self.vskip, strict=True)}}
+        self.init_state = init_state
+        self.start = max(skip, 1)
+        self.outputs = {r.name: predict(model, r, self._init(r.name)) for r in (train, *validate)}
+        self.tests = residual_tests(model, train, self.start, self.outputs[train.name])
+        self.evidence_text = "; ".join(f"{k} ({t.verdict}): {t.detail}" for k, t in self.tests.items()
+                                       if k in ("input_crosscorr", "bv_u2_e", "bv_y2_e"))
+        # blocks for the significance test: about 40 over the validation data (the residual's
+        # correlation time is the system's, unknown here; a lift record's 1 s blocks are 400 samples)
+        self.block = max(50, sum(len(r) - k for r, k in zip(validate, self.vskip, strict=True)) // 40)
+        self.measured = np.concatenate([r.y[k:] for r, k in zip(validate, self.vskip, strict=True)])
+        self.tried = model.structure == "wiener" and not isinstance(model, SaturatedModel)
+        self.limits, self.clip_evidence = clip_levels(train.y, train.y - self.outputs[train.name])
+        self._fits = {}
+        if self.tried:
+            self._fits = {name: lambda structure=structure: identify_siso(train, structure, options=options)
+                          for name, structure in FORMS}
+            if self.limits != NO_LIMITS:
+                self._fits[SATURATION.name] = lambda: _best_saturated(train, validate, self.vskip, options,
+                                                                      self.limits, init_state)
+        self.order = tuple(self._fits)
+        self.not_built: list[str] = []   # none today: a limit on the input is the Wiener map's own saturation
+        self.scoring = (f"free run over whole records from the state estimated on the first {skip} samples, "
+                        "which are unscored (rtlift validate --skip --init-state)" if init_state else
+                        f"free run from rest over whole records, the first {skip} samples unscored "
+                        "(rtlift validate --skip)")
+
+    def _init(self, name: str) -> int:
+        return self.unscored[name] if self.init_state else 0
+
+    # ------------------------------------------------------------------ the engine's questions
+    def errors(self, model: SisoModel) -> list[np.ndarray]:
+        return [(r.y - predict(model, r, self._init(r.name)))[k:] for r, k in zip(self.validate, self.vskip,
+                                                                                   strict=True)]
+
+    def fit(self, name: str, parent: Any, search: Any) -> tuple[SisoModel, SisoModel] | str:
+        """The structure re-identified whole (``parent`` is the model: one member each); a
+        structure the data cannot be fitted in says why, not fatal."""
+        try:
+            model = self._fits[name]()
+        except ValueError as exc:
+            return str(exc)
+        return model, model
+
+    def excludes(self, name: str) -> tuple[str, ...]:
+        return ()
+
+    def n_params(self, node: Any) -> None:
+        return None                      # a structure's parameters are not counted
+
+    def on_bound(self, node: Any) -> str:
+        return ""
+
+    def evidence(self, name: str, node: Any, search: Any) -> None:
+        return None
+
+    def confirmed(self, node: Any, name: str, search: Any) -> bool:
+        return False
+
+    def rank(self, node: Any, near: list, search: Any) -> tuple:
+        return ()
+
+    def row_why(self, verdicts: list[tuple[str, bool, str]]) -> str:
+        return verdicts[0][2]            # one member: its own verdict
+
+    # ------------------------------------------------------------------ what the report says
+    def trials(self, sel: Any) -> list[Trial]:
+        rb = sel.judge.pooled(sel.base.errors)
+        trials: list[Trial] = []
+        for name in self.order:
+            s = sel.singles[name]
+            if s.node.failed:
+                trials.append(Trial(name, False, {}, f"not fitted: {s.why}", rb, rb, "structure", "not fitted"))
+                continue
+            candidate = s.node.model
+            trials.append(Trial(name, name in sel.best.members, _structure_params(candidate),
+                                f"{self.clip_evidence}; {HOW[name]} (best form: {candidate.structure}, "
+                                f"limit on the {candidate.limits()['where']}); {s.why}"
+                                if name == SATURATION.name else f"{self.evidence_text}; {HOW[name]}; {s.why}",
+                                rb, sel.judge.pooled(s.node.errors), "structure", s.why))
+        if self.tried and self.limits == NO_LIMITS:
+            trials.append(Trial(SATURATION.name, False, {"lower": None, "upper": None, "where": "output"},
+                                f"not tried: no clipping level ({self.clip_evidence})", rb, rb, "structure"))
+        return trials
+
+    def refine(self, sel: Any) -> tuple[SisoModel, None]:
+        return sel.best.model, None      # each structure is re-identified whole
+
+    def unexplained(self, sel: Any, trials: list[Trial]) -> list[str]:
+        if sel.best.model is not self.base:
+            return []
+        return [f"{k}: {t.detail}" for k, t in self.tests.items() if t.significant]
+
+    def evaluate(self, model: SisoModel) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray],
+                                                  dict[str, dict[str, TestResult]]]:
+        """Per record: :func:`record_scores`' numbers (from its unscored samples on), the residual
+        from its first scored sample (0 but for a run's validation part), the residual tests."""
+        recs = [self.train, *self.validate]
+        out = self.outputs if model is self.base else {r.name: predict(model, r, self._init(r.name)) for r in recs}
+        first = {r.name: self.first.get(r.name, 0) for r in recs}
+        return ({r.name: scores(r.y[self.unscored[r.name]:], out[r.name][self.unscored[r.name]:]) for r in recs},
+                {r.name: (r.y - out[r.name])[first[r.name]:] for r in recs},
+                {r.name: residual_tests(model, r, max(self.start, first[r.name]), out[r.name]) for r in recs})
+
+
+@one_blas_thread
+def diagnose_generic(model: SisoModel, train: SisoRecord, validate: list[SisoRecord],
+                     skip: int = 0, options: SisoOptions | None = None,
+                     validate_skip: list[int] | None = None, init_state: bool = False) -> Diagnosis:
+    """The diagnosis (module docstring) of :class:`GenericCandidates`, walked by the engine
+    (:func:`rtlift.diagnose.selection.run`), as :func:`rtlift.diagnose.report.write` writes it."""
+    return run(GenericCandidates(model, train, validate, skip, options, validate_skip, init_state))
 
 
 def _best_saturated(train: SisoRecord, validate: list[SisoRecord], skip: list[int], options: SisoOptions | None,
