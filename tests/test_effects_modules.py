@@ -20,7 +20,7 @@ from firmware_io.calibration import Calibration
 from hil_sim import effects as bench_effects
 from hil_sim.experiments import Bench as BenchRig
 from hil_sim.plant import PlantParams
-from rtlift.blocks.stage import InputStage, OutputStage
+from rtlift.blocks.stage_base import InputStage, OutputStage
 from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import NONLINEARITIES
 from rtlift.core.effects import Interval
@@ -278,7 +278,7 @@ TOY_STAGE = '''
 
 import numpy as np
 
-from rtlift.blocks.stage import InputStage
+from rtlift.blocks.stage_base import InputStage
 
 
 class ToyGain(InputStage):

@@ -13,7 +13,7 @@ from filterpy.kalman import KalmanFilter
 
 from rtlift.blocks.delay import Delay
 from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
-from rtlift.blocks.stage import OutputStage
+from rtlift.blocks.stage_base import OutputStage
 from rtlift.blocks.stages import STAGES
 from rtlift.blocks.wiener import OutputHysteresis
 from rtlift.effects.surgery import augment

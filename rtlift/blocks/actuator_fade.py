@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.blocks.stage import InputStage, _finite, _positive
+from rtlift.blocks.stage_base import InputStage, _finite, _positive
 
 
 class ActuatorFade(InputStage):

@@ -7,7 +7,7 @@ Input stages, each on its own arrays (the stage's ``kernel_arrays()``, not copie
     actuator_fade    g(k) = f + (1 − f) exp(−E(k)/τ),  (Cμ′, Cμ_env′) = g (Cμ, Cμ_env)   (:func:`_faded`)
 
 Output stages, any number in any order, each in the state-space form every output stage states
-(:meth:`rtlift.blocks.stage.OutputStage.statespace`, the paper's timing), on the stage's own state:
+(:meth:`rtlift.blocks.stage_base.OutputStage.statespace`, the paper's timing), on the stage's own state:
 
     x(k) = A x(k−1) + B u(k),   out(k) = C x(k) + D u(k),   u = the ΔCL the stage receives
 

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.blocks.stage import InputStage
+from rtlift.blocks.stage_base import InputStage
 
 
 class Delay(InputStage):

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from rtlift.blocks.stage import InputStage, _positive
+from rtlift.blocks.stage_base import InputStage, _positive
 from rtlift.blocks.wiener import _check_table, _Table
 
 STRUCTURE_STAGES = ("delivered_momentum", "delivered_envelope")

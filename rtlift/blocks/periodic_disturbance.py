@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.blocks.stage import OutputStage, _finite, _positive
+from rtlift.blocks.stage_base import OutputStage, _finite, _positive
 
 
 def alias_hz(frequency_hz: float, fs_hz: float) -> float:

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from rtlift.blocks.stage import OutputStage, _positive
+from rtlift.blocks.stage_base import OutputStage, _positive
 
 
 class SensorResonance(OutputStage):

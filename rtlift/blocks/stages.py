@@ -1,7 +1,7 @@
 """Every augmentation stage by name (:data:`STAGES`), as a model file lists it, and
-:func:`stage_from_spec`, which rebuilds one from its entry. The interface is
-:mod:`rtlift.blocks.stage`; each stage lives in a module of its own, and the table is derived
-from the stage classes of this package (every :class:`~rtlift.blocks.stage.InputStage` subclass
+:func:`stage_from_spec`, which rebuilds one from its entry. The interface the stages implement is
+:mod:`rtlift.blocks.stage_base`; each stage lives in a module of its own, and the table is derived
+from the stage classes of this package (every :class:`~rtlift.blocks.stage_base.InputStage` subclass
 with a ``name``: the model file's key, which the effect of :mod:`rtlift.effects` that adds the
 stage takes as its own).
 
@@ -35,7 +35,7 @@ import pkgutil
 from typing import Any
 
 import rtlift.blocks
-from rtlift.blocks.stage import InputStage
+from rtlift.blocks.stage_base import InputStage
 
 
 def _named_stages() -> dict[str, Any]:

@@ -12,7 +12,7 @@ import numpy as np
 
 from rtlift.blocks.delivered import STRUCTURE_STAGES
 from rtlift.blocks.interaction import InteractionConvolution
-from rtlift.blocks.stage import InputStage, OutputStage
+from rtlift.blocks.stage_base import InputStage, OutputStage
 from rtlift.core.records import Record
 from rtlift.model.hybrid import HybridModel, HybridOutput
 from rtlift.model.modelfile import model_from_dict, model_to_dict

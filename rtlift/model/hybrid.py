@@ -47,7 +47,7 @@ from rtlift.blocks.delay import Delay
 from rtlift.blocks.delivered import DeliveredEnvelope
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
-from rtlift.blocks.stage import InputStage, OutputStage
+from rtlift.blocks.stage_base import InputStage, OutputStage
 from rtlift.blocks.wiener import WienerBlock
 
 _STRUCTURE = frozenset({"convolution", "highpass", "wiener", "input_stages", "output_stages"})

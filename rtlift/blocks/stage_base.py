@@ -1,4 +1,5 @@
-"""The stage interface: effects the paper's model lacks, added around the hybrid model as stages.
+"""The stage interface (the base classes every stage implements; :mod:`rtlift.blocks.stages`
+finds the stages by name): effects the paper's model lacks, added around the hybrid model as stages.
 
 An *input stage* maps the actuation record before the model sees it,
 ``(Cμ, Cμ_env) → (Cμ′, Cμ_env′)`` (a delay, a fading actuator); an *output stage* maps the
