@@ -4,7 +4,11 @@
 :mod:`rtlift.residual`, below identification, which stores the fingerprint in the model file.)
 
 - the effects it tries are :mod:`rtlift.effects` (one module per INTERFACES.md effect);
-- :mod:`.selection` — combinations compared on held-out records, every member earning its place;
+- :mod:`.selection` — the one selection engine, for every model kind: candidates alone, a pool,
+  combinations compared on held-out records, every member earning its place, the choice and the
+  report; a kind offers its candidates through :class:`.selection.Candidates`;
+- :mod:`.lift` — a lift model's candidates, the effects (:func:`diagnose`); a generic model's are
+  :mod:`rtlift.sysid.diagnose`'s structures;
 - :mod:`.significance` — the test a member passes on the held-out records, the table of combinations;
 - :mod:`.unexplained` — what the diagnosis leaves unexplained, the report's ``unexplained`` lines;
 - :mod:`.diagnosis` — the options, one entry's outcome and the diagnosis as the report writes it;

@@ -1,7 +1,9 @@
-"""What a diagnosis is asked and what it gives: the options of the lift diagnosis
-(:func:`rtlift.diagnose.selection.diagnose`), one catalog entry's outcome as reported (:class:`Trial`)
-and a diagnosis of either kind as :mod:`rtlift.diagnose.report` writes it (:class:`Diagnosis`), the
-generic ``t,u,y`` one of :mod:`rtlift.sysid.diagnose` too.
+"""What a diagnosis is asked and what it gives, for every model kind the selection engine
+(:mod:`rtlift.diagnose.selection`) walks — a lift model's effects (:mod:`rtlift.diagnose.lift`), a
+generic ``t,u,y`` model's structures (:mod:`rtlift.sysid.diagnose`): the options
+(:class:`DiagnoseOptions`), one candidate's outcome as reported (:class:`Trial`), the report
+(:func:`report_dict`) and the diagnosis as :mod:`rtlift.diagnose.report` writes it
+(:class:`Diagnosis`).
 """
 
 from __future__ import annotations
@@ -11,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.model.hybrid import HybridModel
 from rtlift.residual.stats import TestResult
 
 REPORT_VERSION = 1
@@ -52,7 +53,11 @@ def report_dict(baseline: dict[str, Any], augmented: dict[str, Any], trials: lis
     """The report (INTERFACES.md's keys, in this order) of a diagnosis of either kind: ρ, NRMSE and
     RMSE per record before and after (``baseline``, ``augmented``: ``{record: scores}``), every
     entry tried, what stays unexplained, what the residual was compared with, the selection, how
-    the records were scored, and (generic models) the structures not built."""
+    the records were scored, and the structures not built. One convention for a key a kind
+    cannot have (INTERFACES.md): ``None`` (``null``) — a lift model's ``not_built`` (every lift
+    effect is in the catalog), a generic model's ``references`` and ``reestimation`` (no
+    fingerprint; each structure is re-identified whole); a key it can have is its list or mapping,
+    empty when there is nothing in it (a generic model's ``not_built`` today: ``[]``)."""
     return {
         "version": REPORT_VERSION,
         "baseline": {"records": baseline},
@@ -76,8 +81,8 @@ class Diagnosis:
     (from its first scored sample; tested from ``start`` on), the combinations compared."""
 
     report: dict[str, Any]
-    baseline: HybridModel | Any          # a lift model, or a generic one (``kind``)
-    augmented: HybridModel | Any
+    baseline: Any          # a lift model (:class:`rtlift.model.hybrid.HybridModel`), or a generic one (``kind``)
+    augmented: Any
     trials: list[Trial]
     tests_before: dict[str, dict[str, TestResult]]
     tests_after: dict[str, dict[str, TestResult]]

@@ -1,4 +1,4 @@
-"""Write a diagnosis of either kind — a lift model's (:func:`rtlift.diagnose.selection.diagnose`)
+"""Write a diagnosis of either kind — a lift model's (:func:`rtlift.diagnose.lift.diagnose`)
 or a generic ``t,u,y`` model's (:func:`rtlift.sysid.diagnose.diagnose_generic`), both a
 :class:`~rtlift.diagnose.diagnosis.Diagnosis`: ``report.json`` (INTERFACES.md schema, the same
 keys for both kinds), ``residual_tests.json`` (every test's verdict and statistic, before and
