@@ -47,6 +47,21 @@ p99 on the sample right after a block end, ``observer_step_after_block_p99_us``)
 interpreter's garbage collections per generation in each condition). Needs a model file with a
 fingerprint (``--model``, e.g. one from ``rtlift identify``).
 
+``--anatomy`` (issue 46, third pass) asks what the live step's p99 is made of. It alternates, in
+one run on the same link (``PAIRS`` rounds, ``--seconds`` in all), the step as it was before
+(``dispatch``: numba's dispatcher called with the 20 arrays one by one), the step as it is
+(``at``: the arrays bound by address, :mod:`rtlift.observer.compiled_at`) and the same with the
+interpreter's switch interval at 50 µs instead of 5 ms (``at_switch50us``). Each step is timed as
+the loop times it (``perf_counter`` around ``Observer.step`` and nothing else) and, outside that
+pair, by the thread's CPU clock (``time.thread_time``) and ``getrusage(RUSAGE_THREAD)``
+(involuntary and voluntary context switches, minor faults). Per condition the JSON's
+``anatomy`` has the step's median/p99, the CPU time over the slowest 1 % of steps against their
+wall time, the context switches and faults inside them, how long the sample had waited since its
+receipt when its step began (``wait_*``: the host's decode and conversion), and how long the loop
+had been away since the previous step (``away_*``). ``threads`` lists the process's Python
+threads and its OS threads (a reader thread would show here). The tight-loop figures gain the
+dispatcher's step (``observer_step_tight_dispatch_*``).
+
 ``--model MODEL.json`` uses a model file with observer settings; by default the model is
 identified from the bench (seed 1, 2nd-order Wiener) and the observer tuned on a seed-1
 ``random`` record first (≈ 15 s, not timed).
@@ -145,6 +160,9 @@ def tight_loop(model, steps: int = 8000) -> dict:
     obs = Observer.from_model(model)
     obs.warm_up()
     median, p99 = timed(obs.step)
+    bound, obs._at = obs._at, ()                      # the dispatcher, the arrays one by one
+    dispatch_median, dispatch_p99 = timed(obs.step)
+    obs._at = bound
     ref_median, ref_p99 = timed(Observer.from_model(model).reference_step)
     kf = KalmanFilter(dim_x=obs.layout.dim_x, dim_z=1, dim_u=1)
     kf.F, kf.B, kf.Q, kf.R = obs.kf.F, obs.kf.B, obs.kf.Q, obs.kf.R
@@ -158,9 +176,117 @@ def tight_loop(model, steps: int = 8000) -> dict:
 
     fp_median, fp_p99 = timed(filterpy_step)
     return {"observer_step_tight_median_us": round(median, 2), "observer_step_tight_p99_us": round(p99, 2),
+            "observer_step_tight_dispatch_median_us": round(dispatch_median, 2),
+            "observer_step_tight_dispatch_p99_us": round(dispatch_p99, 2),
             "observer_reference_step_tight_median_us": round(ref_median, 2),
             "observer_reference_step_tight_p99_us": round(ref_p99, 2),
             "filterpy_step_tight_median_us": round(fp_median, 2), "filterpy_step_tight_p99_us": round(fp_p99, 2)}
+
+
+class StepAnatomy:
+    """The observer as the loop steps it, each step timed as :class:`~rtlift.app.live.ObserverLoop`
+    times it (``perf_counter`` around ``Observer.step``) and, outside that pair, by the thread's
+    CPU clock and ``getrusage(RUSAGE_THREAD)``; rows in a preallocated array (s and counts):
+    wall, CPU, involuntary and voluntary context switches, minor faults, wait since the sample's
+    receipt, time away since the previous step. ``converter`` wraps the loop's converter to see
+    each sample's receipt time."""
+
+    COLUMNS = ("wall", "cpu", "nivcsw", "nvcsw", "minflt", "wait", "away")
+
+    def __init__(self, observer, converter, capacity: int) -> None:
+        import resource
+
+        self.observer, self._convert = observer, converter
+        self.rows = np.zeros((capacity, len(self.COLUMNS)))
+        self.n = 0
+        self._received = 0.0
+        self._end = None
+        self._rusage = lambda: resource.getrusage(resource.RUSAGE_THREAD)
+
+    def converter(self, sample):
+        self._received = sample.host_time
+        return self._convert(sample)
+
+    def step(self, cmu, env, dcl):
+        pc, k = time.perf_counter, self.n
+        r0, c0 = self._rusage(), time.thread_time()
+        t0 = pc()
+        est = self.observer.step(cmu, env, dcl)
+        t1 = pc()
+        c1, r1 = time.thread_time(), self._rusage()
+        if k < self.rows.shape[0]:
+            self.rows[k] = (t1 - t0, c1 - c0, r1.ru_nivcsw - r0.ru_nivcsw, r1.ru_nvcsw - r0.ru_nvcsw,
+                            r1.ru_minflt - r0.ru_minflt, t0 - self._received,
+                            t0 - self._end if self._end is not None else np.nan)
+            self.n = k + 1
+        self._end = t1
+        return est
+
+
+ANATOMY = ("dispatch", "at", "at_switch50us")
+"""``--anatomy``'s conditions, alternated (module docstring)."""
+
+
+def run_anatomy(link, observer, fs_hz: float, seconds: float) -> dict:
+    """``--anatomy``: the conditions of :data:`ANATOMY` alternated ``PAIRS`` times on one link; per
+    condition the figures of :func:`anatomy_figures`, and the process's threads."""
+    import threading
+
+    from firmware_io import Converter
+    from rtlift.app.live import ObserverLoop
+
+    converter, stream = Converter(), link.samples(0.5)
+    n = int(round(seconds * fs_hz)) // (PAIRS * len(ANATOMY))
+    bound, switch = observer._at, sys.getswitchinterval()
+    rows: dict[str, list] = {c: [] for c in ANATOMY}
+    lost = dict.fromkeys(ANATOMY, 0)
+    ObserverLoop(observer, converter, link.seq_modulus, fs_hz=fs_hz, max_samples=int(fs_hz)).run(stream)  # warm-up
+    try:
+        for condition in ANATOMY * PAIRS:
+            observer._at = () if condition == "dispatch" else bound
+            sys.setswitchinterval(5e-5 if condition == "at_switch50us" else switch)
+            probe = StepAnatomy(observer, converter, n)
+            lost0 = link.counters.lost
+            ObserverLoop(probe, probe.converter, link.seq_modulus, fs_hz=fs_hz, max_samples=n).run(
+                stream, silence_s=10.0)
+            rows[condition].append(probe.rows[:probe.n])
+            lost[condition] += link.counters.lost - lost0
+    finally:
+        observer._at = bound
+        sys.setswitchinterval(switch)
+    tasks = sorted(os.listdir("/proc/self/task")) if os.path.isdir("/proc/self/task") else []
+    names = []
+    for t in tasks:
+        try:
+            with open(f"/proc/self/task/{t}/comm") as f:
+                names.append(f.read().strip())
+        except OSError:
+            names.append("?")
+    return {"threads": {"python": [t.name for t in threading.enumerate()], "os_threads": names},
+            **{c: {**anatomy_figures(np.concatenate(rows[c])), "lost_samples": lost[c]} for c in ANATOMY}}
+
+
+def anatomy_figures(rows: np.ndarray) -> dict:
+    """Step median/p99 (µs), and over the slowest 1 % of steps: their median wall and CPU time,
+    the context switches and minor faults inside them; the wait since receipt and the time away
+    (median, p99, and the slow steps' median)."""
+    col = {c: rows[:, i] for i, c in enumerate(StepAnatomy.COLUMNS)}
+    wall = col["wall"] * 1e6
+    p99 = float(np.percentile(wall, 99))
+    slow = wall >= p99
+    q = lambda v, p: round(float(np.nanpercentile(v, p)), 2)  # noqa: E731
+    return {"steps": int(wall.size), "step_median_us": q(wall, 50), "step_p99_us": round(p99, 2),
+            "step_max_us": round(float(wall.max()), 1),
+            "cpu_median_us": q(col["cpu"] * 1e6, 50),
+            "slow_steps": int(slow.sum()), "slow_wall_median_us": q(wall[slow], 50),
+            "slow_cpu_median_us": q(col["cpu"][slow] * 1e6, 50),
+            "slow_with_involuntary_switch": int((col["nivcsw"][slow] > 0).sum()),
+            "involuntary_switches_in_steps": int(col["nivcsw"].sum()),
+            "voluntary_switches_in_steps": int(col["nvcsw"].sum()),
+            "minor_faults_in_steps": int(col["minflt"].sum()),
+            "wait_median_us": q(col["wait"] * 1e6, 50), "wait_p99_us": q(col["wait"] * 1e6, 99),
+            "slow_wait_median_us": q(col["wait"][slow] * 1e6, 50),
+            "away_median_ms": q(col["away"] * 1e3, 50), "slow_away_median_ms": q(col["away"][slow] * 1e3, 50)}
 
 
 HOG = "import time\nend = time.perf_counter() + {s}\nn = 0\nwhile time.perf_counter() < end:\n    n += 1\nprint(n)"
@@ -338,6 +464,9 @@ def main() -> None:
                     help="also run with the departure monitor on the loop, alternating (needs --model)")
     ap.add_argument("--spin", action="store_true",
                     help="also run with the link busy-polling the port (rtlift observe --spin), alternating")
+    ap.add_argument("--anatomy", action="store_true",
+                    help="what the live step's p99 is made of: the dispatcher's step, the step by address and "
+                         "a 50 us switch interval alternated, each step's CPU time and context switches")
     args = ap.parse_args()
     import tempfile
 
@@ -363,6 +492,8 @@ def main() -> None:
         if args.load:
             load = start_load((2 if args.view else 1) * args.seconds + 2.0, args.burst_mb, args.burst_every, tmp.name)
         with open_link({"kind": "serial", "port": path}) as link:
+            if args.anatomy:
+                anatomy = run_anatomy(link, observer, model.fs_hz, args.seconds)
             runs = run_phases(link, observer, model.fs_hz, args.seconds, tmp.name if args.view else None,
                               spin=args.spin, monitor=timed)
             counters = link.counters.as_dict()
@@ -397,6 +528,8 @@ def main() -> None:
         result["lost_samples"] = counters["lost"]
     if load_stats is not None:
         result["load"] = load_stats
+    if args.anatomy:
+        result["anatomy"] = anatomy
     emit(result)
 
 
