@@ -16,6 +16,7 @@ twin; both carry one explicit state. A model file is JSON with ``"kind": "siso"`
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -129,6 +130,16 @@ class FeedbackModel:
     a store that cannot fill beyond its brim (Cascaded Tanks: the lower tank overflows, its
     level stays at the brim and falls as soon as the inflow does), where an output limit
     would let the unclipped level wind up beyond it and lag on the way down.
+
+    ``friction`` (k₀, k_c, s) adds a constant and a smoothed sign to the map,
+
+        v(k) = u(k) − k₂ y(k)² − k₃ y(k)³ − k₀ − k_c tanh(y(k)/s),
+
+    a force the input works against (an offset, Coulomb friction; the viscous part is the linear
+    block's own damping). ``integrating``: the recursion's y is the differenced output (a
+    velocity, output units per sample) and the model outputs its running sum,
+    c + p(k), p(k) = p(k−1) + y(k) (a position: EMPS's force in, position out); the state gains
+    p, last. Neither is written to the file while unused (files as before).
     """
 
     structure = "nonlinear_feedback"
@@ -136,7 +147,8 @@ class FeedbackModel:
     def __init__(self, a: np.ndarray, b: np.ndarray, feedback: np.ndarray, fs_hz: float,
                  provenance: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None,
                  state_limits: tuple[float, float] = (-np.inf, np.inf), offset: float = 0.0,
-                 feedthrough: float = 0.0) -> None:
+                 feedthrough: float = 0.0, friction: tuple[float, float, float] = (0.0, 0.0, 1.0),
+                 integrating: bool = False) -> None:
         a, b, k = (np.asarray(v, dtype=float).ravel() for v in (a, b, feedback))
         if a.size != b.size or a.size == 0 or k.size != 2 or not all(np.all(np.isfinite(v)) for v in (a, b, k)):
             raise ValueError("nonlinear_feedback needs finite a, b of one length and two feedback coefficients")
@@ -154,15 +166,22 @@ class FeedbackModel:
             raise ValueError(f"state limits need lower < upper, got {lo}, {hi}")
         self.state_limits = (lo, hi)
         self._lo, self._hi = lo - self.offset, hi - self.offset     # on the deviation y
+        k0, kc, scale = (float(v) for v in friction)
+        if not (np.isfinite(k0) and np.isfinite(kc) and np.isfinite(scale) and scale > 0):
+            raise ValueError(f"nonlinear_feedback needs a finite friction (k0, kc) and scale > 0, got {friction}")
+        self.friction, self.integrating = (k0, kc, scale), bool(integrating)
+        if self.integrating and self.limited:
+            raise ValueError("an integrating nonlinear_feedback model takes no state limit")
         self._y = [0.0] * self.n
         self._v = [0.0] * self.n
+        self._p = 0.0
 
     @property
     def limited(self) -> bool:
         """Whether the state is limited (``saturation`` where ``state``)."""
         return bool(np.isfinite(self._lo) or np.isfinite(self._hi))
 
-    state_size = property(lambda self: 2 * self.n)
+    state_size = property(lambda self: 2 * self.n + self.integrating)
 
     def step(self, u: float) -> float:
         yh, vh = self._y, self._v
@@ -170,10 +189,14 @@ class FeedbackModel:
         for i in range(self.n):
             y += self._b[i] * vh[i] - self._a[i] * yh[i]
         y = min(max(y, self._lo), self._hi)
-        v = u - self._k2 * y * y - self._k3 * y * y * y
+        k0, kc, scale = self.friction
+        v = u - self._k2 * y * y - self._k3 * y * y * y - k0 - kc * math.tanh(y / scale)
         for i in range(self.n - 1, 0, -1):
             yh[i], vh[i] = yh[i - 1], vh[i - 1]
         yh[0], vh[0] = y, v
+        if self.integrating:
+            self._p += y
+            return self.offset + self._p
         return self.offset + y
 
     def simulate(self, u: np.ndarray) -> np.ndarray:
@@ -181,23 +204,33 @@ class FeedbackModel:
         order), the state carried on."""
         u = np.ascontiguousarray(u, dtype=float)
         out = np.empty(u.size)
-        yh, vh = np.array(self._y), np.array(self._v)
-        _feedback_run(self.a, self.b, self._k2, self._k3, self._lo, self._hi, self.offset, self.b0, u, yh, vh, out)
-        self._y[:], self._v[:] = yh.tolist(), vh.tolist()
+        yh, vh, p = np.array(self._y), np.array(self._v), np.array([self._p])
+        _feedback_run(self.a, self.b, self._k2, self._k3, self._lo, self._hi, self.offset, self.b0,
+                      np.array(self.friction), self.integrating, u, yh, vh, p, out)
+        self._y[:], self._v[:], self._p = yh.tolist(), vh.tolist(), float(p[0])
         return out
 
     def reset(self) -> None:
         self._y[:] = [0.0] * self.n
         self._v[:] = [0.0] * self.n
+        self._p = 0.0
 
     def get_state(self) -> np.ndarray:
-        return np.array(self._y + self._v)
+        return np.array(self._y + self._v + ([self._p] if self.integrating else []))
+
+    @property
+    def accumulator(self) -> int | None:
+        """The index in the state of the running sum the output is shifted by one for one
+        (``integrating``), else ``None`` (:func:`rtlift.sysid.initial.initial_state`)."""
+        return 2 * self.n if self.integrating else None
 
     def set_state(self, state: np.ndarray) -> None:
         s = np.asarray(state, dtype=float)
-        if s.shape != (2 * self.n,):
-            raise ValueError(f"model state must have shape ({2 * self.n},), got {s.shape}")
-        self._y[:], self._v[:] = s[:self.n].tolist(), s[self.n:].tolist()
+        if s.shape != (self.state_size,):
+            raise ValueError(f"model state must have shape ({self.state_size},), got {s.shape}")
+        self._y[:], self._v[:] = s[:self.n].tolist(), s[self.n:2 * self.n].tolist()
+        if self.integrating:
+            self._p = float(s[-1])
 
     def limits(self) -> dict[str, Any]:
         """The state limit as the report and the file give it (infinite sides as ``None``)."""
@@ -208,12 +241,14 @@ class FeedbackModel:
         d = {"format": FORMAT, "version": VERSION, "kind": "siso", "structure": self.structure,
              "fs_hz": self.fs_hz, "a": self.a.tolist(), "b": self.b.tolist(), "feedback": self.k.tolist(),
              "offset": self.offset, "feedthrough": self.b0, "provenance": self.provenance, "metrics": self.metrics}
+        if self.integrating or self.friction != (0.0, 0.0, 1.0):
+            d |= {"friction": list(self.friction), "integrating": self.integrating}
         return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> FeedbackModel:
-        """The same model (coefficients, limits, offset, feedthrough), a zero state."""
+        """The same model (coefficients, limits, offset, feedthrough, friction), a zero state."""
         return FeedbackModel(self.a.copy(), self.b.copy(), self.k.copy(), self.fs_hz, self.provenance, self.metrics,
-                             self.state_limits, self.offset, self.b0)
+                             self.state_limits, self.offset, self.b0, self.friction, self.integrating)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FeedbackModel:
@@ -222,27 +257,34 @@ class FeedbackModel:
         sat = d.get("saturation")
         return cls(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"), d.get("metrics"),
                    _limit_pair(sat) if sat is not None else (-np.inf, np.inf), float(d.get("offset", 0.0)),
-                   float(d.get("feedthrough", 0.0)))
+                   float(d.get("feedthrough", 0.0)), tuple(d.get("friction", (0.0, 0.0, 1.0))),
+                   bool(d.get("integrating", False)))
 
 
 @njit_cached
 def _feedback_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, lo: float, hi: float, c: float, b0: float,
-                  u: np.ndarray, yh: np.ndarray, vh: np.ndarray, out: np.ndarray) -> None:   # pragma: no cover
+                  friction: np.ndarray, integrating: bool, u: np.ndarray, yh: np.ndarray, vh: np.ndarray,
+                  p: np.ndarray, out: np.ndarray) -> None:   # pragma: no cover
     """:meth:`FeedbackModel.step` over ``u`` (compiled; the same arithmetic in the same order),
-    advancing the histories ``yh``, ``vh`` (newest first) in place."""
+    advancing the histories ``yh``, ``vh`` (newest first) and the running sum ``p[0]`` in place."""
     n = a.size
+    k0, kc, scale = friction[0], friction[1], friction[2]
     for k in range(u.size):
         y = b0 * u[k]
         for i in range(n):
             y += b[i] * vh[i] - a[i] * yh[i]
         y = min(max(y, lo), hi)
-        v = u[k] - k2 * y * y - k3 * y * y * y
+        v = u[k] - k2 * y * y - k3 * y * y * y - k0 - kc * math.tanh(y / scale)
         for i in range(n - 1, 0, -1):
             yh[i] = yh[i - 1]
             vh[i] = vh[i - 1]
         yh[0] = y
         vh[0] = v
-        out[k] = c + y
+        if integrating:
+            p[0] += y
+            out[k] = c + p[0]
+        else:
+            out[k] = c + y
 
 
 @njit_cached

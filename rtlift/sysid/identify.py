@@ -392,7 +392,8 @@ def identify_siso(rec: SisoRecord | Sequence[SisoRecord], structure: str = "wien
         cost = slice(0, min(n_est, opt.cost_samples))
         fit = identify_store_chain if structure == "store_chain" else identify_feedback
         args = (ue[cost], ye[cost], r.u, r.y, n_est, skip, fs, opt, limits) + (
-            (where,) if structure == "nonlinear_feedback" else ())
+            (where, _integrating_start(r, n_est, skip, opt, fs) if limits == NO_LIMITS else None)
+            if structure == "nonlinear_feedback" else ())
         model = fit(*args)
         model.provenance.update(tool="rtlift identify --record", record=name, holdout_fraction=opt.holdout)
         model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
@@ -402,6 +403,42 @@ def identify_siso(rec: SisoRecord | Sequence[SisoRecord], structure: str = "wien
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", signal.BadCoefficients)
         return _identify_w(recs, n_ests, skip, structure, order, opt, limits)
+
+
+def _linear(runs: _Runs, n: int, integrating: bool, held_parts: list, fs: float
+            ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The output-error linear model of order n on ``runs`` (on their differenced output, with a
+    constant d, where ``integrating``: run integrated) and its held-out RMSE: (b, a, d, RMSE);
+    FAILS where it cannot be fitted or its held-out error is not finite."""
+    b, a, d = fit_bla(runs, n, offset=integrating)
+    lin = SisoModel(HighPassFilter.from_ba(b, a), OutputNonlinearity([0.0, 1.0], [d, 1.0 + d]),
+                    HighPassFilter.from_ba(*INTEGRATOR) if integrating else None, fs)
+    held = _pooled_rmse(lin, held_parts)
+    if not np.isfinite(held):
+        raise ValueError("its held-out error is not finite")
+    return b, a, d, held
+
+
+def _integrating_start(r: SisoRecord, n_est: int, skip: int, opt: SisoOptions, fs: float) -> tuple | None:
+    """The rule of the integrating variant (module docstring, 5) for ``nonlinear_feedback``: the
+    first-order linear model (b, a, d) fitted on the differenced output, where run integrated it
+    holds out better than the first-order one fitted on the output (the start
+    :func:`rtlift.sysid.feedback.identify_feedback` refines), else None. First order: the rule
+    costs two short fits (the plain variant's search is the diagnosis's own)."""
+    n = min(n_est, opt.cost_samples)
+    runs = _Runs([(r.u[:n], r.y[:n])], skip)
+    held = [(r.u, r.y, n_est)]
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", signal.BadCoefficients)
+        try:
+            b, a, d, integrated = _linear(runs.differenced(), 1, True, held, fs)
+        except FAILS:
+            return None
+        try:
+            plain = _linear(runs, 1, False, held, fs)[3]
+        except FAILS:
+            plain = np.inf
+    return (b, a, d) if integrated < plain else None
 
 
 def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure: str, order: int | None,
@@ -435,12 +472,7 @@ def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure:
     def linear(n: int, integrating: bool) -> None:
         """The linear model of order n (on Δy where ``integrating``) into ``bla``, or its failure into ``skipped``."""
         try:
-            b, a, d = fit_bla(runs[integrating][0], n, offset=integrating)
-            lin = SisoModel(HighPassFilter.from_ba(b, a), OutputNonlinearity([0.0, 1.0], [d, 1.0 + d]),
-                            HighPassFilter.from_ba(*INTEGRATOR) if integrating else None, fs)
-            held = _pooled_rmse(lin, held_parts)
-            if not np.isfinite(held):
-                raise ValueError("its held-out error is not finite")
+            b, a, _, held = _linear(runs[integrating][0], n, integrating, held_parts, fs)
             bla[n, integrating] = (b, a, held)
         except FAILS as exc:
             skipped[f"order {n}{' integrating' if integrating else ''}"] = str(exc)

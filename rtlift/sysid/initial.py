@@ -12,6 +12,13 @@ fit of the whole state vector to the window was tried first: on a Wiener model i
 window and ran off after it (Cascaded Tanks' test error 1.4 → 2.6 V), a steady state cannot.
 The model is not changed; the free run from that state is its own :meth:`simulate` (streaming
 and batch alike).
+
+A model whose output is a running sum (an integrating ``nonlinear_feedback`` model: a position
+from a velocity; its ``accumulator`` names the sum's place in the state) was not at rest at a
+position of zero before the record, and no constant input holds it still: for every candidate
+state the sum is set to the mean of the window's output less the free run from a sum of zero
+(the output shifts one for one with it, so that is its least-squares value), the velocity's
+state still the steady state's.
 """
 
 from __future__ import annotations
@@ -39,29 +46,47 @@ def initial_state(model, u: np.ndarray, y: np.ndarray, n: int) -> np.ndarray:
     """The state at sample 0 that best explains y[:n] (module docstring); the model is left reset."""
     u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
     uw, yw = u[:n], y[:n]
+    acc = getattr(model, "accumulator", None)
 
-    def cost(x: np.ndarray) -> float:
+    def run(x: np.ndarray) -> np.ndarray:
         model.reset()
         model.set_state(x)
         with np.errstate(all="ignore"):
             r = model.simulate(uw) - yw
         model.reset()
+        return r
+
+    def placed(x: np.ndarray) -> np.ndarray:
+        """x with the running sum at its least-squares value (module docstring)."""
+        if acc is None:
+            return x
+        x = np.array(x, dtype=float)
+        x[acc] = 0.0
+        x[acc] = -float(np.mean(run(x)))
+        return x if np.isfinite(x[acc]) else np.where(np.arange(x.size) == acc, 0.0, x)
+
+    def cost(x: np.ndarray) -> float:
+        r = run(x)
         c = float(r @ r)
         return c if np.isfinite(c) else np.inf
 
+    def steady(level: float) -> np.ndarray:
+        return placed(steady_state(model, level))
+
     model.reset()
-    best = (cost(model.get_state()), model.get_state())
+    rest = placed(model.get_state())
+    best = (cost(rest), rest)
     span = float(np.ptp(u))
     lo, hi = float(np.min(u)) - 0.5 * span, float(np.max(u)) + 0.5 * span
     if hi > lo:
         levels = np.linspace(lo, hi, GRID)
-        costs = [cost(steady_state(model, v)) for v in levels]
+        costs = [cost(steady(v)) for v in levels]
         i = int(np.argmin(costs))
         a, b = levels[max(i - 1, 0)], levels[min(i + 1, GRID - 1)]
-        sol = optimize.minimize_scalar(lambda v: cost(steady_state(model, v)), bounds=(a, b), method="bounded",
+        sol = optimize.minimize_scalar(lambda v: cost(steady(v)), bounds=(a, b), method="bounded",
                                        options={"xatol": 1e-6 * (hi - lo)})
         for c, v in ((costs[i], levels[i]), (float(sol.fun), float(sol.x))):
             if c < best[0]:
-                best = (c, steady_state(model, v))
+                best = (c, steady(v))
     model.reset()
     return np.asarray(best[1], dtype=float)
