@@ -60,7 +60,9 @@ wall time, the context switches and faults inside them, how long the sample had 
 receipt when its step began (``wait_*``: the host's decode and conversion), and how long the loop
 had been away since the previous step (``away_*``). ``threads`` lists the process's Python
 threads and its OS threads (a reader thread would show here). The tight-loop figures gain the
-dispatcher's step (``observer_step_tight_dispatch_*``).
+dispatcher's step (``observer_step_tight_dispatch_*``). ``anatomy.after_sleep``: without link or
+emulator, the step right after a 2.4 ms sleep and the step right after that one, both ways
+alternated (:func:`after_sleep`).
 
 ``--model MODEL.json`` uses a model file with observer settings; by default the model is
 identified from the bench (seed 1, 2nd-order Wiener) and the observer tuned on a seed-1
@@ -221,6 +223,37 @@ class StepAnatomy:
             self.n = k + 1
         self._end = t1
         return est
+
+
+def after_sleep(model, steps: int = 1200, sleep_s: float = 0.0024) -> dict:
+    """No link, no other process: the observer step on a recorded ``random`` record right after
+    the thread slept ``sleep_s`` (as the live loop does between samples), and the next step right
+    after it, the dispatcher's and the by-address step alternated per wake-up; median and p99 (µs)."""
+    from hil_sim.experiments import run_experiment
+    from rtlift.observer import Observer
+
+    rec = run_experiment("random", seed=4).to_record()
+    c, e, z = rec.cmu.tolist(), rec.cmu_envelope.tolist(), rec.dcl.tolist()
+    obs = Observer.from_model(model)
+    obs.warm_up()
+    bound, pc = obs._at, time.perf_counter
+    times = {(w, i): np.empty(steps) for w in ("dispatch", "at") for i in (0, 1)}
+    for j in range(2 * steps):
+        way = ("dispatch", "at")[j % 2]
+        obs._at = () if way == "dispatch" else bound
+        time.sleep(sleep_s)
+        for i in (0, 1):
+            k = (2 * j + i) % len(c)
+            t0 = pc()
+            obs.step(c[k], e[k], z[k])
+            times[(way, i)][j // 2] = pc() - t0
+    obs._at = bound
+    out = {}
+    for (way, i), t in times.items():
+        median, p99 = percentiles_us(t)
+        name = f"{way}_{'first' if i == 0 else 'second'}"
+        out[f"{name}_median_us"], out[f"{name}_p99_us"] = round(median, 2), round(p99, 2)
+    return out
 
 
 ANATOMY = ("dispatch", "at", "at_switch50us")
@@ -529,7 +562,7 @@ def main() -> None:
     if load_stats is not None:
         result["load"] = load_stats
     if args.anatomy:
-        result["anatomy"] = anatomy
+        result["anatomy"] = {**anatomy, "after_sleep": after_sleep(model)}
     emit(result)
 
 
