@@ -51,7 +51,7 @@ from rtlift.core.metrics import scores
 from rtlift.core.records import SisoRecord
 from rtlift.core.threads import one_blas_thread
 from rtlift.diagnose.diagnosis import DiagnoseOptions, Diagnosis, Trial
-from rtlift.diagnose.selection import run
+from rtlift.diagnose.selection import Node, Search, Selection, run
 from rtlift.diagnose.significance import pooled_rmse
 from rtlift.effects import STRUCTURES
 from rtlift.model.siso import FeedbackModel, SaturatedModel, SisoModel, StoreChainModel
@@ -223,7 +223,7 @@ class GenericCandidates:
         return [(r.y - predict(model, r, self._init(r.name)))[k:] for r, k in zip(self.validate, self.vskip,
                                                                                    strict=True)]
 
-    def fit(self, name: str, parent: Any, search: Any) -> tuple[SisoModel, SisoModel] | str:
+    def fit(self, name: str, parent: Node, search: Search) -> tuple[SisoModel, SisoModel] | str:
         """The structure re-identified whole (``parent`` is the model: one member each); a
         structure the data cannot be fitted in says why, not fatal."""
         try:
@@ -235,26 +235,26 @@ class GenericCandidates:
     def excludes(self, name: str) -> tuple[str, ...]:
         return ()
 
-    def n_params(self, node: Any) -> None:
+    def n_params(self, node: Node) -> None:
         return None                      # a structure's parameters are not counted
 
-    def on_bound(self, node: Any) -> str:
+    def on_bound(self, node: Node) -> str:
         return ""
 
-    def evidence(self, name: str, node: Any, search: Any) -> None:
+    def evidence(self, name: str, node: Node, search: Search) -> None:
         return None
 
-    def confirmed(self, node: Any, name: str, search: Any) -> bool:
+    def confirmed(self, node: Node, name: str, search: Search) -> bool:
         return False
 
-    def rank(self, node: Any, near: list, search: Any) -> tuple:
+    def rank(self, node: Node, near: list[Node], search: Search) -> tuple:
         return ()
 
     def row_why(self, verdicts: list[tuple[str, bool, str]]) -> str:
         return verdicts[0][2]            # one member: its own verdict
 
     # ------------------------------------------------------------------ what the report says
-    def trials(self, sel: Any) -> list[Trial]:
+    def trials(self, sel: Selection) -> list[Trial]:
         rb = sel.judge.pooled(sel.base.errors)
         trials: list[Trial] = []
         for name in self.order:
@@ -273,10 +273,10 @@ class GenericCandidates:
                                 f"not tried: no clipping level ({self.clip_evidence})", rb, rb, "structure"))
         return trials
 
-    def refine(self, sel: Any) -> tuple[SisoModel, None]:
+    def refine(self, sel: Selection) -> tuple[SisoModel, None]:
         return sel.best.model, None      # each structure is re-identified whole
 
-    def unexplained(self, sel: Any, trials: list[Trial]) -> list[str]:
+    def unexplained(self, sel: Selection, trials: list[Trial]) -> list[str]:
         if sel.best.model is not self.base:
             return []
         return [f"{k}: {t.detail}" for k, t in self.tests.items() if t.significant]
