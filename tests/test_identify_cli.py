@@ -139,3 +139,56 @@ def test_a_model_file_is_written_whole_or_not_at_all(model_file, tmp_path):
     with pytest.raises(NumericalError, match=r"provenance\.wiener\.uncertainty\.poles_std\[1\] is not finite"):
         save_model(m, out)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_diagnose_takes_several_training_records_of_a_generic_system(tmp_path, capsys):
+    """``rtlift diagnose --train A --train B`` (issue 48): a tanh between two first-order blocks,
+    A at a small amplitude (nearly linear), B and the validation record C at ten times it; the
+    Wiener model identified on A. Trained on A alone, no structure passes (C: RMSE 1.06); on A and B
+    (each its own run from rest, one cost) the added output block is fitted where C lives (C: 0.06,
+    the augmented model's provenance names both). One record given as a list of one is the
+    single-record diagnosis, number for number."""
+    from dataclasses import replace
+    from unittest import mock
+
+    import numpy as np
+    from scipy import signal
+
+    from rtlift import api
+    from rtlift.core.records import SisoRecord, write_siso_record
+    from rtlift.diagnose import report
+    from rtlift.sysid import identify as sysid_identify
+    from rtlift.sysid.common import SisoOptions
+
+    fast = replace(SisoOptions(), orders=(2,), knots=8, more_knots=(), max_nfev=30, keep=1, feedback_orders=(2,),
+                   chain_starts=1, skip=20)
+    rng = np.random.default_rng(1)
+    for name, amp in (("a", 0.3), ("b", 3.0), ("c", 3.0)):
+        u = amp * np.repeat(rng.standard_normal(100), 4)
+        y = signal.lfilter([0.4], [1, -0.6], np.tanh(signal.lfilter([0.3], [1, -0.7], u)))
+        write_siso_record(tmp_path / f"{name}.csv", SisoRecord(np.arange(u.size) / 10.0, u,
+                                                               y + 0.01 * rng.standard_normal(u.size), {}, name))
+    rec = {n: str(tmp_path / f"{n}.csv") for n in "abc"}
+    model = str(tmp_path / "m.json")
+    with (mock.patch.object(sysid_identify, "SisoOptions", lambda: fast),
+          mock.patch.object(report, "plot", lambda diag, out, fs: report._fig_paths(out))):
+        assert main(["identify", "--record", rec["a"], "--structure", "wiener", "-o", model]) == 0
+        runs = {}
+        for tag, trains in (("one", "a"), ("two", "ab")):
+            assert main(["diagnose", "--model", model, *(x for t in trains for x in ("--train", rec[t])),
+                         "--validate", rec["c"], "--out", str(tmp_path / tag), "--quiet"]) == 0
+            runs[tag] = (json.loads((tmp_path / tag / "report.json").read_text()),
+                         json.loads((tmp_path / tag / "model_augmented.json").read_text()))
+        listed, _ = api.diagnose(model, [rec["a"]], [rec["c"]])
+    capsys.readouterr()
+    (one, _), (two, augmented) = runs["one"], runs["two"]
+    assert list(one["augmented"]["records"]) == ["a", "c"] and list(two["augmented"]["records"]) == ["a+b", "c"]
+    before, after_one, after_two = (r["records"]["c"]["rmse"] for r in (one["baseline"], one["augmented"],
+                                                                         two["augmented"]))
+    assert not any(e["accepted"] for e in one["effects"]) and after_one == before
+    assert [e["name"] for e in two["effects"] if e["accepted"]] == ["output_dynamics"]
+    assert augmented["provenance"]["records"] == ["a", "b"] and after_two < 0.2 * before, (after_two, before)
+    feedback = next(e for e in two["effects"] if e["name"] == "nonlinear_feedback")
+    assert "identified from one record" in feedback["evidence"] or "identified from one record" in str(feedback)
+    assert listed["augmented"]["records"] == one["augmented"]["records"]
+    assert listed["baseline"]["records"] == one["baseline"]["records"]

@@ -9,9 +9,12 @@ than the model's are one-line :class:`~rtlift.core.errors.UserError` s.
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from rtlift.core.errors import UserError
 from rtlift.core.records import Record, SisoRecord, read_record, read_siso_record, record_kind
@@ -78,10 +81,48 @@ def read_all(records: list[Any], model: Any, generic: bool, min_samples: int,
     return recs
 
 
+RUNS = "runs"
+"""A joined record's metadata key (:func:`join_runs`): JSON ``[[stem, first sample], …]``, one per run."""
+
+
+def join_runs(recs: list[SisoRecord]) -> SisoRecord:
+    """Several generic records of one system as one record of several runs, each its own
+    experiment from rest (``rtlift diagnose --train A --train B``): u, y concatenated, time
+    continued, each run's stem and first sample in ``meta[RUNS]`` (:func:`split_runs` gives them back;
+    every fit treats each run from rest, one cost); named by the stems joined with ``+``."""
+    fs = recs[0].fs_hz
+    starts = np.cumsum([0] + [len(r) for r in recs[:-1]])
+    t = np.concatenate([r.t - r.t[0] + k / fs for r, k in zip(recs, starts, strict=True)])
+    meta = {"fs_hz": repr(fs), RUNS: json.dumps([[r.name, int(k)] for r, k in zip(recs, starts, strict=True)])}
+    return SisoRecord(t, np.concatenate([r.u for r in recs]), np.concatenate([r.y for r in recs]), meta,
+                      "+".join(r.name for r in recs))
+
+
+def split_runs(rec: SisoRecord) -> list[SisoRecord]:
+    """The runs of a record :func:`join_runs` made (each under its own stem); any other record alone."""
+    if RUNS not in rec.meta:
+        return [rec]
+    runs = json.loads(rec.meta[RUNS])
+    bounds = [k for _, k in runs] + [len(rec)]
+    meta = {k: v for k, v in rec.meta.items() if k != RUNS}
+    return [SisoRecord(rec.t[lo:hi], rec.u[lo:hi], rec.y[lo:hi], dict(meta), name)
+            for (name, lo), hi in zip(runs, bounds[1:], strict=True)]
+
+
 def records(train: Any, validate: list[Any], model: Any, generic: bool, skip: int = 0,
             model_name: str | None = None) -> Sources:
-    """A training record and validation records (``rtlift diagnose --train --validate``)."""
-    train_rec, *recs = read_all([train, *validate], model, generic, least_samples(model, generic, skip), model_name)
+    """A training record and validation records (``rtlift diagnose --train --validate``); ``train``
+    may be a list of records of a generic model's system, each its own run from rest, joined
+    (:func:`join_runs`)."""
+    trains = list(train) if isinstance(train, (list, tuple)) else [train]
+    if len(trains) > 1 and not generic:
+        raise UserError(f"{model_name or 'the model'} is a lift model: its effects are fitted on one --train record "
+                        "(several are taken for a generic t,u,y model)")
+    if not trains:
+        raise UserError("give at least one --train record")
+    given = read_all([*trains, *validate], model, generic, least_samples(model, generic, skip), model_name)
+    train_recs, recs = given[:len(trains)], given[len(trains):]
+    train_rec = train_recs[0] if len(trains) == 1 else join_runs(train_recs)
     return Sources(train_rec, recs, provenance=_provenance(model_name, train=train, validate=list(validate)))
 
 

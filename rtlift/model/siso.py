@@ -55,6 +55,13 @@ def listed(names: tuple[str, ...]) -> str:
     return " and ".join(filter(None, (", ".join(names[:-1]), names[-1])))
 
 
+INTEGRATOR = (np.array([1.0]), np.array([1.0, -(1.0 - 1e-12)]))
+"""1/(1 − ρq⁻¹), ρ = 1 − 10⁻¹²: the last block of a model fitted on the differenced output and run
+integrated (:mod:`rtlift.sysid.identify`, 5); the streaming filter takes poles inside the unit
+circle only, and this one leaks 0.1 % over 10⁹ samples."""
+_INTEGRATOR_SOS = HighPassFilter.from_ba(*INTEGRATOR).sos
+
+
 @dataclass(eq=False)
 class SisoModel(BlockChain):
     g1: HighPassFilter
@@ -65,8 +72,14 @@ class SisoModel(BlockChain):
     metrics: dict[str, Any] = field(default_factory=dict)
 
     @property
+    def integrating(self) -> bool:
+        """Whether G₂ is :data:`INTEGRATOR` alone: a Wiener model of the differenced output, run
+        integrated (its structure is ``wiener``: the diagnosis tries what a Wiener model lacks on it)."""
+        return self.g2 is not None and np.array_equal(self.g2.sos, _INTEGRATOR_SOS)
+
+    @property
     def structure(self) -> str:
-        return "wiener" if self.g2 is None else "wiener_hammerstein"
+        return "wiener" if self.g2 is None or self.integrating else "wiener_hammerstein"
 
     @property
     def blocks(self) -> tuple:

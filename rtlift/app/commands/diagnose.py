@@ -19,7 +19,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "from the fingerprint, 'structure' when the model already lacked it. --run F: one "
                     "long record, fitted on its first part and judged on the rest.")
     p.add_argument("--model", required=True, metavar="MODEL.json", help="model file")
-    p.add_argument("--train", metavar="F", help="record the effects are fitted on")
+    p.add_argument("--train", metavar="F", action="append",
+                   help="record the effects are fitted on; a generic model's may be repeated (several "
+                        "experiments of one system, each its own run from rest, one cost)")
     p.add_argument("--validate", nargs="+", metavar="F",
                    help="records the effects are judged on (never fitted on)")
     p.add_argument("--run", metavar="F",
@@ -69,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
             rep, augmented = api.diagnose_run(args.model, args.run, split=args.split, out=args.out,
                                               skip=args.skip, init_state=args.init_state)
         else:
-            rep, augmented = api.diagnose(args.model, args.train, args.validate, out=args.out, skip=args.skip,
+            train = args.train[0] if len(args.train) == 1 else args.train
+            rep, augmented = api.diagnose(args.model, train, args.validate, out=args.out, skip=args.skip,
                                           init_state=args.init_state)
     print("\n".join(summary(rep, args.model, args.out, api.is_generic(augmented))))
     return 0
