@@ -22,7 +22,6 @@ from array import array
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from firmware_io.commands import ENVELOPE_LIMIT_CV
 from firmware_io.samples import Sample
@@ -43,6 +42,7 @@ def lowpassed_rmse(reference: np.ndarray, estimate: np.ndarray, fs_hz: float) ->
     ok = np.isfinite(estimate)
     if ok.sum() < 20:
         return None
+    from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
     sos = signal.butter(2, LOWPASS_HZ, fs=fs_hz, output="sos")
     r, e = reference[ok], estimate[ok]
     pad = min(len(r) - 1, 3 * 6)

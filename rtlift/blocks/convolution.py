@@ -12,7 +12,6 @@ The state is numpy arrays (buffer and write position) so that the compiled step 
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal
 
 _DIRECT_MAX = 4_000_000
 """Above this many multiply-adds the batch twin convolves by scattering the non-zero inputs
@@ -68,6 +67,7 @@ class RingConvolution:
                 y = np.empty(u.size)
                 fir_scatter(ext, self._taps, y)
             else:
+                from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
                 y = signal.oaconvolve(ext, self._taps, mode="valid")
         else:
             y = np.convolve(ext, self._taps, mode="valid")

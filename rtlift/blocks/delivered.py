@@ -14,7 +14,6 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from rtlift.blocks.stage_base import InputStage, _positive
 from rtlift.blocks.wiener import _check_table, _Table
@@ -70,6 +69,7 @@ class DeliveredMomentum(InputStage):
         cmu = np.asarray(cmu, dtype=float)
         if cmu.size == 0:
             return cmu.copy()
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         m, _ = signal.lfilter([self._b], [1.0, -self._lam], cmu * self._inv_d, zi=[self._lam * self._m.item()])
         self._m[0] = m[-1]
         return m
@@ -185,6 +185,7 @@ class DeliveredEnvelope(InputStage):
         env = np.asarray(env, dtype=float)
         if cmu.size == 0:
             return cmu.copy(), env.copy()
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         q, _ = signal.lfilter([self._b], [1.0, -self._lam], (cmu > 0).astype(float), zi=[self._lam * self._q.item()])
         self._q[0] = q[-1]
         gate = np.minimum(1.0, self._scale * q)

@@ -19,7 +19,6 @@ own rounding by ~1e5 at DC; the cascade does not. Designed once as a Butterworth
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal
 
 
 class HighPassFilter:
@@ -52,17 +51,20 @@ class HighPassFilter:
             raise ValueError("high-pass order must be at least 1")
         if not 0 < cutoff_hz < fs_hz / 2:
             raise ValueError(f"cutoff {cutoff_hz} Hz must lie between 0 and fs/2 = {fs_hz / 2} Hz")
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         sos = signal.butter(order, cutoff_hz, btype="highpass", fs=fs_hz, output="sos")
         return cls(sos, order=order, cutoff_hz=cutoff_hz)
 
     @classmethod
     def from_ba(cls, b: np.ndarray, a: np.ndarray, **kw) -> HighPassFilter:
         """From a transfer function (converted to sections once)."""
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         return cls(signal.tf2sos(b, a), **kw)
 
     @property
     def ba(self) -> tuple[np.ndarray, np.ndarray]:
         """The equivalent single transfer function (for reports; not used to filter)."""
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         return signal.sos2tf(self.sos)
 
     @property
@@ -89,6 +91,7 @@ class HighPassFilter:
         x = np.asarray(x, dtype=float)
         if x.size == 0:
             return x.copy()
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         y, zf = signal.sosfilt(self.sos, x, zi=self._z.reshape(-1, 2))
         self._z[:] = zf.ravel()
         return y
@@ -107,5 +110,6 @@ class HighPassFilter:
 
     def frequency_response(self, freqs_hz: np.ndarray, fs_hz: float) -> np.ndarray:
         """Complex gain at ``freqs_hz`` (for reports)."""
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         _, h = signal.sosfreqz(self.sos, worN=np.asarray(freqs_hz, dtype=float), fs=fs_hz)
         return h

@@ -20,7 +20,6 @@ beyond the 1e-12 that streaming and batch must agree to.
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal
 
 from rtlift.core.jit import njit_cached
 
@@ -103,6 +102,7 @@ class LTIBlock:
         """x₁ over ``u`` preceded by its n−1 past values (oldest first); advances the state."""
         n = self.n
         past = np.array(self._x)                              # x₁(k−1), x₁(k−2), … x₁(k−n)
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         zi = signal.lfiltic([self._B[0]], self._den, past)
         x1, _ = signal.lfilter([self._B[0]], self._den, u, zi=zi)
         ext = np.concatenate([past[::-1][1:], x1])            # x₁(k−n+1) … x₁(k+N−1)

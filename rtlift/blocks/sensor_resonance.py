@@ -6,7 +6,6 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from rtlift.blocks.stage_base import OutputStage, _positive
 
@@ -66,6 +65,7 @@ class SensorResonance(OutputStage):
             return u.copy()
         a1, a2 = self._a1, self._a2
         zi = np.array([-a1 * self._w0 - a2 * self._w1, -a2 * self._w0])
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         w, _ = signal.lfilter([1.0], self.a, u, zi=zi)
         w_prev = np.concatenate([[self._w0], w[:-1]])
         self._w1 = float(w_prev[-1])
@@ -85,5 +85,6 @@ class SensorResonance(OutputStage):
 def resonance_ba(frequency_hz: float, damping_ratio: float, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """(b, a) of ω²/(s² + 2ζωs + ω²), bilinear with pre-warping at ω = 2π f."""
     w = 2.0 * fs_hz * math.tan(math.pi * frequency_hz / fs_hz)
+    from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
     b, a = signal.bilinear([w * w], [1.0, 2.0 * damping_ratio * w, w * w], fs=fs_hz)
     return np.asarray(b, dtype=float), np.asarray(a, dtype=float)

@@ -14,7 +14,6 @@ from bisect import bisect_right
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from rtlift.blocks.lti import LTIBlock
 
@@ -214,6 +213,7 @@ class _DirectionMemory:
             last_change = np.maximum.accumulate(idx)
             s = np.where(last_change >= 0, (step[np.maximum(last_change, 0)] < 0.0).astype(float), self.s)
             self.last = float(x[-1])
+        from scipy import signal  # lazy: scipy.signal (and scipy.stats) cost ~1 s of start-up
         h, _ = signal.lfilter([1.0 - self._lam], [1.0, -self._lam], s, zi=[self._lam * self.h])
         self.h, self.s = float(h[-1]), float(s[-1])
         return h
