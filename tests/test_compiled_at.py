@@ -7,22 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rtlift.observer import Observer, ObserverConfig, compiled_at
+from rtlift.observer import Observer, compiled_at
 from rtlift.observer import compiled as cs
-from testkit.synthetic import burst_input, interaction_model, make_model, with_effects
+from testkit.synthetic import interaction_model, make_model, with_effects
+from tests.test_observer_compiled import CONFIGS, _inputs
 
-CONFIG = ObserverConfig(R=8e-6, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4, noise_ar=(1.82, -0.85), q_noise=7e-8,
-                        q_gain_h=1e-5, ripple_harmonics=4, ripple_powers=2, q_ripple=1e-8, p0_ripple=0.1,
-                        max_rejections=5)
-
-
-def _inputs(rng, n):
-    cmu, env = burst_input(rng, n, period=int(rng.integers(20, 60)))
-    z = 0.02 * env / 0.011 + rng.normal(0, 0.004, n)
-    z[rng.random(n) < 0.05] = np.nan
-    z[rng.random(n) < 0.03] += 0.5
-    cmu[rng.random(n) < 0.01] = np.nan
-    return cmu.tolist(), env.tolist(), [None if v != v else v for v in z.tolist()]
+CONFIG = CONFIGS["all_states"]
 
 
 @pytest.mark.parametrize("structure", ["paper", "paper_effects", "interaction_effects"])

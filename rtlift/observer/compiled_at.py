@@ -38,43 +38,32 @@ SLOTS = 3
 
 
 @intrinsic
-def _f64_at(typingctx, address):
-    """The int64 ``address`` as a float64 pointer."""
-    ptr = types.CPointer(types.float64)
+def _pointer(typingctx, address, dtype):
+    """The int64 ``address`` as a pointer to ``dtype`` (``np.float64`` or ``np.int64``)."""
+    ptr = types.CPointer(dtype.dtype)
 
     def codegen(context, builder, signature, args):
         return builder.inttoptr(args[0], context.get_value_type(ptr))
 
-    return ptr(types.int64), codegen
-
-
-@intrinsic
-def _i64_at(typingctx, address):
-    """The int64 ``address`` as an int64 pointer."""
-    ptr = types.CPointer(types.int64)
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], context.get_value_type(ptr))
-
-    return ptr(types.int64), codegen
+    return ptr(types.int64, dtype), codegen
 
 
 @njit_cached(inline="always")
 def _v(at, i):
     """Argument ``i``: a float64 vector."""
-    return carray(_f64_at(at[SLOTS * i]), at[SLOTS * i + 1])
+    return carray(_pointer(at[SLOTS * i], np.float64), at[SLOTS * i + 1])
 
 
 @njit_cached(inline="always")
 def _i(at, i):
     """Argument ``i``: an int64 vector."""
-    return carray(_i64_at(at[SLOTS * i]), at[SLOTS * i + 1])
+    return carray(_pointer(at[SLOTS * i], np.int64), at[SLOTS * i + 1])
 
 
 @njit_cached(inline="always")
 def _m(at, i):
     """Argument ``i``: a float64 matrix (C order)."""
-    return carray(_f64_at(at[SLOTS * i]), (at[SLOTS * i + 1], at[SLOTS * i + 2]))
+    return carray(_pointer(at[SLOTS * i], np.float64), (at[SLOTS * i + 1], at[SLOTS * i + 2]))
 
 
 @njit_cached
