@@ -50,8 +50,10 @@ fingerprint (``--model``, e.g. one from ``rtlift identify``).
 ``--anatomy`` (issue 46, third pass) asks what the live step's p99 is made of. It alternates, in
 one run on the same link (``PAIRS`` rounds, ``--seconds`` in all), the step as it was before
 (``dispatch``: numba's dispatcher called with the 20 arrays one by one), the step as it is
-(``at``: the arrays bound by address, :mod:`rtlift.observer.compiled_at`) and the same with the
-interpreter's switch interval at 50 µs instead of 5 ms (``at_switch50us``). Each step is timed as
+(``at``: the arrays bound by address, :mod:`rtlift.observer.compiled_at`), the same with the
+interpreter's switch interval at 50 µs instead of 5 ms (``at_switch50us``) and the same with the
+loop's thread under ``SCHED_FIFO`` (``at_fifo``: no other process's thread preempts it; only where
+the system allows it, else the condition is left out). Each step is timed as
 the loop times it (``perf_counter`` around ``Observer.step`` and nothing else) and, outside that
 pair, by the thread's CPU clock (``time.thread_time``) and ``getrusage(RUSAGE_THREAD)``
 (involuntary and voluntary context switches, minor faults). Per condition the JSON's
@@ -256,8 +258,21 @@ def after_sleep(model, steps: int = 1200, sleep_s: float = 0.0024) -> dict:
     return out
 
 
-ANATOMY = ("dispatch", "at", "at_switch50us")
+ANATOMY = ("dispatch", "at", "at_switch50us", "at_fifo")
 """``--anatomy``'s conditions, alternated (module docstring)."""
+
+
+def _fifo(on: bool) -> bool:
+    """This thread under ``SCHED_FIFO`` (priority 10) or back under ``SCHED_OTHER``; False where the
+    system refuses it (no root or CAP_SYS_NICE) or has no such policy."""
+    try:
+        if on:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+        else:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):
+        return False
+    return True
 
 
 def run_anatomy(link, observer, fs_hz: float, seconds: float) -> dict:
@@ -269,15 +284,17 @@ def run_anatomy(link, observer, fs_hz: float, seconds: float) -> dict:
     from rtlift.app.live import ObserverLoop
 
     converter, stream = Converter(), link.samples(0.5)
-    n = int(round(seconds * fs_hz)) // (PAIRS * len(ANATOMY))
     bound, switch = observer._at, sys.getswitchinterval()
-    rows: dict[str, list] = {c: [] for c in ANATOMY}
-    lost = dict.fromkeys(ANATOMY, 0)
+    conditions = ANATOMY if _fifo(False) and _fifo(True) and _fifo(False) else ANATOMY[:-1]
+    n = int(round(seconds * fs_hz)) // (PAIRS * len(conditions))
+    rows: dict[str, list] = {c: [] for c in conditions}
+    lost = dict.fromkeys(conditions, 0)
     ObserverLoop(observer, converter, link.seq_modulus, fs_hz=fs_hz, max_samples=int(fs_hz)).run(stream)  # warm-up
     try:
-        for condition in ANATOMY * PAIRS:
+        for condition in conditions * PAIRS:
             observer._at = () if condition == "dispatch" else bound
             sys.setswitchinterval(5e-5 if condition == "at_switch50us" else switch)
+            _fifo(condition == "at_fifo")
             probe = StepAnatomy(observer, converter, n)
             lost0 = link.counters.lost
             ObserverLoop(probe, probe.converter, link.seq_modulus, fs_hz=fs_hz, max_samples=n).run(
@@ -287,6 +304,7 @@ def run_anatomy(link, observer, fs_hz: float, seconds: float) -> dict:
     finally:
         observer._at = bound
         sys.setswitchinterval(switch)
+        _fifo(False)
     tasks = sorted(os.listdir("/proc/self/task")) if os.path.isdir("/proc/self/task") else []
     names = []
     for t in tasks:
@@ -296,7 +314,7 @@ def run_anatomy(link, observer, fs_hz: float, seconds: float) -> dict:
         except OSError:
             names.append("?")
     return {"threads": {"python": [t.name for t in threading.enumerate()], "os_threads": names},
-            **{c: {**anatomy_figures(np.concatenate(rows[c])), "lost_samples": lost[c]} for c in ANATOMY}}
+            **{c: {**anatomy_figures(np.concatenate(rows[c])), "lost_samples": lost[c]} for c in conditions}}
 
 
 def anatomy_figures(rows: np.ndarray) -> dict:
