@@ -5,8 +5,9 @@ structure, :func:`~rtlift.observer.compiled.observer_step_interaction`). Called 
 numba's dispatcher types and unboxes each of them per call: it reads every array's Python object
 (header, shape, strides, dtype), and the interpreter builds the 23-item argument tuple. In a tight
 loop that is ≈ 0.5–1 µs; in the live loop, which sleeps 2.5 ms between samples, the core's
-caches and TLB have lost those objects by the next sample, and fetching them back was about a
-third of the live step (measured: ``benchmarks/observer_loop.py --anatomy``,
+caches and TLB have lost those objects by the next sample. Called this way instead, the live
+step went from 26.1 to 19.1 µs median and from 159 to 112 µs p99, the tight loop from 5.25 to
+3.26 µs (``benchmarks/observer_loop.py --anatomy``, alternated in one run on a loaded machine;
 docs/results/monitor.md "Issue 46, the live step (third pass)").
 
 Here the arrays are bound once: :func:`bind` writes each array's address and shape into one
