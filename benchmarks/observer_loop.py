@@ -51,7 +51,9 @@ fingerprint (``--model``, e.g. one from ``rtlift identify``).
 one run on the same link (``PAIRS`` rounds, ``--seconds`` in all), the step as it was before
 (``dispatch``: numba's dispatcher called with the 20 arrays one by one), the step as it is
 (``at``: the arrays bound by address, :mod:`rtlift.observer.compiled_at`), the same with the
-interpreter's switch interval at 50 µs instead of 5 ms (``at_switch50us``) and the same with the
+interpreter's switch interval at 50 µs instead of 5 ms (``at_switch50us``), the same with the loop
+asleep until ``SPIN_WINDOW_S`` before each sample is due and then spinning with ``Observer.touch``
+(``at_spin_tail``: ``rtlift observe --spin 0.5``, the core kept warm) and the same with the
 loop's thread under ``SCHED_FIFO`` (``at_fifo``: no other process's thread preempts it; only where
 the system allows it, else the condition is left out). Each step is timed as
 the loop times it (``perf_counter`` around ``Observer.step`` and nothing else) and, outside that
@@ -258,7 +260,7 @@ def after_sleep(model, steps: int = 1200, sleep_s: float = 0.0024) -> dict:
     return out
 
 
-ANATOMY = ("dispatch", "at", "at_switch50us", "at_fifo")
+ANATOMY = ("dispatch", "at", "at_switch50us", "at_spin_tail", "at_fifo")
 """``--anatomy``'s conditions, alternated (module docstring)."""
 
 
@@ -295,6 +297,9 @@ def run_anatomy(link, observer, fs_hz: float, seconds: float) -> dict:
             observer._at = () if condition == "dispatch" else bound
             sys.setswitchinterval(5e-5 if condition == "at_switch50us" else switch)
             _fifo(condition == "at_fifo")
+            link.spin = condition == "at_spin_tail"          # rtlift observe --spin 0.5
+            link.on_idle = observer.touch if link.spin else None
+            link.spin_window_s = SPIN_WINDOW_S if link.spin else None
             probe = StepAnatomy(observer, converter, n)
             lost0 = link.counters.lost
             ObserverLoop(probe, probe.converter, link.seq_modulus, fs_hz=fs_hz, max_samples=n).run(
@@ -305,6 +310,7 @@ def run_anatomy(link, observer, fs_hz: float, seconds: float) -> dict:
         observer._at = bound
         sys.setswitchinterval(switch)
         _fifo(False)
+        link.spin, link.on_idle, link.spin_window_s = False, None, None
     tasks = sorted(os.listdir("/proc/self/task")) if os.path.isdir("/proc/self/task") else []
     names = []
     for t in tasks:
