@@ -11,7 +11,8 @@ monitor, the designed controller, the monitor told the reference's steps) tracki
 2 s) from t = 20 s of tracking. Not paced: a 120 s loop takes seconds (the design, once per draw,
 about a minute).
 
-``--clean-seeds K`` runs K clean loops per draw (seeds 5000 + N, then 15000 + N, 25000 + N, ...);
+``--clean-seeds K`` runs K clean loops per draw (seeds 5000 + N, then 15000 + N, 25000 + N, ...;
+``--clean-first J`` starts at 5000 + N + 10000 J);
 ``--adapt`` attaches ``--adapt``'s :class:`~rtlift.app.adapt.Adapter` to every loop (the window
 diagnosed by ``rtlift diagnose`` in another process, niced, the augmented model swapped in at a
 burst onset; a ``structure`` is reported, not swapped, as by default): while a window is being
@@ -187,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", default=None, help="keep each draw's records and model here")
     ap.add_argument("--no-fade", action="store_true")
     ap.add_argument("--clean-seeds", type=int, default=1, help="clean runs per draw (default 1)")
+    ap.add_argument("--clean-first", type=int, default=0,
+                    help="the first clean seed's index j (seed 5000 + N + 10000 j; default 0): more seeds later")
     ap.add_argument("--adapt", action="store_true", help="--adapt on every run (the swap measured)")
     ap.add_argument("--pace", choices=("wall", "cpu"), default="wall",
                     help="the loop's clock while a window is diagnosed (PacedAdapter; default wall)")
@@ -225,7 +228,8 @@ def main(argv: list[str] | None = None) -> int:
             row = {"draw": draw, "model": str(path),
                    "print": {k: v for k, v in ((model.fingerprint or {}).get("monitor") or {}).items()
                              if k not in ("operating_point",)},
-                   "clean": [run(5000 + draw + 10000 * j, (), "clean") for j in range(args.clean_seeds)]}
+                   "clean": [run(5000 + draw + 10000 * j, (), "clean")
+                             for j in range(args.clean_first, args.clean_first + args.clean_seeds)]}
             if not args.no_fade:
                 row["fade"] = run(6000 + draw, (FADE,), "fade")
             row["faults"] = [dict(run(7000 + draw + 10000 * j, (spec,), f"fault{j}"), spec=spec)
