@@ -40,6 +40,9 @@ experiments of one system (each its own run from rest, one cost pooled over them
    fitted on Δy and closed by the integrator (G₂ = 1/(1 − q⁻¹), or G₂/(1 − q⁻¹)), and the one of
    the two with the lower held-out RMSE is kept. A pole at z = 1 in a model fitted on y itself
    is within the parametrisation's reach only to 1 − 10⁻⁷ and drifts over a long record.
+   ``nonlinear_feedback`` has its own integrating variant, friction in the map fed back from the
+   differenced output (:mod:`.feedback`), tried by the first-order linear models' rule
+   (:func:`_integrating_start`).
 
 6. **Multi-start** (``wiener``): where the best linear model holds out no better than the
    estimation data's mean (an even map such as |·| makes the BLA zero, and G₁ cannot be read
@@ -63,7 +66,7 @@ from __future__ import annotations
 import itertools
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import linalg, optimize, signal
@@ -344,6 +347,12 @@ FAILS = (ValueError, ArithmeticError)
 """What a fit that fails numerically raises (LinAlgError is a ValueError): that fit is skipped."""
 
 
+def _too_few(samples: int, left_out: list[str]) -> str:
+    """The note on what a short record cannot support (:data:`PER_COEFFICIENT`)."""
+    return (f"{samples} estimation samples: {' and '.join(left_out)} cannot be estimated from so few "
+            f"(at least {PER_COEFFICIENT} samples per coefficient); not tried")
+
+
 def _as_records(rec: SisoRecord | Sequence[SisoRecord]) -> list[SisoRecord]:
     """The records, each record of several runs (:func:`rtlift.diagnose.sources.join_runs`: a
     diagnosis's ``--train A --train B``) as its runs."""
@@ -387,6 +396,14 @@ def identify_siso(rec: SisoRecord | Sequence[SisoRecord], structure: str = "wien
             raise ValueError(f"{structure} is identified from one record ({len(recs)} given: "
                              f"{', '.join(r.name for r in recs)}); give one")
         (r,), (n_est,) = recs, n_ests
+        notes = []
+        if structure == "nonlinear_feedback":      # a(n), b(n), b₀, k₂, k₃ and the offset: 2n + 4 coefficients
+            budget = (n_est - skip) // PER_COEFFICIENT
+            fitted = tuple(n for n in opt.feedback_orders if 2 * n + 4 <= budget)
+            dropped = [str(n) for n in opt.feedback_orders if n not in fitted]
+            if dropped:
+                notes.append(_too_few(n_est - skip, [f"order{'s' if len(dropped) > 1 else ''} {', '.join(dropped)}"]))
+                opt = replace(opt, feedback_orders=fitted or (min(opt.feedback_orders),))
         ue, ye = r.u[:n_est], r.y[:n_est]
         cost = slice(0, min(n_est, opt.cost_samples))
         fit = identify_store_chain if structure == "store_chain" else identify_feedback
@@ -395,6 +412,8 @@ def identify_siso(rec: SisoRecord | Sequence[SisoRecord], structure: str = "wien
             if structure == "nonlinear_feedback" else ())
         model = fit(*args)
         model.provenance.update(tool="rtlift identify --record", record=name, holdout_fraction=opt.holdout)
+        if notes:
+            model.provenance["notes"] = notes
         model.metrics["train_rmse"] = _rmse(model, ue, ye, skip)
         return model
     # non-finite trials are caught and skipped, and a trial's ill-conditioned numerator is judged by its
@@ -465,8 +484,7 @@ def _identify_w(recs: list[SisoRecord], n_ests: list[int], skip: int, structure:
         left_out.append(f"f on more than {max(knots, 2)} knots")
     orders = orders or (1,)
     if left_out:
-        notes.append(f"{est.u.size - skip * len(recs)} estimation samples: {' and '.join(left_out)} cannot be "
-                     f"estimated from so few (at least {PER_COEFFICIENT} samples per coefficient); not tried")
+        notes.append(_too_few(est.u.size - skip * len(recs), left_out))
     knots = max(knots, 2)
     # the integrating variant (module docstring, 5): fitted on the differenced output, run integrated
     variants = (False, True) if limits == NO_LIMITS else (False,)
