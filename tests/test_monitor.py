@@ -15,6 +15,7 @@ from benchmarks.monitor_null import MODEL, closed_loop
 from rtlift.core.rate import FS_HZ
 from rtlift.model.modelfile import load_model
 from rtlift.observer.monitor import (
+    FIT_T_STRONG,
     THRESHOLDS,
     DepartureMonitor,
     fingerprint_hold_scale,
@@ -92,6 +93,16 @@ def test_bias_and_trend_name_one_level_shift_by_its_evidence_not_their_own_name(
         trend = next(d for d in mon.departures if d["test"] == "trend")
         # the evidence it was named by: the trend's signed slope (ΔCL/s) has the shift's sign
         assert math.copysign(1.0, trend["evidence"]["trend_slope"]) == (-1.0 if name == "actuator_fade" else 1.0)
+
+
+def test_a_rise_is_a_zero_drift_unless_it_follows_the_actuation_beyond_doubt():
+    mon = DepartureMonitor(SIGMA)
+    for fit, change, name in ((("unknown", 0.0), -1e-3, "actuator_fade"), (("offset", 1.0), 1e-3, "zero_drift"),
+                              (("proportional", -0.9 * FIT_T_STRONG), 1e-3, "zero_drift"),
+                              (("proportional", -1.1 * FIT_T_STRONG), 1e-3, "actuator_fade"),
+                              (("proportional", 50.0), -1e-3, "actuator_fade")):
+        mon._fit = fit
+        assert mon.level_suspect(change) == name, (fit, change)
 
 
 def _psd_print(e: np.ndarray) -> dict:

@@ -71,14 +71,14 @@ constants :data:`THRESHOLDS`, set from clean runs of our bench and the independe
 The suspect named with a departure is what the diagnosis would try first (the diagnosis that
 ``--adapt`` runs decides). ``bias``, ``trend`` and ``hold`` see one thing — the residual's level
 moved — and name it by one rule (:meth:`DepartureMonitor.level_suspect`), from the evidence rather
-than the test's name: an ``actuator_fade`` when the residual's block means follow the model's lift
-with a significant negative slope beside an offset and a trend in time (the shift scales with the
-delivered actuation), else by the test's own signed shift: ``actuator_fade`` when the lift fell
-below the model's, ``zero_drift`` when it rose (a fade cannot raise the lift). In a closed loop a
-fade's first seconds are too few blocks for the slope, and the controller raising Cμ as the lift
-falls makes a fade and a falling zero look alike until the next reference step (the fade's part
-scales with the lift, the drift's does not): the name is then the likelier cause on a rig whose
-actuators heat as they run. (On the calibration draws 1 and 2, a fade's first ``bias`` 5 s after
+than the test's name: by the test's own signed shift, ``actuator_fade`` when the lift fell below
+the model's, ``zero_drift`` when it rose (a fade cannot raise the lift), unless the residual's
+block means follow the model's lift beyond doubt (the regression beside an offset and a trend in
+time, t_b ≤ −:data:`FIT_T_STRONG`: the shift scales with the delivered actuation). In a closed
+loop a fade's first seconds are too few blocks for that regression, and the controller raising Cμ
+as the lift falls makes a fade and a falling zero look alike until later reference steps (the
+fade's part scales with the lift, the drift's does not): the name is then the likelier cause on a
+rig whose actuators heat as they run. (On the calibration draws 1 and 2, a fade's first ``bias`` 5 s after
 its onset was named ``zero_drift`` by the earlier rule "the lift moved and the block means did not
 follow"; until issue 46's third pass ``trend`` always named ``zero_drift``, and on the reporting
 draws a fade's ``trend`` departure 9 s after its onset named it so beside the ``bias`` naming the
@@ -111,6 +111,14 @@ THRESHOLDS: Mapping[str, float] = {
 }
 """Set by ``python -m benchmarks.monitor_null --calibrate`` from clean streams (module docstring);
 the values and the runs they came from are in docs/INTERFACES.md ("Live departure monitor")."""
+
+FIT_T_STRONG = 10.0
+"""|t_b| of the block regression beyond which a rise of the residual that follows the model's lift
+is named a fade (:meth:`DepartureMonitor.level_suspect`). Set on calibration draws 1 and 2
+(``benchmarks.monitor_family --draws 1|2 --fault zero_drift:...``, a zero drift of ±4e-4 ΔCL/s
+and of ±0.02 ΔCL with τ = 20 s, and a fade to 70 %): a zero drift's departures reached |t_b| 5.5
+(a rising one's first ``bias`` read "proportional, t_b −3.8"), a fade's departures with a rising
+trend late in the run −38 to −110."""
 
 N_SUMS = 9   # n, Σe, Σe², Σm, Σm², Σem, Σν, Σν², Σν(k)ν(k−1)
 
@@ -599,24 +607,25 @@ class DepartureMonitor:
 
     def level_suspect(self, change: float) -> str:
         """The one naming of a shift of the residual's level, whichever test saw it (``bias``,
-        ``trend``, ``hold``): the evidence, not the statistic's name.
+        ``trend``, ``hold``): the evidence, not the statistic's name. ``change`` is the test's own
+        signed shift (ΔCL, or ΔCL/s for the trend; e = z − ΔCL_m):
 
-        - the residual follows the delivered actuation — the block regression over the trend
-          window (:meth:`_block_slope`) finds its part proportional to the model's lift with
-          t_b ≤ −3: a gain change that lowers the lift, ``actuator_fade``;
-        - else by the sign of ``change`` (the test's own signed shift, in ΔCL: e = z − ΔCL_m):
-          the lift fell below the model's, ``actuator_fade``; it rose, ``zero_drift`` (a fade
-          cannot raise the lift).
+        - the lift fell below the model's (``change`` < 0): ``actuator_fade``;
+        - it rose: ``zero_drift`` (a fade cannot raise the lift) — unless the residual follows
+          the delivered actuation beyond doubt: the block regression over the trend window
+          (:meth:`_block_slope`) finds its part proportional to the model's lift with
+          t_b ≤ −:data:`FIT_T_STRONG` (a fade's residual steps with each reference step, so the
+          sign of its 30-s trend follows the reference's last steps, not the fade).
 
         What this cannot tell: a zero *falling* while a loop holds its operating point. The loop
         raises Cμ to hold the lift either way, so the residual falls as the model's lift rises
-        for both, and a drift's not scaling with the actuation shows only across the next
-        reference step; until then it is named ``actuator_fade`` (the likelier cause on a rig
-        whose actuators heat as they run) and the diagnosis ``--adapt`` runs decides."""
+        for both, and a drift's not scaling with the actuation shows only across later
+        reference steps; it is named ``actuator_fade`` (the likelier cause on a rig whose
+        actuators heat as they run) and the diagnosis ``--adapt`` runs decides."""
         kind, t = self._fit
-        if kind == "proportional" and t < 0:
+        if change < 0 or (kind == "proportional" and t <= -FIT_T_STRONG):
             return ActuatorFadeEffect.name
-        return ActuatorFadeEffect.name if change < 0 else ZeroDriftEffect.name
+        return ZeroDriftEffect.name
 
     def suspect(self, test: str) -> str:
         """The effect a departure of ``test`` points at (its name, :mod:`rtlift.effects`), or what
