@@ -43,8 +43,7 @@ def draws(text: str) -> list[int]:
 
 
 def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
-             targets: object = None) -> dict:
-    from rtlift.app.control import ControlConfig
+             targets: object = None, structure: str = "auto", backoff: float | None = None) -> dict:
     from rtlift.app.control_design import design_loop
     from rtlift.model.modelfile import load_model
 
@@ -59,10 +58,10 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
                 files["sine_k0125"], "-o", path, "--quiet")
     t1 = time.perf_counter()
     model = load_model(path)
-    design = design_loop(model, targets)
+    design = design_loop(model, targets, structure=structure, **({} if backoff is None else {"backoff": backoff}))
     t2 = time.perf_counter()
     point = min(design.points, key=lambda pt: abs(pt.dcl - 0.08))   # a half-way check too: the gains run there
-    config = ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule())
+    config = design.control_config(fs_hz=model.fs_hz)
     res = measure(design.control_model(model), config, point, design.dt, seed=seed, plant_draw=n,
                   frequencies=frequencies)
     res.pop("quiet")
@@ -75,7 +74,8 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             "limit_f6_hz_min": s["limit_f6_hz_min"], "predicted_peak_db_at_0p08": point.peak_s_db,
             "predicted_point_dcl": point.dcl, "predicted_point_scheduled": point.designed,
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
-            "observer": design.observer, "peak_db_target": design.targets.peak_db, **res}
+            "observer": design.observer, "peak_db_target": design.targets.peak_db, "structure": design.structure,
+            "backoff": backoff, **res}
 
 
 def table(rows: list[dict]) -> str:
@@ -111,6 +111,10 @@ def main() -> None:
                     "reuse one found there instead of recording and identifying again")
     ap.add_argument("--peak-db", type=float, help="the design's |S| target (dB; default: the design's own)")
     ap.add_argument("--frequencies", default=",".join(f"{f:g}" for f in FREQUENCIES))
+    ap.add_argument("--structure", default="pi", choices=("auto", "pi", "youla"),
+                    help="the controller the design builds (default pi; auto: the wider predicted band)")
+    ap.add_argument("--backoff", type=float, help="the internal-model controller's fraction of its band "
+                    "(default: the design's own)")
     args = ap.parse_args()
     if args.table:
         rows = [json.loads(line) for path in args.table for line in open(path, encoding="utf-8") if line.strip()]
@@ -120,10 +124,16 @@ def main() -> None:
 
     freqs = tuple(float(f) for f in args.frequencies.split(","))
     results = []
+    done = set()
+    if os.path.exists(args.out):        # resume: a draw already in --out is not run again
+        done = {json.loads(line)["draw"] for line in open(args.out, encoding="utf-8") if line.strip()}
     with tempfile.TemporaryDirectory() as tmp:
         for n in draws(args.draws):
+            if n in done:
+                continue
             r = one_draw(n, tmp, freqs, args.seed, args.keep,
-                         None if args.peak_db is None else Targets(peak_db=args.peak_db))
+                         None if args.peak_db is None else Targets(peak_db=args.peak_db), args.structure,
+                         args.backoff)
             results.append(r)
             with open(args.out, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(r) + "\n")

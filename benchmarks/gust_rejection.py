@@ -141,6 +141,11 @@ def main() -> None:
     ap.add_argument("--pty", metavar="F,F,...", help="also measure these frequencies live over the serial pty")
     ap.add_argument("--design", metavar="REPORT.json", help="a saved design (rtlift design's report.json or the "
                     "cache beside the model) instead of designing")
+    ap.add_argument("--structure", default="pi", choices=("auto", "pi", "youla"),
+                    help="the controller the design builds (default pi; auto: the wider predicted band)")
+    ap.add_argument("--backoff", type=float, help="the internal-model controller's fraction of its band "
+                    "(default: the design's own)")
+    ap.add_argument("--save-design", metavar="JSON", help="write the design made here (report.json's form)")
     args = ap.parse_args()
     model = load_model(args.model)
     t0 = time.perf_counter()
@@ -148,10 +153,15 @@ def main() -> None:
         from rtlift.app.control_design import load_design
         design = load_design(args.design, accept_warnings=True)
     else:
-        design = design_loop(model, None if args.peak_db is None else Targets(peak_db=args.peak_db))
+        extra = {} if args.backoff is None else {"backoff": args.backoff}
+        design = design_loop(model, None if args.peak_db is None else Targets(peak_db=args.peak_db),
+                             structure=args.structure, **extra)
+        if args.save_design:
+            from rtlift.app.control_design import report_doc
+            from rtlift.core.jsonfile import write_json_atomic
+            write_json_atomic(args.save_design, report_doc(design, args.model), stage="design")
     design_s = time.perf_counter() - t0
-    fb_config = (ControlConfig(fs_hz=model.fs_hz) if args.hand
-                 else ControlConfig(fs_hz=model.fs_hz, schedule=design.schedule()))
+    fb_config = (ControlConfig(fs_hz=model.fs_hz) if args.hand else design.control_config(fs_hz=model.fs_hz))
     point = min(design.points, key=lambda pt: abs(pt.dcl - args.level))   # a half-way check: the gains run there
     if args.hand:   # the prediction for the hand-set gains on the same lifted plant
         from rtlift.app.control_design import Gains, check_point
@@ -183,7 +193,7 @@ def main() -> None:
     if args.figure:
         _figure(args.figure, design, point, rows, quiet, args)
     emit({**res, "gains": "hand" if args.hand else "design", "level": args.level, "plant_draw": args.plant_draw,
-          "amplitude": args.amplitude, "peak_db_target": design.targets.peak_db,
+          "amplitude": args.amplitude, "peak_db_target": design.targets.peak_db, "structure": design.structure,
           "loop": "in-process (InProcessTracking)",
           "f6_hz_predicted": point.f6_hz, "limit_f6_hz": point.limit_f6_hz,
           "design": {"gm_db": point.gm_db, "pm_deg": point.pm_deg, "crossover_hz": point.crossover_hz,

@@ -40,6 +40,20 @@ A two-degree-of-freedom variant (feedback on the model's expected response to th
 feedforward instead of the reference) settled in 0.45 s but only reached a ratio of 0.66: the
 error on the ``r`` side also buys back part of the plant's own lag, so plain PI is the default.
 
+The internal-model controller (``ControlConfig.youla``; :class:`~rtlift.app.control_design.YoulaGains`).
+Instead of the PI, at each decision k (ΔCL units, e = r − ΔĈL: e_A on the period's mean, e_X on
+the latest estimate)
+
+    ê_A[k] = e_A[k] + Σ_{j≥1} P̂_A[j] w[k−j],   ê_X[k] = e_X[k] + Σ_{j≥1} P̂_X[j] w[k−j]
+    w[k] = Σ_i Q_A[i] ê_A[k−i] + Q_X[i] ê_X[k−i],      v = r + w
+
+i.e. K = Q/(1 − Q_A P̂_A − Q_X P̂_X) on (e_A, e_X): the model's response to the controller's own
+past outputs is added back to the error (what is left is the disturbance), and the Youla
+parameter Q, designed by a linear programme on the lifted plant P̂, acts on it. Every state is a
+finite history (P̂ and Q are FIR at the burst rate); the taps are interpolated in Cμ between the
+schedule's rows (held beyond them), as the PI's gains; w is stored as applied after the map's
+limits, so a reference beyond reach winds nothing up (the model sees the output it really had).
+
 :meth:`LiftController.step` allocates nothing and does no I/O: call it once per sample; it
 decides a new envelope every ``period`` samples (``updated`` is true then: send it).
 """
@@ -83,6 +97,10 @@ class ControlConfig:
     lead_pole: float = 0.0
     kx: float = 0.0
     schedule: tuple[tuple[float, float, float, float, float, float], ...] = ()
+    youla: tuple[tuple[Any, ...], ...] = ()
+    """Rows ``(Cμ, Q_A taps, Q_X taps, P_A taps, P_X taps)`` in increasing Cμ: the internal-model
+    (Youla) controller instead of the PI (:class:`LiftController`, "The internal-model controller";
+    :mod:`rtlift.app.control_design` designs them). Empty: the PI."""
 
     def __post_init__(self) -> None:
         for name in ("kp", "ti_s", "cmu_max", "fs_hz"):
@@ -101,13 +119,25 @@ class ControlConfig:
                                  f"{(kp, ti, a, b, kx)!r}")
         if any(r1[0] >= r2[0] for r1, r2 in zip(self.schedule, self.schedule[1:], strict=False)):
             raise ValueError("control schedule: Cμ must increase from row to row")
+        shapes = {tuple(len(t) for t in row[1:]) for row in self.youla if len(row) == 5}
+        if self.youla and (len(shapes) != 1 or any(len(r) != 5 for r in self.youla)):
+            raise ValueError("control youla rows are (cmu, qa, qx, pa, px) with the same tap counts in every row")
+        for row in self.youla:
+            nq, nx, npa, npx = (len(t) for t in row[1:])
+            if nq != nx or npa != npx or nq < 1 or npa < 1 or not all(
+                    math.isfinite(float(v)) for t in row[1:] for v in t) or not math.isfinite(float(row[0])):
+                raise ValueError(f"control youla row at Cμ {row[0]!r}: Q_A, Q_X and P_A, P_X must be finite and "
+                                 "of equal lengths")
+        if any(r1[0] >= r2[0] for r1, r2 in zip(self.youla, self.youla[1:], strict=False)):
+            raise ValueError("control youla rows: Cμ must increase from row to row")
 
 
 def gains_text(cfg: ControlConfig) -> str:
     """The feedback gains of ``cfg`` as one line of JSON (a command log's ``gains`` metadata:
     ``rtlift replay`` rebuilds the same controller from it, floats exact)."""
     return json.dumps({"kp": cfg.kp, "ti_s": cfg.ti_s, "lead_zero": cfg.lead_zero, "lead_pole": cfg.lead_pole,
-                       "kx": cfg.kx, "schedule": [list(row) for row in cfg.schedule]})
+                       "kx": cfg.kx, "schedule": [list(row) for row in cfg.schedule],
+                       "youla": [[row[0], *(list(t) for t in row[1:])] for row in cfg.youla]})
 
 
 def config_from_gains_text(text: str, feedback: bool, fs_hz: float) -> ControlConfig:
@@ -117,9 +147,28 @@ def config_from_gains_text(text: str, feedback: bool, fs_hz: float) -> ControlCo
         return ControlConfig(kp=float(d["kp"]), ti_s=float(d["ti_s"]), lead_zero=float(d["lead_zero"]),
                              lead_pole=float(d["lead_pole"]), kx=float(d["kx"]),
                              schedule=tuple(tuple(float(v) for v in row) for row in d["schedule"]),
-                             feedback=feedback, fs_hz=fs_hz)
+                             youla=youla_rows(d.get("youla", ())), feedback=feedback, fs_hz=fs_hz)
     except (ValueError, KeyError, TypeError) as exc:
         raise UserError(f"control gains {text[:60]!r}: not valid ({exc})") from None
+
+
+def youla_rows(rows: Any) -> tuple[tuple[Any, ...], ...]:
+    """``(Cμ, Q_A, Q_X, P_A, P_X)`` rows as tuples of floats (from JSON lists)."""
+    return tuple((float(r[0]), *(tuple(float(v) for v in t) for t in r[1:])) for r in rows)
+
+
+def youla_at(rows: Any, cmu: float, out: list[list[float]]) -> None:
+    """The internal-model controller's taps at ``cmu`` into ``out`` (four lists: Q_A, Q_X, P_A,
+    P_X), linear in Cμ between rows, held beyond them (as the PI schedule); no allocation."""
+    j = 1
+    while j < len(rows) - 1 and cmu >= rows[j][0]:
+        j += 1
+    lo, hi = rows[max(j - 1, 0)], rows[min(j, len(rows) - 1)]
+    w = 0.0 if hi[0] <= lo[0] else min(max((cmu - lo[0]) / (hi[0] - lo[0]), 0.0), 1.0)
+    for k in range(4):
+        a, b, o = lo[k + 1], hi[k + 1], out[k]
+        for i in range(len(o)):
+            o[i] = a[i] + w * (b[i] - a[i])
 
 
 def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> float:
@@ -166,6 +215,9 @@ class LiftController:
         self.dcl_max = self._map_dcl[-1]
         self._rows = [tuple(float(v) for v in row) for row in cfg.schedule]
         self._set_gains(cfg.kp, cfg.ti_s, cfg.lead_zero, cfg.lead_pole, cfg.kx)
+        self._youla = youla_rows(cfg.youla)
+        self._taps = [[0.0] * len(t) for t in self._youla[0][1:]] if self._youla else []
+        """Q_A, Q_X, P_A, P_X in force (:func:`youla_at`), filled in place at each decision."""
         self.reset()
 
     def _set_gains(self, kp: float, ti_s: float, a: float, b: float, kx: float) -> None:
@@ -205,6 +257,8 @@ class LiftController:
         self.saturated = False
         """Whether the last decision sat at an actuator limit."""
         self.updated = False
+        self.feedback_dcl = 0.0
+        """The last decision's feedback v − r (ΔCL, after the limits)."""
         self._filtered = 0.0
         """The lead–lag's output (ΔCL), what the PI acts on."""
         self._last_err = 0.0
@@ -215,6 +269,14 @@ class LiftController:
         self._ref_sum = 0.0
         self._ref_n = 0
         self._n = 0
+        nq, npl = (len(self._taps[0]), len(self._taps[2])) if getattr(self, "_taps", None) else (0, 0)
+        self._w_hist = [0.0] * npl
+        """The internal-model controller's past outputs w = v − r as applied (after the limits), a ring."""
+        self._ea_hist = [0.0] * nq
+        """Its past corrected errors ê_A = e_A + P_A w (the disturbance's estimate, negated), a ring."""
+        self._ex_hist = [0.0] * nq
+        self._w_pos = 0
+        self._e_pos = 0
 
     def carry_from(self, other: LiftController) -> None:
         """Take over ``other``'s integrator, last decision and place in the period (a model swap
@@ -262,7 +324,9 @@ class LiftController:
         ref = self._ref_sum / self._ref_n
         self.feedforward = self.inverse(ref)
         v = ref
-        if cfg.feedback and self._n:
+        if cfg.feedback and self._n and self._youla:
+            v = ref + self._youla_step(self._err_sum / self._n, ref - self._point, ref)
+        elif cfg.feedback and self._n:
             if self._rows:
                 self._schedule_at(self.feedforward)
             e = self._err_sum / self._n
@@ -280,6 +344,8 @@ class LiftController:
                 self.integral = min(max(self.integral, -span), span)
                 v = ref + self.kp * err + fast + self.integral
         self.saturated = v >= self.dcl_max or v <= self.dcl_min
+        if not self._youla:          # the internal-model controller's step sets it exactly (w)
+            self.feedback_dcl = min(max(v, self.dcl_min), self.dcl_max) - ref
         self.envelope = self.inverse(v)
         self._count = 0
         self._err_sum = 0.0
@@ -289,3 +355,32 @@ class LiftController:
         self._n = 0
         self.updated = True
         return self.envelope
+
+    def _youla_step(self, e_a: float, e_x: float, ref: float) -> float:
+        """The internal-model controller's decision (module docstring): w = Σ_i Q_A[i] ê_A[k−i] +
+        Q_X[i] ê_X[k−i] with ê = e + Σ_{j≥1} P[j] w[k−j] (the errors corrected by the model's
+        response to the controller's own past outputs), w clamped so that r + w stays in the map's
+        range and stored as applied (no windup). Returns w (ΔCL)."""
+        youla_at(self._youla, self.feedforward, self._taps)
+        qa, qx, pa, px = self._taps
+        wh, npl = self._w_hist, len(self._w_hist)
+        for j in range(1, npl):
+            wj = wh[(self._w_pos - j) % npl]
+            e_a += pa[j] * wj
+            e_x += px[j] * wj
+        nq = len(self._ea_hist)
+        self._ea_hist[self._e_pos] = e_a
+        self._ex_hist[self._e_pos] = e_x
+        w = 0.0
+        for i in range(nq):
+            k = (self._e_pos - i) % nq
+            w += qa[i] * self._ea_hist[k] + qx[i] * self._ex_hist[k]
+        self._e_pos = (self._e_pos + 1) % nq
+        if ref + w > self.dcl_max:
+            w = self.dcl_max - ref
+        elif ref + w < self.dcl_min:
+            w = self.dcl_min - ref
+        wh[self._w_pos] = w
+        self._w_pos = (self._w_pos + 1) % npl
+        self.feedback_dcl = w
+        return w

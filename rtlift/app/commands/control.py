@@ -159,8 +159,9 @@ def control_config(model, feedback: bool, kp: float | None, ti: float | None,
 
         saved = load_design(design_file, accept_warnings=accept_warnings)
         schedule = saved.schedule()
-        return (ControlConfig(feedback=feedback, fs_hz=model.fs_hz, schedule=schedule),
-                {"source": f"design file {design_file}", "schedule": [list(r) for r in schedule],
+        return (saved.control_config(feedback, model.fs_hz),
+                {"source": f"design file {design_file}", "structure": saved.structure,
+                 "schedule": [list(r) for r in schedule],
                  "observer_q_bias": (saved.observer or {}).get("q_bias")})
     if kp is not None or ti is not None:
         base = ControlConfig()
@@ -177,8 +178,9 @@ def control_config(model, feedback: bool, kp: float | None, ti: float | None,
     from rtlift.app.control_design import cached_design
 
     design, source = cached_design(model, model_path, accept_warnings)
-    return (ControlConfig(feedback=True, fs_hz=model.fs_hz, schedule=design.schedule()),
-            {"source": source, **design.summary(), "schedule": [list(r) for r in design.schedule()],
+    return (design.control_config(True, model.fs_hz),
+            {"source": source, "structure": design.structure, **design.summary(),
+             "schedule": [list(r) for r in design.schedule()],
              "observer_q_bias": (design.observer or {}).get("q_bias")})
 
 

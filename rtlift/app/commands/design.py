@@ -32,6 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
     p.add_argument("--gm-db", type=float, default=6.0, help="gain margin at least (dB, default 6)")
     p.add_argument("--pm-deg", type=float, default=45.0, help="phase margin at least (degrees, default 45)")
+    p.add_argument("--structure", default="pi", choices=("auto", "pi", "youla"),
+                   help="the controller: pi (default: PI + lead-lag + K_x), youla (the internal-model controller from "
+                        "the Youla parameter) or auto (the one with the wider predicted band that meets every target)")
     p.add_argument("--peak-db", type=float,
                    help="largest predicted |S| at any frequency (dB; default: the target set on the plant "
                         "family's calibration draws, docs/results/control.md)")
@@ -50,12 +53,13 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--{name.replace('_', '-')} must be in [{lo:g}, {hi:g}], got {v:g}")
     model = load_model(args.model)
     targets = Targets(args.gm_db, args.pm_deg, args.peak_db)
-    design = design_loop(model, targets)
+    design = design_loop(model, targets, structure=args.structure)
     write_report(design, args.out, str(args.model))
     s = design.summary()
     gm = "inf" if s["gm_db_min"] is None else f"{s['gm_db_min']:.1f}"
     limit = "n/a" if s["limit_f6_hz_min"] is None else f"{s['limit_f6_hz_min']:.3f}"
-    print(f"rtlift design: {len(design.scheduled)} scheduled points, {len(design.points)} checked; gain margin "
+    print(f"rtlift design: {design.structure} controller, {len(design.scheduled)} scheduled points, "
+          f"{len(design.points)} checked; gain margin "
           f">= {gm} dB, phase margin >= {s['pm_deg_min']:.1f} deg (every crossover to Nyquist), |S| <= "
           f"{s['peak_s_db_max']:+.2f} dB, max |W T| {s['robust_max']:.2f}; 6 dB of rejection up to >= "
           f"{s['f6_hz_min']:.3f} Hz (limit for any causal controller: {limit} Hz) -> {args.out}")
@@ -87,12 +91,17 @@ def _markdown(design, doc: dict, model: str) -> str:
              f"targets: gain margin >= {t.gm_db:g} dB (up and down), phase margin >= {t.pm_deg:g} deg, "
              f"|S| <= {t.peak_db:g} dB (the loop's and the gust's with the observer), robust stability "
              f"max |W T| < 1 with W = {u.gain:.2f} + {1 + u.gain:.2f} |1 - exp(-j w {u.delay_s:g} s)| ({u.source}). "
-             "v - r = C(Z) e_mean + Kx (e_last - e_mean), C(Z) = (Kp + Ki Z/(Z-1)) g (Z-a)/(Z-b), "
-             "in ΔCL per ΔCL. Margins from every crossover of L up to Nyquist (4 Hz) on a 2000-point grid; "
+             + ("v - r = C(Z) e_mean + Kx (e_last - e_mean), C(Z) = (Kp + Ki Z/(Z-1)) g (Z-a)/(Z-b), "
+                if design.structure == "pi" else
+                "the internal-model controller v - r = w = Q_A ê_mean + Q_X ê_last, ê = e + P w (Q: FIR taps in "
+                "report.json; K = Q/(1 - Q P)); ")
+             + "in ΔCL per ΔCL. Margins from every crossover of L up to Nyquist (4 Hz) on a 2000-point grid; "
              "rows marked 'check' are half-way between scheduled points, at the interpolated gains.", "",
              "**Targets missed:** " + ("none" if not s["violations"] else ""), ""]
     lines += [f"- {v}" for v in s["violations"]]
-    lines += ["", "| Cμ | ΔCL | Kp | Ti (s) | a | b | Kx | GM up/down (dB) | PM (deg) | gain crossovers (Hz) "
+    head = ("Kp | Ti (s) | a | b | Kx" if design.structure == "pi" else
+            "Q_A(1) | sum abs Q_A | Q_X(-1) | gain at 4 Hz | -")
+    lines += ["", f"| Cμ | ΔCL | {head} | GM up/down (dB) | PM (deg) | gain crossovers (Hz) "
               "| max abs S (dB) at (Hz) | max abs W T | f6 (Hz) | limit f6 (Hz) |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in design.points:
@@ -100,8 +109,11 @@ def _markdown(design, doc: dict, model: str) -> str:
         gm = "/".join("inf" if not math.isfinite(v) else f"{v:.1f}" for v in (m.gm_db, m.gm_low_db))
         xs = ", ".join(f"{fc:.2f}" for fc, _ in m.gain_crossovers)
         lim = "check" if not p.designed else ("n/a" if p.limit_f6_hz is None else f"{p.limit_f6_hz:.3f}")
-        lines.append(f"| {p.cmu:.4f} | {p.dcl:.3f} | {p.gains.kp:.3f} | {design.dt / p.gains.ki:.3f} | "
-                     f"{p.gains.a:.3f} | {p.gains.b:.3f} | {p.gains.kx:.3f} | {gm} | {p.pm_deg:.1f} | {xs} | "
+        g = p.gains
+        cols = ((g.kp, design.dt / g.ki, g.a, g.b, g.kx) if design.structure == "pi" else
+                (sum(g.qa), sum(map(abs, g.qa)), sum(v * (-1) ** k for k, v in enumerate(g.qx)), g.nyquist_gain(), 0.0))
+        lines.append(f"| {p.cmu:.4f} | {p.dcl:.3f} | " + " | ".join(f"{v:.3f}" for v in cols) + f" | {gm} | "
+                     f"{p.pm_deg:.1f} | {xs} | "
                      f"{p.peak_s_db:+.2f} at {m.peak_s_hz:.2f} | {m.robust:.2f} | {p.f6_hz:.3f} | {lim} |")
     ps = doc["predicted_s_db"]
     lines += ["", "Predicted gust map |S_o| = |1 - F_o T| (dB) at the gust frequencies:", "",
