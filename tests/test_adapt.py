@@ -3,7 +3,13 @@ steps on the simulated bench while an actuator fade the model is not told about 
 t = 20 s of tracking (to 70 %, on-time constant 2 s); the monitor raises a departure, another
 process diagnoses the window, the augmented model is swapped in at a burst onset, and
 ``rtlift replay`` of the log makes the same swap at the same sample and sends the same commands
-bit for bit. The same loop without the fade, beside it, raises nothing and swaps nothing."""
+bit for bit. The same loop without the fade, beside it, raises nothing and swaps nothing.
+
+What a loaded machine does to it: the diagnosis runs niced in another process, and on a machine
+that gives it little CPU it can end after the 120 s run. The run's end then waits for it
+(:data:`rtlift.app.adapt.END_WAIT_S`), so the summary still says what the window's diagnosis
+accepted; the test checks that first (the fade accepted), then the swap within the run, and a
+swap missed for the run's end fails with the diagnosis's own reason, not with "no swap"."""
 
 from __future__ import annotations
 
@@ -59,8 +65,12 @@ def test_the_fade_is_raised_and_the_loop_adapts_to_it(runs):
     # its lift between reference steps, and the residual moves when the actuators fade)
     assert deps[0]["t_s"] <= onset + 10.0, deps
     assert deps[0]["suspect"] == "actuator_fade", deps
+    # the first window's diagnosis accepts the fade (waited for at the run's end if it was still running)
+    first = s["adaptations"][0] if s["adaptations"] else {}
+    assert "actuator_fade" in (first.get("accepted") or []), s["adaptations"]
+    # and it was swapped in within the run (else: its reason, e.g. the run ended before the swap)
     swaps = [a for a in s["adaptations"] if a.get("swapped")]
-    assert swaps, s["adaptations"]
+    assert swaps, [(a.get("accepted"), a.get("reason")) for a in s["adaptations"]]
     assert "actuator_fade" in swaps[0]["accepted"]
     assert swaps[0]["rmse_after"] < swaps[0]["rmse_before"]
     doc = json.loads(Path(swaps[0]["model_file"]).read_text())
