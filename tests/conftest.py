@@ -3,23 +3,54 @@
 
 from __future__ import annotations
 
+import os
 import signal
 
 import numpy as np
 import pytest
 
+CPU_NICE = 10
+"""The niceness of a worker while it runs a computing test (every test not marked ``pty``)."""
+
+
+def _favour_realtime() -> bool:
+    """Whether a worker can hand the cores back to a real-time test after a computing one: only a
+    privileged process may lower its niceness again (CI runs as root)."""
+    return hasattr(os, "geteuid") and os.geteuid() == 0 and hasattr(os, "setpriority")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (pyproject.toml): one worker per core, and one more where the real-time tests
+    can be favoured (:func:`pytest_runtest_setup`). The real-time group is one worker's for the
+    whole run (:func:`pytest_collection_modifyitems`) and mostly waits on the clock; without the
+    extra worker a core idles under it. ``PYTEST_XDIST_AUTO_NUM_WORKERS`` still wins."""
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return cores + 1 if _favour_realtime() else cores
+
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
-    """The suite runs in two pytest-xdist workers (``-n 2 --dist loadgroup``, pyproject.toml):
+    """The suite runs in pytest-xdist workers (``-n auto --dist loadgroup``, pyproject.toml):
     every test over real pseudo-terminals (marked ``pty``: a simulated device paced by the wall
     clock, a host reading it at 400 Hz) in one group, run one after another by one worker, so
-    that no two real-time runs share the two cores; every other module whole in a group of its
-    own, so that its module fixtures are built once. The real-time group waits mostly on the
-    clock, the other worker computes meanwhile. (Before xdist's own hook, which reads the marks.)"""
+    that no two real-time runs share the cores; every other module whole in a group of its
+    own, so that its module fixtures are built once. (Before xdist's own hook, which reads the marks.)"""
     for item in items:
         group = "realtime" if item.get_closest_marker("pty") else item.nodeid.split("::")[0]
         item.add_marker(pytest.mark.xdist_group(group))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """A computing test runs at niceness :data:`CPU_NICE`, a real-time one at 0 (and every process
+    it starts, which inherits it), so that the scheduler gives the simulated device and the host's
+    400 Hz loop a core the moment they wake, however busy the computing workers are. Only where a
+    worker can lower its niceness again (:func:`_favour_realtime`); elsewhere nothing changes."""
+    if _favour_realtime():
+        os.setpriority(os.PRIO_PROCESS, 0, 0 if item.get_closest_marker("pty") else CPU_NICE)
 
 
 @pytest.fixture
