@@ -240,7 +240,7 @@ def _refine_kernel(model: HybridModel, train: Record, n_est: int, skip: int,
                          opt.structure_tolerance)
 
 
-def choose_structure(fits: list[_StructureFit], tolerance: float) -> _StructureFit:
+def _simplest_near_best(fits: list[_StructureFit], tolerance: float) -> _StructureFit:
     """The simplest structure within ``tolerance`` of the best held-out RMSE: the paper's form
     before the textbook one, then the smallest dead time (parsimony, Ljung §16.4)."""
     best = min(f.holdout_rmse for f in fits)
@@ -285,7 +285,7 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
               for form in forms for d in dead_times]
     require_finite("structure search (high-pass, Wiener order)", train_rec.name,
                    holdout_rmse=[f.holdout_rmse for f in scored])
-    pick = choose_structure(scored, opt.structure_tolerance)
+    pick = _simplest_near_best(scored, opt.structure_tolerance)
     fit = first[pick.form] if pick.dead_time == dead_times[0] else \
         _fit_structure(static, kernel, data(pick.dead_time), opt, pick.form, pick.dead_time, skip, fs)
     form, dead_time, hp, refine, choice = fit.form, fit.dead_time, fit.hp, fit.refine, fit.choice
