@@ -67,17 +67,19 @@ def model_steps(model, cmu: np.ndarray, env: np.ndarray) -> np.ndarray:
 
 
 def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int = 2, delay: int = 0,
-                      output_form: bool = False, fs_hz: float = FS_HZ) -> HybridModel:
+                      output_form: bool = False, fs_hz: float = FS_HZ, hp_order: int | None = None) -> HybridModel:
     """A random model of the ``interaction`` structure (:mod:`rtlift.blocks.interaction`):
     ΔCL = G_H(m) HF(c) + G(m) (c − HF(c)) + S(u) u + N(u) C x (or f(C x), ``output_form``), u
     the delivered envelope (in half the models through a static map, ``lift``), its input
-    ``delay`` samples late."""
+    ``delay`` samples late; the burst part's high-pass filter of order ``hp_order`` (1–4; drawn
+    when None, as before it was a parameter)."""
     tau = float(rng.uniform(0.02, 1.0))
     duty = float(rng.uniform(0.05, 0.5))
     knots = np.array([0.0, 0.002, 0.006, 0.012, 0.022])
     burst = InteractionConvolution(rng.normal(size=kernel_len) * np.exp(-np.arange(kernel_len) / 12.0),
                                    float(rng.uniform(20, 120)),
-                                   HighPassFilter.design(int(rng.integers(1, 5)), float(rng.uniform(0.5, 8)), fs_hz),
+                                   HighPassFilter.design(hp_order or int(rng.integers(1, 5)),
+                                                         float(rng.uniform(0.5, 8)), fs_hz),
                                    knots, rng.uniform(0.2, 1.2, knots.size), rng.uniform(-0.2, 1.0, knots.size),
                                    DeliveredMomentum(tau, duty, fs_hz), rng.uniform(-5.0, 5.0, knots.size))
     A = random_stable_A(rng, order)

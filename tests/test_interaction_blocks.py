@@ -21,12 +21,18 @@ from testkit.synthetic import OUTPUT_STAGES, burst_input, interaction_model, mod
 TOL = 1e-12
 
 
+SHAPES = ((1, 1), (2, 2), (3, 3), (4, 2))
+"""(high-pass order, LTI order) pairs: every order of each, in 4 of the 12 pairs. The batch is
+compiled once per state size (:func:`rtlift.blocks.compiled.state_slots`), ≈ 5–10 s each from an
+empty cache: drawing the pairs freely compiled 11–16 batches in this test alone."""
+
+
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), kernel_len=st.integers(1, 60),
-       order=st.integers(1, 3), period=st.integers(5, 300))
-def test_interaction_model_step_equals_simulate(seed, n, kernel_len, order, period):
+       shape=st.sampled_from(SHAPES), period=st.integers(5, 300))
+def test_interaction_model_step_equals_simulate(seed, n, kernel_len, shape, period):
     rng = np.random.default_rng(seed)
-    m = interaction_model(rng, kernel_len, order)
+    m = interaction_model(rng, kernel_len, shape[1], hp_order=shape[0])
     cmu, env = burst_input(rng, n, period=period)
     streamed = model_steps(m, cmu, env)
     after_steps = m.get_state()
