@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -224,3 +225,31 @@ def write_record(path: str | os.PathLike, record: Record) -> None:
         f.write(",".join(name for name, _ in cols) + "\n")
         table = np.column_stack([np.asarray(v, dtype=float) for _, v in cols])
         np.savetxt(f, table, delimiter=",", fmt="%.17g")
+
+
+RUNS = "runs"
+"""A joined record's metadata key (:func:`join_runs`): JSON ``[[stem, first sample], …]``, one per run."""
+
+
+def join_runs(recs: list[SisoRecord]) -> SisoRecord:
+    """Several generic records of one system as one record of several runs, each its own
+    experiment from rest (``rtlift diagnose --train A --train B``): u, y concatenated, time
+    continued, each run's stem and first sample in ``meta[RUNS]`` (:func:`split_runs` gives them back;
+    every fit treats each run from rest, one cost); named by the stems joined with ``+``."""
+    fs = recs[0].fs_hz
+    starts = np.cumsum([0] + [len(r) for r in recs[:-1]])
+    t = np.concatenate([r.t - r.t[0] + k / fs for r, k in zip(recs, starts, strict=True)])
+    meta = {"fs_hz": repr(fs), RUNS: json.dumps([[r.name, int(k)] for r, k in zip(recs, starts, strict=True)])}
+    return SisoRecord(t, np.concatenate([r.u for r in recs]), np.concatenate([r.y for r in recs]), meta,
+                      "+".join(r.name for r in recs))
+
+
+def split_runs(rec: SisoRecord) -> list[SisoRecord]:
+    """The runs of a record :func:`join_runs` made (each under its own stem); any other record alone."""
+    if RUNS not in rec.meta:
+        return [rec]
+    runs = json.loads(rec.meta[RUNS])
+    bounds = [k for _, k in runs] + [len(rec)]
+    meta = {k: v for k, v in rec.meta.items() if k != RUNS}
+    return [SisoRecord(rec.t[lo:hi], rec.u[lo:hi], rec.y[lo:hi], dict(meta), name)
+            for (name, lo), hi in zip(runs, bounds[1:], strict=True)]

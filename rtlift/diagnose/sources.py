@@ -9,15 +9,12 @@ than the model's are one-line :class:`~rtlift.core.errors.UserError` s.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from rtlift.core.errors import UserError
-from rtlift.core.records import Record, SisoRecord, read_record, read_siso_record, record_kind
+from rtlift.core.records import Record, SisoRecord, join_runs, read_record, read_siso_record, record_kind
 from rtlift.core.split import MIN_TRAIN_S, MIN_VALIDATE_S, SPLIT_DEFAULT
 
 MIN_PART = 50
@@ -79,34 +76,6 @@ def read_all(records: list[Any], model: Any, generic: bool, min_samples: int,
     if dup:
         raise UserError(f"two records share the stem {sorted(dup)[0]!r}; the results are keyed by stem")
     return recs
-
-
-RUNS = "runs"
-"""A joined record's metadata key (:func:`join_runs`): JSON ``[[stem, first sample], …]``, one per run."""
-
-
-def join_runs(recs: list[SisoRecord]) -> SisoRecord:
-    """Several generic records of one system as one record of several runs, each its own
-    experiment from rest (``rtlift diagnose --train A --train B``): u, y concatenated, time
-    continued, each run's stem and first sample in ``meta[RUNS]`` (:func:`split_runs` gives them back;
-    every fit treats each run from rest, one cost); named by the stems joined with ``+``."""
-    fs = recs[0].fs_hz
-    starts = np.cumsum([0] + [len(r) for r in recs[:-1]])
-    t = np.concatenate([r.t - r.t[0] + k / fs for r, k in zip(recs, starts, strict=True)])
-    meta = {"fs_hz": repr(fs), RUNS: json.dumps([[r.name, int(k)] for r, k in zip(recs, starts, strict=True)])}
-    return SisoRecord(t, np.concatenate([r.u for r in recs]), np.concatenate([r.y for r in recs]), meta,
-                      "+".join(r.name for r in recs))
-
-
-def split_runs(rec: SisoRecord) -> list[SisoRecord]:
-    """The runs of a record :func:`join_runs` made (each under its own stem); any other record alone."""
-    if RUNS not in rec.meta:
-        return [rec]
-    runs = json.loads(rec.meta[RUNS])
-    bounds = [k for _, k in runs] + [len(rec)]
-    meta = {k: v for k, v in rec.meta.items() if k != RUNS}
-    return [SisoRecord(rec.t[lo:hi], rec.u[lo:hi], rec.y[lo:hi], dict(meta), name)
-            for (name, lo), hi in zip(runs, bounds[1:], strict=True)]
 
 
 def records(train: Any, validate: list[Any], model: Any, generic: bool, skip: int = 0,

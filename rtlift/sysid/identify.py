@@ -73,9 +73,8 @@ from scipy import linalg, optimize, signal
 
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
-from rtlift.core.records import SisoRecord
+from rtlift.core.records import SisoRecord, split_runs
 from rtlift.core.threads import one_blas_thread
-from rtlift.diagnose.sources import split_runs
 from rtlift.identify.poles import denominator_from_theta, theta_from_poles
 from rtlift.model.siso import INTEGRATOR, LIMITED, STRUCTURES, SaturatedModel, SisoModel, listed
 from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions, _limited, _pooled_rmse, _rmse
@@ -354,7 +353,7 @@ def _too_few(samples: int, left_out: list[str]) -> str:
 
 
 def _as_records(rec: SisoRecord | Sequence[SisoRecord]) -> list[SisoRecord]:
-    """The records, each record of several runs (:func:`rtlift.diagnose.sources.join_runs`: a
+    """The records, each record of several runs (:func:`rtlift.core.records.join_runs`: a
     diagnosis's ``--train A --train B``) as its runs."""
     recs = [part for r in ([rec] if isinstance(rec, SisoRecord) else list(rec)) for part in split_runs(r)]
     if not recs:
