@@ -9,7 +9,7 @@ import signal
 import numpy as np
 import pytest
 
-CPU_NICE = 10
+CPU_NICE = 19
 """The niceness of a worker while it runs a computing test (every test not marked ``pty``)."""
 
 
