@@ -122,7 +122,7 @@ def monitor_record(model, rec: Record, thresholds: dict | None = None, history: 
     step, mstep = obs.step, mon.step
     for c, v, z in zip(rec.cmu.tolist(), rec.cmu_envelope.tolist(), rec.dcl.tolist(), strict=True):
         est = step(c, v, z)
-        mstep(z, est.model_dcl, est.innovation)
+        mstep(z, est.model_dcl, est.innovation, v)
     return mon
 
 

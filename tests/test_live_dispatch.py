@@ -61,8 +61,8 @@ class Monitor:
         self.calls: list[tuple] = []
         self.log = log
 
-    def step(self, dcl, model_dcl, innovation) -> None:
-        self.calls.append((dcl, model_dcl, innovation))
+    def step(self, dcl, model_dcl, innovation, envelope) -> None:
+        self.calls.append((dcl, model_dcl, innovation, envelope))
         self.log.append("monitor")
 
 
@@ -118,7 +118,7 @@ def test_the_rows_say_what_kind_of_step_made_them(run):
 
 def test_the_monitor_the_adapter_and_the_tap_get_their_parts_of_the_row(run):
     rows = run.first.rows
-    assert run.monitor.calls == [(r[6], r[8], r[9]) for r in rows]
+    assert run.monitor.calls == [(r[6], r[8], r[9], r[5]) for r in rows]
     assert run.swapper.after == [(r[0], r[4], r[5], r[6]) for r in rows]    # bridged rows too
     assert [i for i, _ in run.swapper.before] == [0, 1, 2, 5, 6, 7, 13, 14]  # received samples only
     tap = list(run.tap)

@@ -158,18 +158,19 @@ def test_a_narrow_line_is_named_with_its_frequency():
 
 
 def test_the_step_allocates_no_array():
-    mon = DepartureMonitor(SIGMA)
-    for _ in range(500):
-        mon.step(0.1, 0.1, 0.0)
+    mon = DepartureMonitor(SIGMA, input_gain=10.0)
+    for _ in range(450):
+        mon.step(0.1, 0.1, 0.0, 0.01)
     tracemalloc.start()
     before = tracemalloc.take_snapshot()
-    for k in range(300):                            # inside one block: no evaluation
-        mon.step(0.1 + 1e-3 * k, 0.1, 1e-3)
+    for k in range(300):                            # inside one block: no evaluation; the input jumps
+        mon.step(0.1 + 1e-3 * k, 0.1, 1e-3, 0.01 * (k % 2))
     after = tracemalloc.take_snapshot()
     tracemalloc.stop()
     grown = sum(s.size_diff for s in after.compare_to(before, "filename") if s.size_diff > 0
                 and "monitor.py" in str(s.traceback))
     assert grown < 512
+    assert mon._jump_at == 749 and mon._jump_size == pytest.approx(0.1)   # seen, applied at the block's end
 
 
 @pytest.fixture(scope="module")

@@ -71,6 +71,18 @@ def test_no_window_holding_a_step_or_the_start_is_judged():
     assert told.departures == [], told.departures
     assert told.evaluations == blind.evaluations == 120 - 6 + 1
     assert told.last["level"] == pytest.approx(1.0, abs=0.15)    # what is judged is the clean part
+    # an open loop: nobody tells the steps, the monitor sees them in the input (envelope = m / G),
+    # through the same hold-off — the same windows judged, nothing raised
+    gain = 10.0
+    seen = monitor_arrays(DepartureMonitor(SIGMA, settle=settle, input_gain=gain), m + e, m, e, m / gain)
+    assert seen.departures == [] and seen.input_steps == len(starts) - 1      # the first is the start
+    assert seen.last["level"] == pytest.approx(1.0, abs=0.15)
+    # a moving input is not a step: a sine envelope swinging the lift by 10 σ_fp a block, smoothly
+    slow = 0.1 + 0.05 * np.sin(2 * np.pi * 0.25 * np.arange(m.size) / FS_HZ)
+    noise = SIGMA * np.random.default_rng(2).standard_normal(m.size)
+    moving = monitor_arrays(DepartureMonitor(SIGMA, settle=settle, input_gain=gain), slow + noise, slow, noise,
+                            slow / gain)
+    assert moving.input_steps == 0 and moving.departures == []
     # the same residual with an offset from 65 s is still raised, within a window and its settle
     z = m + e + np.where(np.arange(m.size) >= 65 * FS_HZ, 1.5 * SIGMA, 0.0)
     told = DepartureMonitor(SIGMA, settle=settle)

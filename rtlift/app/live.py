@@ -89,9 +89,9 @@ class Swapper(Protocol):
 
 class Monitor(Protocol):
     """A residual monitor stepped after the observer (:class:`rtlift.observer.monitor.DepartureMonitor`):
-    ``step(ΔCL measured | None, model ΔCL, innovation ν)``."""
+    ``step(ΔCL measured | None, model ΔCL, innovation ν, envelope Cμ)`` (the input: its steps are watched)."""
 
-    def step(self, dcl: float | None, model_dcl: float, innovation: float) -> None: ...
+    def step(self, dcl: float | None, model_dcl: float, innovation: float, envelope: float) -> None: ...
 
 
 class EstimateWriter(FlushedFile):
@@ -130,7 +130,7 @@ class _NothingToStop:
 
 
 class MonitorListener(_NothingToStop):
-    """A :class:`Monitor` as a :class:`Listener`: ``monitor.step(dcl, est.model_dcl, est.innovation)``."""
+    """A :class:`Monitor` as a :class:`Listener`: ``monitor.step(dcl, est.model_dcl, est.innovation, env)``."""
 
     __slots__ = ("monitor", "_step")
 
@@ -140,7 +140,7 @@ class MonitorListener(_NothingToStop):
 
     def on_sample(self, index: int, t: float, seq: int | None, t_us: int | None, cmu: float, env: float,
                   dcl: float | None, est: Estimate) -> None:
-        self._step(dcl, est.model_dcl, est.innovation)
+        self._step(dcl, est.model_dcl, est.innovation, env)
 
 
 class SwapperListener(_NothingToStop):

@@ -44,18 +44,21 @@ each block it evaluates, over the last ``window`` blocks (``trend_window`` for t
   or a drifting zero). Measured against the hold's own start, not the run's first window, the
   model's misfit at other operating points does not enter it.
 
-What no test judges: a block inside a transient — the run's start, a commanded step of the
-operating point (:meth:`DepartureMonitor.set_steps`: ``rtlift control`` tells it its reference's
-steps), a swap of the model — is left out of every window (all its sums zero), for the settling time
-:class:`Settle` derives from the model's own dynamics, prolonged while a step's transient ends with
-the model's lift still moving from one block to the next by more than ``hold_band`` σ_fp (a loop
-that rings after a step: on the loaded machine, commands late by up to 0.6 s, the envelope swung
-for 3 s after a step, the residual's block mean up to 2.4 σ_fp); ``line`` waits until its ring holds no such
-sample, and a hold cannot span one. What the model's misfit does at each operating point: a model
-file identified since issue 46 carries g(m), its own mean residual against its lift
-(:mod:`rtlift.observer.monitor_print`), removed block by block (e_b − g(m_b)) before ``bias``,
-``level``, ``gain``, ``trend`` and the suspect's regression, so a reference step does not move them
-by the misfit the model had at the new operating point all along.
+What no test judges: a block inside a transient — the run's start, a step of the operating point
+commanded (:meth:`DepartureMonitor.set_steps`: ``rtlift control`` tells it its reference's steps)
+or seen in the input (an open loop has no reference: an envelope jump from one sample to the next
+whose lift-equivalent G·|ΔCμ| exceeds σ_fp, G the model's lift range over the envelope range it was
+identified on, :func:`input_gain_of`; a moving envelope is not a step), a swap of the model — is
+left out of every window (all its sums zero), by one hold-off (:meth:`DepartureMonitor._transient`)
+for the settling time :class:`Settle` derives from the model's own dynamics, prolonged (a commanded
+step's) while its transient ends with the model's lift still moving from one block to the next
+by more than ``hold_band`` σ_fp (a loop that rings after a step: on the loaded machine, commands
+late by up to 0.6 s, the envelope swung for 3 s after a step, the residual's block mean up to
+2.4 σ_fp); ``line`` waits until its ring holds no such sample, and a hold cannot span one. What the
+model's misfit does at each operating point: a model file identified since issue 46 carries g(m),
+its own mean residual against its lift (:mod:`rtlift.observer.monitor_print`), removed block by
+block (e_b − g(m_b)) before ``bias``, ``level``, ``gain``, ``trend`` and the suspect's regression,
+so a reference step does not move them by the misfit the model had at the new operating point all along.
 
 A departure is raised when a statistic stays above its threshold for ``persist`` consecutive
 evaluations; the same test is not raised again until it has been back under its threshold for
@@ -248,7 +251,7 @@ class DepartureMonitor:
 
     def __init__(self, scale: float, fs_hz: float = FS_HZ, config: MonitorConfig | None = None,
                  hold_scale: float = math.nan, settle: Settle | None = None,
-                 operating_point: Mapping[str, Any] | None = None) -> None:
+                 operating_point: Mapping[str, Any] | None = None, input_gain: float = math.nan) -> None:
         if not (math.isfinite(scale) and scale > 0):
             raise ValueError(f"monitor scale (the fingerprint's residual RMSE) must be positive, got {scale!r}")
         self.scale = float(scale)
@@ -270,6 +273,13 @@ class DepartureMonitor:
         empty: none removed."""
         self._steps = np.zeros(0)
         self._step_sizes = np.zeros(0)
+        self.input_gain = float(input_gain) if math.isfinite(input_gain) and input_gain > 0 else math.nan
+        """G (ΔCL per Cμ): the model's lift range over the envelope range it was identified on; an
+        envelope jump ΔCμ from one sample to the next with G·|ΔCμ| > σ_fp is a step of the operating
+        point (:meth:`step`). NaN: the input is not watched (a model file without its print)."""
+        self.input_jump = self.scale / self.input_gain if math.isfinite(self.input_gain) else math.inf
+        self.input_steps = 0
+        """Steps of the operating point seen in the input (the envelope) so far."""
         if math.isnan(self.hold_scale):
             self.thresholds["hold"] = math.inf
         self._hold_blocks = tuple(max(1, int(round(x / cfg.block_s)))
@@ -303,7 +313,8 @@ class DepartureMonitor:
             cfg = replace(cfg, thresholds={**THRESHOLDS, **{k: float(v) for k, v in thresholds.items()
                                                             if v is not None}})
         mon = cls(scale, model.fs_hz, cfg, fingerprint_hold_scale(model.fingerprint, cfg.block_s),
-                  Settle.of_model(model, scale, own.get("lift_range")), own.get("operating_point"))
+                  Settle.of_model(model, scale, own.get("lift_range")), own.get("operating_point"),
+                  input_gain_of(model, own.get("lift_range")))
         if thresholds:
             kept = [k for k in TESTS if thresholds.get(k) is None]
             mon.threshold_source = (f"the model's own identification records ({own.get('source', 'fingerprint')})"
@@ -332,6 +343,9 @@ class DepartureMonitor:
     def reset(self) -> None:
         """Windows, runs and the sample count cleared (a new run)."""
         self._sample = 0
+        self._prev_env = math.nan
+        self._jump_at = -1              # the sample of the last input step seen in this block
+        self._jump_size = 0.0           # the largest one's lift-equivalent size (ΔCL)
         self.clear_windows()
 
     def clear_windows(self) -> None:
@@ -365,9 +379,20 @@ class DepartureMonitor:
         self._next_step = int(np.searchsorted(self._steps, self._sample))
 
     # -- the hot path -------------------------------------------------------------------
-    def step(self, dcl: float | None, model_dcl: float, innovation: float) -> None:
+    def step(self, dcl: float | None, model_dcl: float, innovation: float, envelope: float = math.nan) -> None:
         """One sample: measured ΔCL (``None``/NaN: no measurement), the open-loop model's ΔCL,
-        the observer's innovation (NaN when there was no update)."""
+        the observer's innovation (NaN when there was no update) and the input's envelope Cμ
+        (NaN: not given). An envelope jump from the last sample with G·|ΔCμ| > σ_fp (G =
+        ``input_gain``) is a step of the operating point: its transient is held off as a
+        commanded step's is (:meth:`_transient`), whoever moved the input."""
+        if envelope == envelope:
+            d = envelope - self._prev_env
+            if d > self.input_jump or d < -self.input_jump:
+                self._jump_at = self._sample
+                d = abs(d) * self.input_gain
+                if d > self._jump_size:
+                    self._jump_size = d
+            self._prev_env = envelope
         a = self._acc
         if dcl is not None and dcl == dcl and model_dcl == model_dcl:
             e = dcl - model_dcl
@@ -401,10 +426,13 @@ class DepartureMonitor:
         row[:] = self._acc
         steps, k = self._steps, self._next_step
         while k < steps.size and steps[k] < self._sample:      # a step commanded within this block
-            self._quiet_from = max(self._quiet_from, int(steps[k]) + self.settle.samples(
-                float(self._step_sizes[k]), self.scale, self.fs_hz))
+            self._transient(int(steps[k]), float(self._step_sizes[k]))
             k += 1
         self._next_step = k
+        if self._jump_at >= 0:                                 # a step seen in the input within it
+            self._transient(self._jump_at, self._jump_size)
+            self.input_steps += 1
+            self._jump_at, self._jump_size = -1, 0.0
         start = self._sample - self.block
         if row[0] > 0:
             m = row[3] / row[0]
@@ -412,8 +440,7 @@ class DepartureMonitor:
             if steps.size and start < self._quiet_from and moved > self.config.hold_band * self.scale:
                 # the loop's lift still moving at a commanded step's transient's end (a loop that
                 # rings, commands arriving late): the transient lasts until it has settled
-                self._quiet_from = max(self._quiet_from,
-                                       self._sample + self.settle.samples(moved, self.scale, self.fs_hz))
+                self._transient(self._sample, moved)
             self._prev_m = m
         self._ok[self._nb % self.trend_blocks] = start >= self._quiet_from
         self._acc = [0.0] * N_SUMS
@@ -422,6 +449,12 @@ class DepartureMonitor:
         self._update_hold(row)
         if self._nb >= self.window_blocks:
             self._evaluate()
+
+    def _transient(self, sample: int, size: float) -> None:
+        """The one hold-off: a step of the operating point of ``size`` ΔCL at ``sample`` (commanded
+        by a reference, seen in the input, or a ringing loop's move) keeps every block starting
+        within its settling time (:class:`Settle`) out of every test."""
+        self._quiet_from = max(self._quiet_from, sample + self.settle.samples(size, self.scale, self.fs_hz))
 
     def _update_hold(self, row: np.ndarray) -> None:
         """The ``hold`` test's state after a block (module docstring): begin, keep or end a hold,
@@ -661,9 +694,20 @@ class DepartureMonitor:
                 "thresholds_from": self.threshold_source,
                 "settle": {"memory_s": self.settle.memory_s, "tau_s": self.settle.tau_s,
                            "start_s": self.settle.seconds(self.settle.start_size(self.scale), self.scale),
-                           "steps": int(self._steps.size)},
+                           "steps": int(self._steps.size), "input_steps": self.input_steps,
+                           "input_jump_cmu": finite(self.input_jump)},
                 "operating_point_misfit": bool(self._op_m.size),
                 "last": {k: float(v) for k, v in self.last.items()}}
+
+
+def input_gain_of(model: Any, lift_range: float | None) -> float:
+    """G = the model's lift range (its largest |ΔCL_m| on its identification records, from its
+    print) over the largest envelope Cμ it was identified on (``provenance.domain``): ΔCL per Cμ,
+    the lift-equivalent of an input jump. NaN when either is missing (an older model file)."""
+    dom = (getattr(model, "provenance", None) or {}).get("domain") or {}
+    top = float(dom.get("cmu_envelope_max") or math.nan)
+    r = math.nan if lift_range is None else float(lift_range)
+    return r / top if math.isfinite(r) and math.isfinite(top) and top > 0 and r > 0 else math.nan
 
 
 def persistent_max(values: Any, persist: int) -> float:
@@ -675,9 +719,11 @@ def persistent_max(values: Any, persist: int) -> float:
 
 
 def monitor_arrays(monitor: DepartureMonitor, dcl: np.ndarray, model_dcl: np.ndarray,
-                   innovation: np.ndarray) -> DepartureMonitor:
-    """Feed whole arrays (an estimate file, a replay) sample by sample through ``monitor``."""
+                   innovation: np.ndarray, envelope: np.ndarray | None = None) -> DepartureMonitor:
+    """Feed whole arrays (an estimate file, a replay; ``envelope`` Cμ, if given: the input
+    watched for steps) sample by sample through ``monitor``."""
     step = monitor.step
-    for z, m, v in zip(dcl.tolist(), model_dcl.tolist(), innovation.tolist(), strict=True):
-        step(z, m, v)
+    env = np.full(len(dcl), math.nan) if envelope is None else np.asarray(envelope, dtype=float)
+    for z, m, v, u in zip(dcl.tolist(), model_dcl.tolist(), innovation.tolist(), env.tolist(), strict=True):
+        step(z, m, v, u)
     return monitor

@@ -107,7 +107,7 @@ def monitor_print(model: Any, records: list[Record], start: int, *, hours: float
                   seed: int = BOOT_SEED) -> dict[str, Any] | None:
     """The model's own monitor print (module docstring); None when no record has a loop's kind of
     input or the model has no fingerprint scale."""
-    from rtlift.observer.monitor import TESTS, DepartureMonitor, Settle, monitor_arrays, persistent_max
+    from rtlift.observer.monitor import TESTS, DepartureMonitor, Settle, input_gain_of, monitor_arrays, persistent_max
     from rtlift.residual.fingerprint import record_type
 
     probe = DepartureMonitor.for_model(model)
@@ -116,16 +116,16 @@ def monitor_print(model: Any, records: list[Record], start: int, *, hours: float
     for rec in records:
         if _loop_like(record_type(rec)) and len(rec) - start >= 4 * block:
             z, m, nu = observer_traces(model, rec)
-            traces.append((record_type(rec), z, m, nu))
+            traces.append((record_type(rec), z, m, nu, np.asarray(rec.cmu_envelope, dtype=float)))
     if not traces:
         return None
-    lift_range = float(max(np.nanmax(np.abs(m)) for _, _, m, _ in traces))
-    op = operating_point_misfit([(z[start:] - m[start:], m[start:]) for _, z, m, _ in traces], block)
+    lift_range = float(max(np.nanmax(np.abs(m)) for _, _, m, _, _ in traces))
+    op = operating_point_misfit([(z[start:] - m[start:], m[start:]) for _, z, m, _, _ in traces], block)
     own = {"lift_range": lift_range, "operating_point": op}
 
     def monitor() -> DepartureMonitor:
         mon = DepartureMonitor(probe.scale, model.fs_hz, probe.config, probe.hold_scale,
-                               Settle.of_model(model, probe.scale, lift_range), op)
+                               Settle.of_model(model, probe.scale, lift_range), op, input_gain_of(model, lift_range))
         mon.thresholds = dict.fromkeys(TESTS, math.inf)
         mon.history = []
         return mon
@@ -141,26 +141,26 @@ def monitor_print(model: Any, records: list[Record], start: int, *, hours: float
             v = persistent_max([h[t] for h in mon.history], mon.config.persist)
             if v > worst[t]:
                 worst[t], by[t] = v, name
-    for name, z, m, nu in traces:
+    for name, z, m, nu, u in traces:
         mon = monitor()
-        monitor_arrays(mon, z, m, nu)
+        monitor_arrays(mon, z, m, nu, u)
         take(mon, name)
         seen += len(z) / model.fs_hz
     # the moving-block bootstrap: segments after each record's start-up, joints marked as steps
     seg = int(SEGMENT_S * model.fs_hz)
     first = start + probe.settle.samples(probe.settle.start_size(probe.scale), probe.scale, model.fs_hz)
-    pool = [(z[first:], m[first:], nu[first:]) for _, z, m, nu in traces if len(z) - first >= seg]
+    pool = [(z[first:], m[first:], nu[first:], u[first:]) for _, z, m, nu, u in traces if len(z) - first >= seg]
     rng = np.random.default_rng(seed)
     stream_segments = int(round(600.0 / SEGMENT_S))        # streams of 10 minutes, each its own run
     streams = int(math.ceil(hours * 3600.0 / (stream_segments * SEGMENT_S))) if pool else 0
     for s in range(streams):
         picks = [pool[int(rng.integers(len(pool)))] for _ in range(stream_segments)]
         cuts = [int(rng.integers(0, len(p[0]) - seg + 1)) for p in picks]
-        z, m, nu = (np.concatenate([p[i][c:c + seg] for p, c in zip(picks, cuts, strict=True)]) for i in range(3))
+        z, m, nu, u = (np.concatenate([p[i][c:c + seg] for p, c in zip(picks, cuts, strict=True)]) for i in range(4))
         mon = monitor()
         levels = np.array([p[1][c:c + seg].mean() for p, c in zip(picks, cuts, strict=True)])
         mon.set_steps(np.arange(1, stream_segments) * seg, np.diff(levels))   # each joint a step of the lift
-        monitor_arrays(mon, z, m, nu)
+        monitor_arrays(mon, z, m, nu, u)
         take(mon, f"bootstrap {s}")
         seen += len(z) / model.fs_hz
     thresholds = {t: round(OWN_MARGIN * v, 6) if judged[t] >= MIN_JUDGED and v > 0 else None
