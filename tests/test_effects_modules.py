@@ -273,15 +273,19 @@ def test_no_effect_name_is_typed_outside_its_module():
 
 
 # ------------------------------------------------------------------ a new effect is one module
-TOY_STAGE = '''
-"""A toy stage: a gain on the input (the dry run of tests/test_effects_modules.py)."""
+TOY = '''
+"""A toy effect: a gain on the input, its stage its own (the dry run of tests/test_effects_modules.py)."""
 
 import numpy as np
 
 from rtlift.blocks.stage_base import InputStage
+from rtlift.effects.base import Effect, no_print
+from rtlift.effects.surgery import Fitted, augment
 
 
 class ToyGain(InputStage):
+    """Cμ′ = g Cμ, Cμ_env′ = g Cμ_env."""
+
     name = "toy_gain"
 
     def __init__(self, gain, fs_hz):
@@ -294,6 +298,9 @@ class ToyGain(InputStage):
     def params(self):
         return {"gain": self.gain}
 
+    def step(self, cmu, env):
+        return self.gain * cmu, self.gain * env
+
     def simulate(self, cmu, env):
         return self.gain * np.asarray(cmu), self.gain * np.asarray(env)
 
@@ -302,14 +309,6 @@ class ToyGain(InputStage):
 
     def set_state(self, state):
         pass
-'''
-
-TOY = '''
-"""A toy effect: a gain on the input (the dry run of tests/test_effects_modules.py)."""
-
-from rtlift.blocks.toy_gain import ToyGain
-from rtlift.effects.base import Effect, no_print
-from rtlift.effects.surgery import Fitted, augment
 
 
 class ToyGainEffect(Effect):
@@ -330,27 +329,70 @@ class ToyGainEffect(Effect):
 '''
 
 DRY_RUN = '''
+import sys
 from rtlift.blocks.stages import STAGES
 from rtlift.effects import BY_NAME, CATALOG, SCHEMAS
+from rtlift.effects.surgery import augment
+from rtlift.effects.toy_gain import ToyGain
+from rtlift.model.modelfile import load_model, save_model
 from rtlift.observer.layout import OBSERVER_FORMS
 print("stages", STAGES["toy_gain"].__name__)
 print("catalog", [e.name for e in CATALOG][:3])
 print("schemas", dict(SCHEMAS["toy_gain"].defaults))
 print("observer", "toy_gain" in OBSERVER_FORMS, BY_NAME["toy_gain"].n_params({}))
+save_model(augment(load_model(sys.argv[1]), input_stage=ToyGain(1.25, 400.0)), sys.argv[2])
+'''
+
+LOAD_BACK = '''
+import sys
+import numpy as np
+from rtlift.model.modelfile import load_model
+before = "rtlift.effects" in sys.modules
+m = load_model(sys.argv[1])
+cmu = np.full(40, 0.002)
+print("loaded", before, [s.name for s in m.input_stages], m.input_stages[-1].gain, "rtlift.effects" in sys.modules)
+a, b = m.simulate(cmu, cmu).total, load_model(sys.argv[2]).reference_simulate(1.25 * cmu, 1.25 * cmu).total
+print("gained", m.compiled, bool(np.max(np.abs(a - b)) <= 1e-12 * np.max(np.abs(b))), bool(np.max(np.abs(b)) > 0))
+'''
+
+NO_PROVIDER = '''
+import sys
+import rtlift.core.registry as r
+r._STAGE_PROVIDERS.clear()
+from rtlift.core.errors import ModelFileError
+from rtlift.model.modelfile import load_model
+try:
+    load_model(sys.argv[1])
+except ModelFileError as exc:
+    print(exc)
 '''
 
 
 def test_a_new_effect_is_one_module_in_the_effects_package(tmp_path):
-    """The dry run: a copy of rtlift with the toy effect's module in rtlift/effects/ and its
-    streaming stage's in rtlift/blocks/ (a model file is read at the model layer, below the
-    effects); every derived table holds it, and no other file changes."""
+    """The dry run: a copy of rtlift with the toy effect's one module in rtlift/effects/, its
+    streaming stage defined there too; every derived table holds it, a model the effect augments
+    is saved and, in a fresh process that imports only the model layer, loads back (the stage
+    found through the stage provider ``import rtlift`` hands down, :mod:`rtlift.core.registry`)
+    and gives what the stage's gain on the inputs of the base model gives; without the provider
+    the reader says in one line what to import; and no other file changes."""
     shutil.copytree(ROOT / "rtlift", tmp_path / "rtlift", ignore=shutil.ignore_patterns("__pycache__", "data"))
     (tmp_path / "rtlift" / "effects" / "toy_gain.py").write_text(TOY, encoding="utf-8")
-    (tmp_path / "rtlift" / "blocks" / "toy_gain.py").write_text(TOY_STAGE, encoding="utf-8")
-    out = subprocess.run([sys.executable, "-c", DRY_RUN], capture_output=True, text=True, cwd=tmp_path,
-                         env={"PYTHONPATH": f"{tmp_path}:{ROOT}", "PATH": "/usr/bin:/bin",
-                              "NUMBA_CACHE_DIR": str(tmp_path / "numba")})
+    env = {"PYTHONPATH": f"{tmp_path}:{ROOT}", "PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    base, toy = ROOT / "tests" / "data" / "bench_model.json", tmp_path / "toy_model.json"
+
+    def run(code, *args):
+        return subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True,
+                              cwd=tmp_path, env=env)
+
+    out = run(DRY_RUN, base, toy)
     assert out.returncode == 0, out.stderr
     assert out.stdout.splitlines() == [
         "stages ToyGain", "catalog ['delay', 'actuator_fade', 'toy_gain']", "schemas {'gain': 1.2}",
         "observer False 1"]
+    out = run(LOAD_BACK, toy, base)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.splitlines() == ["loaded False ['delay', 'toy_gain'] 1.25 True", "gained False True True"]
+    out = run(NO_PROVIDER, toy)
+    assert out.returncode == 0, out.stderr
+    assert "unknown augmentation 'toy_gain'" in out.stdout and "import rtlift.effects" in out.stdout, out.stdout
+    assert out.stdout.count("\n") == 1

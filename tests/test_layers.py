@@ -201,3 +201,79 @@ def test_rtlift_is_its_layers_and_each_imports_only_its_own_or_lower_ones():
     upward = sorted((m, t) for m in MODULES if _layer(m) is not None
                     for t in EAGER[m] | LAZY[m] if t.startswith("rtlift.") and (_layer(t) or 0) > _layer(m))
     assert upward == [], upward
+
+
+STRING_IMPORTERS = frozenset({"import_module", "__import__", "resolve_name", "locate", "find_spec"})
+"""Calls that import a module named by a string (importlib, builtins, pkgutil, pydoc)."""
+MODULE_STRING = r"rtlift(\.\w+)+(:\w+)?"
+"""A string that is a module of ours, or a ``"module:attr"`` reference to one."""
+
+
+def _docstrings(tree: ast.Module) -> set[int]:
+    nodes = [tree, *(n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)))]
+    return {id(n.body[0].value) for n in nodes if n.body and isinstance(n.body[0], ast.Expr)
+            and isinstance(n.body[0].value, ast.Constant)}
+
+
+def _imports_by_string(module: str) -> list[str]:
+    """What ``module`` imports through a string: every argument of a :data:`STRING_IMPORTERS`
+    call (a constant, or an f-string's constant head) and every other string (not a docstring)
+    that names a module of ours, as written."""
+    import re
+
+    tree = ast.parse(MODULES[module].read_text(encoding="utf-8"))
+    docs = _docstrings(tree)
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and node.args:
+            fn = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+            if fn in STRING_IMPORTERS:
+                arg = node.args[0]
+                if isinstance(arg, ast.JoinedStr) and arg.values and isinstance(arg.values[0], ast.FormattedValue) \
+                        and ast.unparse(arg.values[0].value) == "__name__":
+                    out.append(module)                  # its own package: f"{__name__}.{name}"
+                elif isinstance(arg, ast.JoinedStr) and arg.values and isinstance(arg.values[0], ast.Constant):
+                    out.append(arg.values[0].value.rstrip("."))
+                else:
+                    out.append(arg.value if isinstance(arg, ast.Constant) else f"<{ast.unparse(arg)}>")
+        elif (isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs
+              and re.fullmatch(MODULE_STRING, node.value)):
+            out.append(node.value.partition(":")[0])
+    return out
+
+
+def test_no_floor_imports_an_upper_one_by_string():
+    """The ties a string makes are invisible to the import graph above: no floor of rtlift
+    imports a module of a floor above it by a string (importlib, ``"module:attr"``), and below
+    the applications no string import names a module we cannot check (a variable). A model file
+    names stages that may live a floor above its reader (an effect's own); they come down
+    through the stage providers instead (next test)."""
+    top = len(LAYERS) - 1
+    upward = {}
+    for m in MODULES:
+        if _layer(m) is None:
+            continue
+        bad = [s for s in _imports_by_string(m) if s.startswith("<") and _layer(m) < top
+               or not s.startswith("<") and (_layer(_target(s) or s) or 0) > _layer(m)]
+        if bad:
+            upward[m] = bad
+    assert upward == {}
+
+
+def test_the_effects_stages_come_down_through_the_one_stage_provider():
+    """The stage registry is filled by the stage classes themselves (never assigned into by
+    rtlift's code) and the one provider that hands the effects' stages down is the package's
+    entry's: ``import rtlift`` registers it, and running it imports :mod:`rtlift.effects`."""
+    calls = sorted(m for m, p in MODULES.items() if m.startswith("rtlift") and m != "rtlift.core.registry"
+                   and "add_stage_provider(" in p.read_text(encoding="utf-8"))
+    assert calls == ["rtlift"], calls
+    writing = ("STAGES[name] =", "STAGES.update", "STAGES.setdefault")
+    writes = sorted(m for m, p in MODULES.items() if m.startswith("rtlift")
+                    and any(s in p.read_text(encoding="utf-8") for s in writing))
+    assert writes == ["rtlift.blocks.stage_base"], writes
+    code = ("import sys; from rtlift.model.modelfile import load_model; import rtlift.core.registry as r; "
+            "before = 'rtlift.effects' in sys.modules; n = r.run_stage_providers(); "
+            "print(before, n, 'rtlift.effects' in sys.modules, r.run_stage_providers())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=ROOT, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert out.stdout.split() == ["False", "1", "True", "0"], out.stdout + out.stderr

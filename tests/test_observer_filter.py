@@ -303,7 +303,7 @@ def test_a_step_allocates_nothing_that_stays(rng, cfg, path):
     assert peak - current <= 2048 + 4 * table     # + building the basis table when the burst period changes
 
 
-class _Pickup(OutputStage):
+class _Pickup(OutputStage, register=False):
     """A narrow-band pickup added to the measured lift (what an accepted
     ``periodic_disturbance`` effect puts in the model)."""
 

@@ -1,17 +1,24 @@
-"""The stage interface (the base classes every stage implements; :mod:`rtlift.blocks.stages`
-finds the stages by name): effects the paper's model lacks, added around the hybrid model as stages.
+"""The stage interface (the base classes every stage implements) and the stages by name
+(:data:`STAGES`, :func:`stage_class`): effects the paper's model lacks, added around the hybrid
+model as stages.
 
 An *input stage* maps the actuation record before the model sees it,
 ``(Cμ, Cμ_env) → (Cμ′, Cμ_env′)`` (a delay, a fading actuator); an *output stage* maps the
 model's ΔCL to what the balance reports, ``ΔCL → ΔCL′`` (a sensor mode, a drift, a pickup).
 Every stage is a streaming block (``step``, batch twin ``simulate``, explicit state) and is
-named and parametrised as in INTERFACES.md, so a model file can list it and
-:data:`rtlift.blocks.stages.STAGES` (derived from the stage classes; the effect of
-:mod:`rtlift.effects` that adds a stage takes the stage's name) can rebuild it with
-``from_params(params, fs_hz)``. Each stage lives in a module of its own
-(:mod:`rtlift.blocks.delay`, :mod:`rtlift.blocks.actuator_fade`, :mod:`rtlift.blocks.sensor_resonance`,
+named and parametrised as in INTERFACES.md, so a model file can list it and :func:`stage_class`
+can rebuild it with ``from_params(params, fs_hz)``.
+
+**Stages register themselves**: defining a subclass that sets ``name`` puts it in :data:`STAGES`
+(``__init_subclass__``; two classes of one name are an error, and a test's stand-in opts out
+with ``class X(OutputStage, register=False)``). The stages the model layer steps itself live in
+:mod:`rtlift.blocks`, one module each (:mod:`rtlift.blocks.delay`,
+:mod:`rtlift.blocks.actuator_fade`, :mod:`rtlift.blocks.sensor_resonance`,
 :mod:`rtlift.blocks.zero_drift`, :mod:`rtlift.blocks.periodic_disturbance`; the ``interaction``
-structure's in :mod:`rtlift.blocks.delivered`), its docstring holding its equation.
+structure's in :mod:`rtlift.blocks.delivered`), each docstring holding its equation; a newer
+effect may define its stage in its own module of :mod:`rtlift.effects`, a floor above the model
+file's reader: :func:`stage_class` then finds it through the stage providers the package's entry
+hands down (:mod:`rtlift.core.registry`), never by importing upward.
 
 **For a Kalman observer** every output stage has a ``kind`` and ``statespace()`` returning
 ``(A, B, C, D)`` in the paper's timing, on the very state that ``get_state()`` returns::
@@ -30,9 +37,19 @@ Input stages are deterministic maps of the known input and need no observer stat
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
+
+from rtlift.core.registry import run_stage_providers
+
+STAGES: dict[str, type[InputStage]] = {}
+"""Every stage class defined so far, by its ``name`` (the model file's key; the effect that adds
+the stage takes it as its own name): filled by :meth:`InputStage.__init_subclass__`."""
+
+
+class UnknownStageError(ValueError):
+    """A model file names a stage no class registered (after the stage providers ran)."""
 
 
 class InputStage:
@@ -41,6 +58,21 @@ class InputStage:
     name: ClassVar[str] = ""
     where: ClassVar[str] = "input"
     state_size: int = 0
+
+    def __init_subclass__(cls, register: bool = True, **kwargs: Any) -> None:
+        """Register a stage class that sets ``name`` in :data:`STAGES` (module docstring)."""
+        super().__init_subclass__(**kwargs)
+        name = cls.__dict__.get("name")
+        if not register or not name:
+            return                        # an intermediate base, or a test's stand-in
+        if name in STAGES:
+            raise TypeError(f"two stages named {name!r}: {STAGES[name].__qualname__} and {cls.__qualname__}")
+        STAGES[name] = cls
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any], fs_hz: float) -> InputStage:
+        """The stage from its model-file parameters at sample rate ``fs_hz`` (Hz)."""
+        raise NotImplementedError
 
     def step(self, cmu: float, env: float) -> tuple[float, float]:
         raise NotImplementedError
@@ -87,6 +119,19 @@ class OutputStage(InputStage):
 
     def simulate(self, dcl: np.ndarray) -> np.ndarray:  # type: ignore[override]
         raise NotImplementedError
+
+
+def stage_class(name: str) -> type[InputStage]:
+    """The stage class a model file's ``name`` means (:data:`STAGES`). A name not registered
+    runs the stage providers first (an effect's own stage, :mod:`rtlift.core.registry`);
+    :class:`UnknownStageError` if it is still unknown."""
+    if name not in STAGES:
+        run_stage_providers()
+    if name not in STAGES:
+        raise UnknownStageError(
+            f"unknown augmentation '{name}' (known: {', '.join(sorted(STAGES))}); an effect module's own stage "
+            "is known once its module is imported (import rtlift.effects)")
+    return STAGES[name]
 
 
 def _positive(value: float, what: str) -> float:

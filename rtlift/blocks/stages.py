@@ -1,9 +1,9 @@
 """Every augmentation stage by name (:data:`STAGES`), as a model file lists it, and
-:func:`stage_from_spec`, which rebuilds one from its entry. The interface the stages implement is
-:mod:`rtlift.blocks.stage_base`; each stage lives in a module of its own, and the table is derived
-from the stage classes of this package (every :class:`~rtlift.blocks.stage_base.InputStage` subclass
-with a ``name``: the model file's key, which the effect of :mod:`rtlift.effects` that adds the
-stage takes as its own).
+:func:`stage_from_spec`, which rebuilds one from its entry. The interface the stages implement,
+and the registry their classes put themselves in when defined, is :mod:`rtlift.blocks.stage_base`;
+this module imports the model layer's own stage modules (so that they have registered) and
+re-exports the registry. A stage an effect defines in its own module of :mod:`rtlift.effects`
+is found through the stage providers (:func:`rtlift.blocks.stage_base.stage_class`).
 
 Catalog (``name``: equation; k = 0 is the first sample after ``reset()``, t_k = k / fs):
 
@@ -30,35 +30,18 @@ together): ``hysteresis`` is :class:`rtlift.blocks.wiener.HysteresisGain`,
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from typing import Any
 
-import rtlift.blocks
-from rtlift.blocks.stage_base import InputStage
+from rtlift.blocks import actuator_fade, delay, delivered, periodic_disturbance, sensor_resonance, zero_drift
+from rtlift.blocks.stage_base import STAGES, InputStage, stage_class
 
+OWN_STAGE_MODULES = (delay, actuator_fade, delivered, sensor_resonance, zero_drift, periodic_disturbance)
+"""The model layer's stage modules (imported here: their classes have registered)."""
 
-def _named_stages() -> dict[str, Any]:
-    """Every stage class of :mod:`rtlift.blocks` by its ``name`` (each module imported)."""
-    for module in pkgutil.iter_modules(rtlift.blocks.__path__):
-        importlib.import_module(f"{rtlift.blocks.__name__}.{module.name}")
-    found, todo = {}, [InputStage]
-    while todo:
-        cls = todo.pop()
-        todo += cls.__subclasses__()
-        if cls.__dict__.get("name"):
-            found[cls.name] = cls
-    return found
-
-
-STAGES: dict[str, Any] = _named_stages()
-"""Every stage by name: the effects' stages (the static-gain effects' are Wiener nonlinearities
-instead) and the interaction structure's ``delivered_envelope`` (and ``delivered_momentum``, as
-first merged), which are not effects."""
+__all__ = ["OWN_STAGE_MODULES", "STAGES", "stage_from_spec"]
 
 
 def stage_from_spec(name: str, params: dict[str, Any], fs_hz: float) -> InputStage:
-    """Rebuild a stage from its model-file entry; ValueError for an unknown name."""
-    if name not in STAGES:
-        raise ValueError(f"unknown augmentation '{name}' (known: {', '.join(sorted(STAGES))})")
-    return STAGES[name].from_params(params, fs_hz)
+    """Rebuild a stage from its model-file entry (``fs_hz`` in Hz);
+    :class:`~rtlift.blocks.stage_base.UnknownStageError` (a ValueError) for an unknown name."""
+    return stage_class(name).from_params(params, fs_hz)
