@@ -42,12 +42,9 @@ def draws(text: str) -> list[int]:
     return out
 
 
-def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
-             targets: object = None, structure: str = "auto", backoff: float | None = None) -> dict:
-    from rtlift.app.control_design import design_loop
-    from rtlift.model.modelfile import load_model
-
-    t0 = time.perf_counter()
+def identified_model(n: int, tmp: str, keep: str | None = None) -> str:
+    """Plant ``n``'s model as a new user makes it: its clean campaign recorded, ``rtlift identify``;
+    the path (``keep``: kept there as ``N_model.json`` and reused when it exists)."""
     path = os.path.join(keep or tmp, f"{n}_model.json")
     if not (keep and os.path.exists(path)):
         files = {}
@@ -56,6 +53,16 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             run_cli("bench", "record", "--plant-draw", n, "--out", files[exp], exp)
         run_cli("identify", "--static", files["static"], "--single-burst", files["single_burst"], "--train",
                 files["sine_k0125"], "-o", path, "--quiet")
+    return path
+
+
+def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
+             targets: object = None, structure: str = "auto", backoff: float | None = None) -> dict:
+    from rtlift.app.control_design import design_loop
+    from rtlift.model.modelfile import load_model
+
+    t0 = time.perf_counter()
+    path = identified_model(n, tmp, keep)
     t1 = time.perf_counter()
     model = load_model(path)
     design = design_loop(model, targets, structure=structure, **({} if backoff is None else {"backoff": backoff}))

@@ -630,8 +630,10 @@ def _operating_input(model: Any, controller: LiftController, dcl0: float, n: int
 
 def lifted_plant(model: Any, controller: LiftController, dcl0: float, *, period: int = BURST_PERIOD_SAMPLES,
                  margin: int = MARGIN_SAMPLES, n_periods: int = LIFT_PERIODS,
-                 rel: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
-    """(``p_j``, ``q_j``) of the module docstring at ΔCL₀ (the model simulated, central differences)."""
+                 rel: float = 0.02, simulate: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    """(``p_j``, ``q_j``) of the module docstring at ΔCL₀ (the model simulated, central differences).
+    ``simulate(cmu, cmu_envelope) -> ΔCL`` (per sample, from rest) replaces the model's own
+    simulation: the same lifting of another plant (``benchmarks/model_error.py``: the bench's truth)."""
     warm = 8 * period * 4                  # 4 s at the operating point first
     n = warm + n_periods * period
     gate = (np.arange(n) % period) < max(1, int(round(BURST_S * model.fs_hz)))
@@ -640,6 +642,9 @@ def lifted_plant(model: Any, controller: LiftController, dcl0: float, *, period:
     for v in (dcl0 + dv, dcl0 - dv):
         env = np.full(n, controller.inverse(dcl0))
         env[warm:warm + period] = controller.inverse(v)
+        if simulate is not None:
+            ys.append(np.asarray(simulate(np.where(gate, env, 0.0), env), dtype=float))
+            continue
         m = model.copy()
         m.reset()
         ys.append(np.asarray(m.simulate(np.where(gate, env, 0.0), env).total))
