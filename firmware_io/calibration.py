@@ -124,8 +124,19 @@ class Calibration:
         """½ ρ U∞² c b, the force that corresponds to ΔCL = 1 (N)."""
         return 0.5 * self.rho_kg_m3 * self.u_inf_m_s**2 * self.chord_m * self.span_m
 
+    def si_from_counts(self, fx: int, fy: int, fz: int, tx: int, ty: int,
+                       tz: int) -> tuple[float, float, float, float, float, float]:
+        """One sample's six transducer counts → fx fy fz (N) = counts / ``counts_per_n``, tx ty
+        tz (N·m) = counts / ``counts_per_nm``; no matrix (:class:`firmware_io.convert.Converter`
+        applies it). What the serial decoder delivers as ``Sample.ft``; scalar arithmetic, the
+        same operations as :meth:`ft_from_counts` before its matrix."""
+        cpn = self.counts_per_n
+        cpnm = self.counts_per_nm
+        return (fx / cpn, fy / cpn, fz / cpn, tx / cpnm, ty / cpnm, tz / cpnm)
+
     def ft_from_counts(self, counts: np.ndarray) -> np.ndarray:
-        """Six transducer counts (..., 6) → fx fy fz (N), tx ty tz (N·m), matrix applied."""
+        """Six transducer counts (..., 6) → fx fy fz (N), tx ty tz (N·m), matrix applied
+        (:meth:`si_from_counts` over arrays, then ``M``)."""
         c = np.asarray(counts, dtype=float)
         ft = np.concatenate([c[..., :3] / self.counts_per_n, c[..., 3:] / self.counts_per_nm], axis=-1)
         if self.matrix is not None:

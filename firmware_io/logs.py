@@ -318,8 +318,7 @@ class LogSamples:
         self._calibration = calibration or Calibration()
         self._queue: deque[Sample] = deque()
         if self.kind == "serial":
-            self._decoder = SerialDecoder(self._queue.append, self._calibration.counts_per_n,
-                                          self._calibration.counts_per_nm)
+            self._decoder = SerialDecoder(self._queue.append, self._calibration)
             self.counters: Counters = self._decoder.counters
         else:
             self._assembler = CanAssembler()

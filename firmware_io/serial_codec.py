@@ -13,7 +13,9 @@ flags u8 | watchdog_ms_div10 u8 | crc u16`` (12 bytes). The CRC is
 
 :class:`SerialDecoder` turns arbitrary byte chunks into :class:`~firmware_io.samples.Sample`
 objects and keeps the exact :class:`~firmware_io.samples.Counters`; it never raises on any
-input and does no I/O.
+input and does no I/O. The counts become N and N·m by the bench's
+:class:`~firmware_io.calibration.Calibration` (:meth:`~firmware_io.calibration.Calibration.si_from_counts`),
+the one owner of the transducer's scale; the decoder holds none of its own.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from collections.abc import Callable
 
 from cobs import cobs
 
+from firmware_io.calibration import Calibration
 from firmware_io.commands import Command
 from firmware_io.samples import Counters, EchoCounter, Sample
 
@@ -119,13 +122,12 @@ class SerialDecoder:
     either version are accepted; a command packet (kind 3) on the host side is invalid.
     """
 
-    def __init__(self, emit: Callable[[Sample], object], counts_per_n: float = 1.0e6,
-                 counts_per_nm: float = 1.0e9, clock: Callable[[], float] | None = None) -> None:
+    def __init__(self, emit: Callable[[Sample], object], calibration: Calibration | None = None,
+                 clock: Callable[[], float] | None = None) -> None:
         self.counters = Counters()
         self.events: deque[str] = deque(maxlen=256)
         self._emit = emit
-        self._cpn = float(counts_per_n)
-        self._cpnm = float(counts_per_nm)
+        self._si = (calibration or Calibration()).si_from_counts
         self._clock = clock or time.perf_counter
         self._echo = EchoCounter(self.counters)
         self._buf = bytearray()
@@ -236,7 +238,4 @@ class SerialDecoder:
         self.last_seq = seq
         c.received += 1
         self._echo.see(cmd_seq, status)
-        cpn = self._cpn
-        cpnm = self._cpnm
-        self._emit(Sample(seq, t_us, volt_cv, envelope_cv,
-                          (fx / cpn, fy / cpn, fz / cpn, tx / cpnm, ty / cpnm, tz / cpnm), status, now, cmd_seq))
+        self._emit(Sample(seq, t_us, volt_cv, envelope_cv, self._si(fx, fy, fz, tx, ty, tz), status, now, cmd_seq))

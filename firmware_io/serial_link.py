@@ -44,7 +44,7 @@ class SerialLink(Link):
         does a port without a file descriptor to wait on, such as some pyserial URLs)."""
         cal = calibration or Calibration()
         self._queue: deque[Sample] = deque()
-        self._decoder = SerialDecoder(self._queue.append, cal.counts_per_n, cal.counts_per_nm)
+        self._decoder = SerialDecoder(self._queue.append, cal)
         self.counters = self._decoder.counters
         self._commands = CommandTracker(self.counters, SERIAL_CMD_SEQ_MODULUS)
         self.port = self._where = port

@@ -366,7 +366,7 @@ def soak(minutes: float, seed: int = 0, warmup_minutes: float = 1.0, progress: b
     n = int(round(minutes * 60 * FS))
     observer, loop, cal = _observer_loop(seed, SEQ_MODULUS)
     queue: deque = deque()
-    decoder = SerialDecoder(queue.append, cal.counts_per_n, cal.counts_per_nm)
+    decoder = SerialDecoder(queue.append, cal)
     injector = FaultInjector(n, seed=seed, rates=rates, first_seq=SEQ_MODULUS - 1000, first_t_us=2**32 - 600 * 10**6)
     samples = wire_samples(daq_stream("random", seed=seed), serial_wire)
     reads = np.random.default_rng(seed + 1)

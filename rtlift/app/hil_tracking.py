@@ -263,7 +263,7 @@ class InProcessTracking:
         control = HostControl(DeviceStats(), SERIAL_CMD_SEQ_MODULUS, fs)
         self.stream.control = control
         received: list = []
-        decoder = SerialDecoder(received.append, calibration.counts_per_n, calibration.counts_per_nm)
+        decoder = SerialDecoder(received.append, calibration)
         decoder.feed(b"\x00")
         link = _InProcessLink(control, decoder.counters, SERIAL_CMD_SEQ_MODULUS)
         observer = Observer.from_model(self.model)
