@@ -224,10 +224,13 @@ def _fit_structure(static: StaticMap, kernel: SingleBurstKernel, data: _Joint, o
                          candidates[choice.order][1])
 
 
-def _refine_kernel(model: HybridModel, train: Record, n_est: int, skip: int,
-                   opt: IdentifyOptions) -> KernelRefinement:
+def _refine_kernel_under_highpass(model: HybridModel, train: Record, n_est: int, skip: int,
+                                  opt: IdentifyOptions) -> KernelRefinement:
     """Step 5b (module docstring): :func:`.kernel.refine_kernel` on the training record, the
-    rest of the model as identified."""
+    rest of the model as identified. The paper's burst part ΔCL_H = HF(φ Σ_j h(j) Cμ(k − j)) is
+    linear in h; its regressors are the model's ΔCL_H with the unit kernel h = e₀ (the high-pass
+    of φ Cμ), delayed — unlike the interaction structure's, weighted by its gains
+    (:func:`rtlift.identify.interaction._refine_kernel_under_gains`)."""
     h = model.convolution.kernel
     if opt.kernel == "single_burst":
         return KernelRefinement(h, 0, None, {})
@@ -309,7 +312,7 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     wiener = WienerBlock(lti.A, lti.B, lti.C, nonlinearity_for(static, form))
     stages = (Delay(dead_time / fs, fs),) if dead_time else ()
     model = HybridModel(RingConvolution(kernel.kernel, phi), hpf, wiener, fs, input_stages=stages)
-    refined = _refine_kernel(model, train_rec, n_est, skip, opt)
+    refined = _refine_kernel_under_highpass(model, train_rec, n_est, skip, opt)
     model.convolution = RingConvolution(refined.kernel, phi)
     out = model.simulate(train_rec.cmu, train_rec.cmu_envelope)
     model.reset()

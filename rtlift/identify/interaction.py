@@ -169,8 +169,11 @@ class InteractionIdentification:
     observer: dict = field(default_factory=dict)
 
 
-def _hats(m: np.ndarray, knots: np.ndarray) -> np.ndarray:
-    """(N, K) weights of the piecewise-linear G at m (held beyond the ends): G(m) = W @ gains."""
+def _clamped_hat_basis(m: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """W[k, j] = φ_j(clip(m(k), knots[0], knots[-1])), (N, K): the piecewise-linear hat basis of
+    G on ``knots``, *held* beyond the ends (as :class:`~rtlift.blocks.interaction.InteractionConvolution`'s
+    gains evaluate), so that G(m) = W @ gains. Unlike the generic Wiener map's basis
+    (:func:`rtlift.sysid.identify._extrapolated_hat_basis`, extrapolated linearly)."""
     x = np.clip(m, knots[0], knots[-1])
     i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, knots.size - 2)
     f = (x - knots[i]) / (knots[i + 1] - knots[i])
@@ -230,7 +233,8 @@ def _lay(records: list[Record], static: StaticMap, kernel: SingleBurstKernel, hp
     _, u = stage.simulate(cmu, env)
     c = kernel.phi * signal.lfilter(kernel.kernel, [1.0], cmu)
     hf = HighPassFilter.design(hp[0], hp[1], fs).simulate(c)
-    X = np.column_stack([hf, _hats(m, knots) * (c - hf)[:, None], _hats(u, knots) * u[:, None]])
+    X = np.column_stack([hf, _clamped_hat_basis(m, knots) * (c - hf)[:, None],
+                         _clamped_hat_basis(u, knots) * u[:, None]])
     bounds = np.cumsum([0] + [len(r) for r in records])
     parts = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True))
     gain = static.gain_at(u) if stage.lift is None else np.full(n, stage.chord)
@@ -277,11 +281,17 @@ def _model(kernel: SingleBurstKernel, static: StaticMap, hp: tuple[int, float], 
         input_stages=(*((Delay(dead_time / fs, fs),) if dead_time else ()), stage))
 
 
-def _refine_kernel(model: HybridModel, train: Record, skip: int, dead_time: int,
-                   opt: InteractionOptions) -> KernelRefinement:
+def _refine_kernel_under_gains(model: HybridModel, train: Record, skip: int, dead_time: int,
+                               opt: InteractionOptions) -> KernelRefinement:
     """The kernel's first burst period re-estimated on the training record
     (:func:`~rtlift.identify.kernel.refine_kernel`), the rest of the model as fitted: for the
-    m the record delivers, the burst part is linear in h."""
+    m the record delivers, the interaction structure's burst part
+
+        ΔCL_H(k) = G_H(m(k)) · HF(c)(k) + G(m(k)) · (c − HF(c))(k),   c = φ Σ_j h(j) Cμ(k − j),
+
+    is linear in h, its regressors a unit kernel's, (HF(φ Cμ), G_H(m)) and (φ Cμ − HF(φ Cμ), G(m)) — unlike the
+    paper's structure, whose burst part is HF(c) alone
+    (:func:`rtlift.identify.campaign._refine_kernel_under_highpass`)."""
     burst = model.convolution
     n_est = int(round((1 - opt.holdout_fraction) * len(train)))
     if opt.kernel == "single_burst":
@@ -366,7 +376,7 @@ def identify_interaction(static_rec: Record, burst_rec: Record, trains: list[Rec
     full = np.sort(np.concatenate([est, held]))
     pem, _ = _fit(laid, order, full, fs, static, form, opt.train_weight, opt.static_weight)
     model = _model(kernel, static, hp, tau, rate, knots, pem, fs, dead_time, form, power)
-    refined = _refine_kernel(model, train_rec, skip, dead_time, opt)
+    refined = _refine_kernel_under_gains(model, train_rec, skip, dead_time, opt)
     if refined.ridge is not None:             # refit the gains and the Wiener part on the refined kernel
         kernel = replace(kernel, kernel=refined.kernel)
         laid = _lay(records, static, kernel, hp, tau, rate, knots, fs, dead_time, power)

@@ -82,9 +82,10 @@ from rtlift.sysid.feedback import identify_feedback
 from rtlift.sysid.store_chain import identify_store_chain
 
 
-def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
+def _extrapolated_hat_basis(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
     """Φ[k, j] = φ_j(x(k)): the piecewise-linear basis of f on ``knots`` (f = Φ c), extrapolated
-    linearly beyond the ends (as :class:`OutputNonlinearity` evaluates it). Each row has two
+    linearly beyond the ends (as :class:`OutputNonlinearity` evaluates it; the interaction
+    structure's gains are held there instead, :func:`rtlift.identify.interaction._clamped_hat_basis`). Each row has two
     nonzero entries, those of x(k)'s segment s, [1 − (x − x_s)/h_s, (x − x_s)/h_s], written
     with the same operations :class:`OutputNonlinearity` applies to a unit table (bit for bit
     the same basis, one search instead of one per knot)."""
@@ -187,7 +188,7 @@ def _simulate_basis(dims: _Dims, th: np.ndarray, runs: _Runs, count: int):
         knots = np.unique([x.min(), x.max()])
         if knots.size < 2:
             raise ValueError("the linear block's output is constant: no static map can be fitted on it")
-    phi = _hats(x, knots)
+    phi = _extrapolated_hat_basis(x, knots)
     if b2 is not None:
         # column by column in Fortran order: the same numbers as on the row-major array, in half the time
         phi = runs.lfilter(b2, a2, np.asfortranarray(phi))
