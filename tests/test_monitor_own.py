@@ -142,8 +142,48 @@ def test_the_models_own_print_sets_its_thresholds(bench_model, bench_print):
     assert "own identification records" in mon.threshold_source
     if p["thresholds"]["hold"] is None:
         assert mon.thresholds["hold"] == THRESHOLDS["hold"] and "hold" in mon.threshold_source
+    assert mon.level_null == p["persistent_max"]["level"] and mon.print_inputs
     old = DepartureMonitor.for_model(bench_model)                   # an old model file: the constants
     assert old.thresholds["bias"] == THRESHOLDS["bias"] and "global constants" in old.threshold_source
+    assert old.level_null == math.inf                               # never judged outside a print it lacks
+
+
+def _noisy(spread: float, seconds: float = 90.0, seed: int = 3, doubled_from: float | None = None):
+    rng = np.random.default_rng(seed)
+    n = int(seconds * FS_HZ)
+    e = spread * SIGMA * rng.standard_normal(n)
+    if doubled_from is not None:
+        e[int(doubled_from * FS_HZ):] *= 2.0
+    m = np.full(n, 0.1)
+    return m + e, m, e
+
+
+def test_an_input_the_print_has_no_null_for_is_judged_on_the_runs_own_scale():
+    def monitor() -> DepartureMonitor:
+        mon = DepartureMonitor(SIGMA, settle=Settle(memory_s=0.2, tau_s=0.2, lift_range=0.1))
+        mon.thresholds = {**mon.thresholds, "level": 1.75, "whiteness": 0.05}
+        mon.level_null = 1.0                     # the print: its own records' spread reached 1.0 σ_fp
+        return mon
+
+    # the model's own kind of input (spread ≈ 1 σ_fp): judged as the print says, nothing changed
+    own = monitor_arrays(monitor(), *_noisy(1.0))
+    assert own.outside_print_s is None and own.input_scale == 1.0 and own.departures == []
+    # a broadband input shows it 2.2 σ_fp from the start, beyond its print (on the print's scale a
+    # level departure at once): judged on the run's own scale, whiteness not at all, and said
+    wide = monitor_arrays(monitor(), *_noisy(2.2))
+    assert wide.outside_print_s == pytest.approx(6.0 + 1.0, abs=1.0)   # the first judged windows
+    assert wide.input_scale == pytest.approx(2.2, rel=0.05) and wide.departures == []
+    assert "whiteness" in wide._held and "--monitor calibrate" in wide.input_summary()["note"]
+    assert wide.last["level"] == pytest.approx(1.0, abs=0.06)
+    # a change from the run's start is still raised on that scale: the noise doubled at 50 s
+    doubled = monitor_arrays(monitor(), *_noisy(2.2, doubled_from=50.0))
+    assert [d["test"] for d in doubled.departures] == ["level"]
+    assert 50.0 < doubled.departures[0]["t_s"] <= 50.0 + 6.0
+    # without the print's null (a baseline run's thresholds are this input's own): never outside
+    base = monitor()
+    base.use_thresholds({"level": 3.0}, "a baseline run")
+    monitor_arrays(base, *_noisy(2.2))
+    assert base.outside_print_s is None and base.input_scale == 1.0 and base.departures == []
 
 
 def test_monitor_argument_and_thresholds_file(tmp_path):

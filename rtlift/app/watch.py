@@ -192,6 +192,8 @@ class Watch:
         out: dict[str, Any] = {"departures": list(self.monitor.departures) if self.monitor else []}
         if self.monitor is not None:
             out["monitor"] = self.monitor.summary()
+            if out["monitor"]["input"].get("note"):
+                self.say(f"monitor: {out['monitor']['input']['note']}")
         if self.adapter is not None:
             out["adaptations"] = list(self.adapter.adaptations)
         return out

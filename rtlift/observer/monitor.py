@@ -123,6 +123,13 @@ and of ±0.02 ΔCL with τ = 20 s, and a fade to 70 %): a zero drift's departure
 (a rising one's first ``bias`` read "proportional, t_b −3.8"), a fade's departures with a rising
 trend late in the run −38 to −110."""
 
+INPUT_SPREAD = 1.1
+"""An input is outside the model's print (:meth:`DepartureMonitor._input_against`) when the residual's
+spread in the run's first judged windows exceeds this × the largest on the model's own records. Set on
+calibration draws 1, 2 and 4 (open loop, 60 s from the start, seeds 9000 + N + 10000 j, j = 0–2): on
+``sine_k0125`` — the input the models were identified on — the first windows' largest spread reached
+0.86–1.054 × the print's, on ``sine_k025`` 1.135–1.35, on ``random`` 1.55–2.05."""
+
 N_SUMS = 9   # n, Σe, Σe², Σm, Σm², Σem, Σν, Σν², Σν(k)ν(k−1)
 
 
@@ -280,6 +287,11 @@ class DepartureMonitor:
         self.input_jump = self.scale / self.input_gain if math.isfinite(self.input_gain) else math.inf
         self.input_steps = 0
         """Steps of the operating point seen in the input (the envelope) so far."""
+        self.print_inputs: list[str] = []
+        """The identification records the model's print was computed on (the inputs its thresholds are for)."""
+        self.level_null = math.inf
+        """The largest ``level`` (held ``persist`` evaluations) on the model's own identification records
+        (its print's ``persistent_max``); inf: not known, the input is never judged outside the print."""
         if math.isnan(self.hold_scale):
             self.thresholds["hold"] = math.inf
         self._hold_blocks = tuple(max(1, int(round(x / cfg.block_s)))
@@ -320,6 +332,9 @@ class DepartureMonitor:
             mon.threshold_source = (f"the model's own identification records ({own.get('source', 'fingerprint')})"
                                     + (f"; {', '.join(kept)}: the global constants (never evaluated there)"
                                        if kept else ""))
+            mon.level_null = float((own.get("persistent_max") or {}).get("level") or math.inf)
+            mon.print_inputs = sorted(n for n in (model.fingerprint.get("records") or {})
+                                      if n.startswith(LOOP_LIKE) or n == QUASI_STATIC)
         return mon
 
     def use_thresholds(self, thresholds: Mapping[str, float], source: str) -> None:
@@ -330,6 +345,7 @@ class DepartureMonitor:
         if math.isnan(self.hold_scale):
             self.thresholds["hold"] = math.inf
         self.threshold_source = source
+        self.level_null = math.inf          # a baseline run of the real loop: its input's own null
 
     def set_steps(self, samples: Any, sizes: Any) -> None:
         """The samples (the monitor's count) at which the operating point is commanded to step
@@ -343,6 +359,10 @@ class DepartureMonitor:
     def reset(self) -> None:
         """Windows, runs and the sample count cleared (a new run)."""
         self._sample = 0
+        self.input_scale = 1.0
+        """σ_run / σ_fp (:meth:`_input_against`): 1 unless the input is outside the model's print."""
+        self.outside_print_s: float | None = None
+        self._first_judged = 0
         self._prev_env = math.nan
         self._jump_at = -1              # the sample of the last input step seen in this block
         self._jump_size = 0.0           # the largest one's lift-equivalent size (ΔCL)
@@ -450,6 +470,26 @@ class DepartureMonitor:
         if self._nb >= self.window_blocks:
             self._evaluate()
 
+    def _input_against(self, level: float, held: bool) -> float:
+        """The scale factor σ_run / σ_fp of the ``bias``, ``level`` and ``trend`` tests, decided on the
+        run's first ``window`` judged evaluations: when the residual's spread there (``level``, in
+        σ_fp) exceeds :data:`INPUT_SPREAD` × the largest the model showed on its own identification
+        records (``level_null``, its print's persistent maximum), the input being observed is one the print
+        has no null for (a broadband envelope on a model identified on sines and sweeps shows it
+        more misfit from the first window on, before anything changed). From then on those tests
+        are judged on the run's own scale, σ_run = the largest such spread × σ_fp (a change from
+        the run's start, as ``bias`` is), ``whiteness`` is not judged, and the summary says so
+        (thresholds from other inputs: ``--monitor calibrate`` gives them for this one). Returns
+        the factor in force for this evaluation."""
+        if held or level <= 0.0 or self._first_judged >= self.window_blocks:
+            return self.input_scale
+        self._first_judged += 1
+        if level > INPUT_SPREAD * self.level_null and level > self.input_scale:
+            self.input_scale = level
+            if self.outside_print_s is None:
+                self.outside_print_s = self._sample / self.fs_hz
+        return self.input_scale
+
     def _transient(self, sample: int, size: float) -> None:
         """The one hold-off: a step of the operating point of ``size`` ΔCL at ``sample`` (commanded
         by a reference, seen in the input, or a ringing loop's move) keeps every block starting
@@ -520,8 +560,8 @@ class DepartureMonitor:
         quiet = int(np.count_nonzero(w[:, 0] > 0))
         if n < 0.5 * self.window_blocks * self.block and quiet < w.shape[0]:
             self._held += ["bias", "level", "gain"]        # a transient left too little of the window
-        if quiet < 0.5 * self.window_blocks and quiet < w.shape[0]:
-            self._held.append("whiteness")
+        if (quiet < 0.5 * self.window_blocks and quiet < w.shape[0]) or self.outside_print_s is not None:
+            self._held.append("whiteness")      # a transient, or an input its print has no null for
         if n >= 0.5 * self.window_blocks * self.block:
             em, mm = se / n, sm / n
             var_m = max(sm2 / n - mm * mm, 0.0)
@@ -534,8 +574,9 @@ class DepartureMonitor:
             if self._bias_ref is None:
                 self._bias_ref = ec
             self._bias_shift = ec - self._bias_ref
-            out["bias"] = abs(self._bias_shift) / sc
-            out["level"] = math.sqrt(var_e) / sc
+            su = sc * self._input_against(math.sqrt(var_e) / sc, "level" in self._held)
+            out["bias"] = abs(self._bias_shift) / su
+            out["level"] = math.sqrt(var_e) / su
             if math.sqrt(var_m) >= cfg.gain_excitation * sc:
                 g = (sem / n - em * mm) / var_m
                 if self._op_m.size:             # less the slope g(m) itself has over the window's blocks
@@ -565,7 +606,7 @@ class DepartureMonitor:
                 xc = x - x.mean()
                 slope = float(xc @ (means - means.mean()) / (xc @ xc))
                 self._trend_slope = slope
-                out["trend"] = abs(slope) * self.config.trend_window_s / sc
+                out["trend"] = abs(slope) * self.config.trend_window_s / (sc * self.input_scale)
         out["hold"] = abs(self._hold)
         return out
 
@@ -685,6 +726,21 @@ class DepartureMonitor:
         if self.on_departure is not None:
             self.on_departure(d)
 
+    def input_summary(self) -> dict[str, Any]:
+        """Whether the observed input was one the model's print has a null for (:meth:`_input_against`),
+        in a plain sentence (``note``)."""
+        out: dict[str, Any] = {"print_inputs": self.print_inputs, "outside_print_s": self.outside_print_s,
+                               "scale_factor": self.input_scale,
+                               "level_null": self.level_null if math.isfinite(self.level_null) else None}
+        if self.outside_print_s is not None:
+            out["note"] = (f"the input showed the model a residual spread {self.input_scale:.2f} sigma_fp from the "
+                           f"run's start, beyond its largest on the records its thresholds came from "
+                           f"({', '.join(self.print_inputs) or 'its identification records'}: "
+                           f"{self.level_null:.2f}): bias, level and trend were judged on the run's own scale "
+                           f"(changes from its start), whiteness not at all; for thresholds from this input, "
+                           f"run a clean baseline with --monitor calibrate OUT.json, then --monitor OUT.json")
+        return out
+
     def summary(self) -> dict[str, Any]:
         def finite(v: float) -> float | None:
             return float(v) if math.isfinite(v) else None
@@ -697,6 +753,7 @@ class DepartureMonitor:
                            "steps": int(self._steps.size), "input_steps": self.input_steps,
                            "input_jump_cmu": finite(self.input_jump)},
                 "operating_point_misfit": bool(self._op_m.size),
+                "input": self.input_summary(),
                 "last": {k: float(v) for k, v in self.last.items()}}
 
 
