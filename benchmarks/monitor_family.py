@@ -320,7 +320,8 @@ def open_loop(model, draw: int, kind: str, seed: int, seconds: float) -> dict:
     return {"kind": kind, "seed": seed, "seconds": seconds, "wall_s": time.perf_counter() - t0,
             "departures": [{k: d[k] for k in ("t_s", "test", "statistic", "threshold", "suspect")}
                            for d in mon.departures],
-            "max": {k: max((h[k] for h in mon.history), default=0.0) for k in TESTS}}
+            "max": {k: max((h[k] for h in mon.history), default=0.0) for k in TESTS},
+            "input": mon.input_summary(), "input_steps": mon.input_steps}
 
 
 def open_totals(runs: list[dict]) -> dict:
@@ -330,7 +331,8 @@ def open_totals(runs: list[dict]) -> dict:
     n = sum(len(o["departures"]) for o in runs)
     hours = sum(o["seconds"] for o in runs) / 3600.0
     return {"open_runs": len(runs), "open_hours": hours, "open_false_departures": n,
-            "open_per_hour": n / hours, "open_per_hour_95_upper": poisson_upper(n) / hours}
+            "open_per_hour": n / hours, "open_per_hour_95_upper": poisson_upper(n) / hours,
+            "open_outside_print": sum(1 for o in runs if (o.get("input") or {}).get("outside_print_s") is not None)}
 
 
 def poisson_upper(n: int, level: float = 0.95) -> float:
