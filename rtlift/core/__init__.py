@@ -8,8 +8,10 @@
 - :mod:`rtlift.core.programs` experiment programs (time, envelope, burst period) for the rig and the bench;
 - :mod:`rtlift.core.wing`    the paper's wing, flow, actuators and transducer (calibration and bench defaults);
 - :mod:`rtlift.core.split`   how a run is split for diagnosis (the share fitted on, the least parts);
-- :mod:`rtlift.core.registry` the generic model structures (the effects: :mod:`rtlift.effects`);
+- :mod:`rtlift.core.registry` the generic model structures (the effects: :mod:`rtlift.effects`), and the
+  stage providers through which an upper floor hands its stages down to the model file's reader;
 - :mod:`rtlift.core.jsonfile` JSON files written whole or not at all;
+- :mod:`rtlift.core.textfile` a text file read whole, each failure one line;
 - :mod:`rtlift.core.jit`     numba functions compiled with a cache safe across processes;
 - :mod:`rtlift.core.threads` one BLAS thread for identification and diagnosis.
 

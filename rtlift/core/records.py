@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from rtlift.core.errors import RecordError
+from rtlift.core.textfile import read_text
 
 REQUIRED = ("t", "cmu", "cmu_envelope", "dcl")
 SISO_REQUIRED = ("t", "u", "y")
@@ -89,17 +90,7 @@ def _read_table(path: str | os.PathLike, required: tuple[str, ...], min_samples:
                 ) -> tuple[dict[str, str], dict[str, np.ndarray]]:
     """Metadata and columns of a record CSV with the ``required`` columns, validated
     (finite, ``t`` strictly increasing); :class:`RecordError` (one line) on any problem."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RecordError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise RecordError(f"{path}: is a directory, not a record file") from None
-    except UnicodeDecodeError:
-        raise RecordError(f"{path}: not a text (UTF-8) file") from None
-    except OSError as exc:
-        raise RecordError(f"{path}: cannot read ({exc.strerror})") from None
+    text = read_text(path, "a record file", RecordError)
 
     lines = text.splitlines()
     meta: dict[str, str] = {}

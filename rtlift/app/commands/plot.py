@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rtlift.core.errors import UserError
+from rtlift.core.textfile import read_text
 
 CSV_COLUMNS = ("t", "dcl", "dcl_hat", "model_dcl", "innovation", "nis")
 """Columns of the estimates file the figures need."""
@@ -43,17 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def read_estimates(path: str | os.PathLike) -> tuple[dict[str, str], dict[str, np.ndarray]]:
     """``# key: value`` metadata and the :data:`CSV_COLUMNS` of an estimates file (empty cells → NaN);
     :class:`UserError` (one line) if it is not one."""
-    try:
-        with open(path, encoding="utf-8", newline="") as f:
-            lines = f.read().splitlines()
-    except FileNotFoundError:
-        raise UserError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise UserError(f"{path}: is a directory, not an estimates file") from None
-    except UnicodeDecodeError:
-        raise UserError(f"{path}: not a text (UTF-8) file: an estimates CSV, or a frame log with --model") from None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read ({exc.strerror})") from None
+    lines = read_text(path, "an estimates file", UserError,
+                      ": an estimates CSV, or a frame log with --model").splitlines()
     meta: dict[str, str] = {}
     i = 0
     while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
