@@ -105,6 +105,31 @@ def test_a_rise_is_a_zero_drift_unless_it_follows_the_actuation_beyond_doubt():
         assert mon.level_suspect(change) == name, (fit, change)
 
 
+def test_a_fall_where_nothing_actuated_is_a_zero_drift():
+    # an open loop whose actuator rests 3 s in every 8 (the model's lift 0 there, 0.1 otherwise):
+    # from 40 s a fade to 70 % lowers the lift only where it actuates; a zero falling by 2 σ_fp
+    # lowers it everywhere — the window's unactuated blocks tell them apart from the first departure
+    rng = np.random.default_rng(6)
+    n = int(56 * FS_HZ)
+    t = np.arange(n) / FS_HZ
+    m = np.where(t % 8.0 < 3.0, 0.0, 0.1)
+    noise = SIGMA * rng.standard_normal(n)
+    late = t >= 40.0
+    for z, name in ((np.where(late, 0.7 * m, m) + noise, "actuator_fade"),
+                    (m + noise - np.where(late, 2.0 * SIGMA, 0.0), "zero_drift")):
+        mon = monitor_arrays(DepartureMonitor(SIGMA), z, m, noise)
+        levels = [d for d in mon.departures if d["test"] in ("bias", "trend", "hold")]
+        assert levels and 40.0 < levels[0]["t_s"] <= 48.0, mon.departures
+        assert {d["suspect"] for d in levels} == {name}, levels
+        off, on = levels[0]["evidence"]["off_on_shift"]
+        assert on < 0 and (off > 0.5 * on if name == "actuator_fade" else off < 0.5 * on)
+    # a fall with no unactuated block in the window keeps the likelier cause; none actuated: the zero
+    mon._off_on = None
+    assert mon.level_suspect(-1e-3) == "actuator_fade"
+    mon._off_on = (-0.02, None)
+    assert mon.level_suspect(-1e-3) == "zero_drift"
+
+
 def _psd_print(e: np.ndarray) -> dict:
     f, p = welch_psd(e, FS_HZ)
     return {"f_hz": f.tolist(), "log10": np.log10(p).tolist(), "segments": 1}

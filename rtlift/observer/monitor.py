@@ -383,6 +383,7 @@ class DepartureMonitor:
         self._bias_shift = 0.0
         self._trend_slope = 0.0         # the trend's signed slope of the block means (ΔCL/s)
         self._fit = ("none", 0.0)
+        self._off_on = None             # the residual's shift in the window's unactuated / actuated blocks
         self._held: list[str] = []
         self._gain_sign = 0.0
         self._run = dict.fromkeys(TESTS, 0)
@@ -556,6 +557,7 @@ class DepartureMonitor:
         n, se, se2, sm, sm2, sem, sn, sn2, snn = w.sum(axis=0)
         out = dict.fromkeys(TESTS, 0.0)
         self._fit = ("none", 0.0)
+        self._off_on: tuple[float, float | None] | None = None
         self._held = []
         quiet = int(np.count_nonzero(w[:, 0] > 0))
         if n < 0.5 * self.window_blocks * self.block and quiet < w.shape[0]:
@@ -575,6 +577,11 @@ class DepartureMonitor:
                 self._bias_ref = ec
             self._bias_shift = ec - self._bias_ref
             su = sc * self._input_against(math.sqrt(var_e) / sc, "level" in self._held)
+            off = np.abs(mb) < sc          # the actuator off: the model's lift within σ_fp of none
+            if off.any():
+                on = ~off
+                self._off_on = (float(nb[off] @ eb[off] / nb[off].sum()) - self._bias_ref,
+                                float(nb[on] @ eb[on] / nb[on].sum()) - self._bias_ref if on.any() else None)
             out["bias"] = abs(self._bias_shift) / su
             out["level"] = math.sqrt(var_e) / su
             if math.sqrt(var_m) >= cfg.gain_excitation * sc:
@@ -691,13 +698,26 @@ class DepartureMonitor:
           t_b ≤ −:data:`FIT_T_STRONG` (a fade's residual steps with each reference step, so the
           sign of its 30-s trend follows the reference's last steps, not the fade).
 
-        What this cannot tell: a zero *falling* while a loop holds its operating point. The loop
-        raises Cμ to hold the lift either way, so the residual falls as the model's lift rises
-        for both, and a drift's not scaling with the actuation shows only across later
-        reference steps; it is named ``actuator_fade`` (the likelier cause on a rig whose
-        actuators heat as they run) and the diagnosis ``--adapt`` runs decides."""
+        A fall is a ``zero_drift`` after all when the window shows it where nothing actuated: a
+        fade lowers the lift only in proportion to the actuation, so in the window's blocks with the
+        actuator off (the model's lift within σ_fp of none) its residual stays where it was, while
+        a falling zero lowers it there as much as anywhere. With such blocks in the window, the
+        fall is named ``zero_drift`` when their residual has moved from the run's start (the
+        ``bias`` reference) by more than half what the actuated blocks' has (the midpoint between
+        the two causes), or when no block was actuated at all.
+
+        What this cannot tell: a zero *falling* while a loop holds its operating point with the
+        actuator on throughout. The loop raises Cμ to hold the lift either way, so the residual
+        falls as the model's lift rises for both, and a drift's not scaling with the actuation
+        shows only across later reference steps; it is named ``actuator_fade`` (the likelier cause
+        on a rig whose actuators heat as they run) and the diagnosis ``--adapt`` runs decides."""
         kind, t = self._fit
-        if change < 0 or (kind == "proportional" and t <= -FIT_T_STRONG):
+        if change < 0:
+            off = self._off_on
+            if off is not None and (off[1] is None or (off[1] < 0 and off[0] < 0.5 * off[1])):
+                return ZeroDriftEffect.name
+            return ActuatorFadeEffect.name
+        if kind == "proportional" and t <= -FIT_T_STRONG:
             return ActuatorFadeEffect.name
         return ZeroDriftEffect.name
 
@@ -721,7 +741,8 @@ class DepartureMonitor:
              "suspect": self.suspect(test), "sample": self._sample,
              "evidence": {"fit": kind, "t_b": round(float(tb), 3) if math.isfinite(tb) else None,
                           "bias_shift": float(self._bias_shift),
-                          "trend_slope": float(self._trend_slope), "hold": float(self._hold)}}
+                          "trend_slope": float(self._trend_slope), "hold": float(self._hold),
+                          "off_on_shift": self._off_on}}
         self.departures.append(d)
         if self.on_departure is not None:
             self.on_departure(d)
