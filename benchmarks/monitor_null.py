@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
         row = {"record": name, "hours": hours, "departures": mon.departures,
                "scale": mon.scale}
         if args.calibrate:
-            row["persistent_max"] = {t: persistent_max(mon.history, t, mon.config.persist) for t in TESTS}
+            row["persistent_max"] = {t: persistent_max([h[t] for h in mon.history], mon.config.persist) for t in TESTS}
         runs.append(row)
         print(json.dumps({k: row[k] for k in row if k != "departures"} | {"n_departures": len(mon.departures)}),
               flush=True)
