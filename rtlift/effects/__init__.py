@@ -5,7 +5,8 @@ declares — schema, signal path, stage, fit, evidence, parameters spent, bands,
 Importing the package imports every module in it; each class registers itself when defined,
 and the tables below are derived from what registered (a new effect is a new module here and
 its row in INTERFACES.md's table, plus its bench processor in :mod:`hil_sim.effects` if the bench
-injects it):
+injects it; a stage of its own is defined in the same module, and the model file's reader finds it
+through the stage provider ``rtlift/__init__.py`` hands down, :mod:`rtlift.core.registry`):
 
 - :data:`EFFECTS`, :data:`STRUCTURES`: the lift effects and the structures, in INTERFACES.md's
   order; :data:`BY_NAME` both by name;

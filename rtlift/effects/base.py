@@ -112,7 +112,8 @@ class Effect(Entry):
     kind = "effect"
     path: ClassVar[str] = ""
     stages: ClassVar[tuple[type, ...]] = ()
-    """The streaming stage (:mod:`rtlift.blocks`), or the Wiener nonlinearity forms."""
+    """The streaming stage (one of :mod:`rtlift.blocks`, or one the effect's own module defines: it
+    registers itself, :mod:`rtlift.blocks.stage_base`), or the Wiener nonlinearity forms."""
     spent: ClassVar[int] = 0
     """Parameters the effect spends (:meth:`n_params` when it depends on the fit)."""
     excludes: ClassVar[tuple[str, ...]] = ()
