@@ -77,6 +77,13 @@ def test_no_window_holding_a_step_or_the_start_is_judged():
     seen = monitor_arrays(DepartureMonitor(SIGMA, settle=settle, input_gain=gain), m + e, m, e, m / gain)
     assert seen.departures == [] and seen.input_steps == len(starts) - 1      # the first is the start
     assert seen.last["level"] == pytest.approx(1.0, abs=0.15)
+    # a closed loop told its reference's steps: the envelope's own jumps (here the same steps, and
+    # a controller's kicks between them) are its feedback, not steps — the same windows as told
+    kicks = m / gain + np.where(np.arange(m.size) % 1000 == 0, 0.01, 0.0)
+    both = DepartureMonitor(SIGMA, settle=settle, input_gain=gain)
+    both.set_steps(starts, sizes)
+    monitor_arrays(both, m + e, m, e, kicks)
+    assert both.input_steps == 0 and both.departures == [] and both.last == told.last
     # a moving input is not a step: a sine envelope swinging the lift by 10 σ_fp a block, smoothly
     slow = 0.1 + 0.05 * np.sin(2 * np.pi * 0.25 * np.arange(m.size) / FS_HZ)
     noise = SIGMA * np.random.default_rng(2).standard_normal(m.size)

@@ -362,7 +362,6 @@ class DepartureMonitor:
         self.input_scale = 1.0
         """σ_run / σ_fp (:meth:`_input_against`): 1 unless the input is outside the model's print."""
         self.outside_print_s: float | None = None
-        self._first_judged = 0
         self._prev_env = math.nan
         self._jump_at = -1              # the sample of the last input step seen in this block
         self._jump_size = 0.0           # the largest one's lift-equivalent size (ΔCL)
@@ -405,7 +404,10 @@ class DepartureMonitor:
         the observer's innovation (NaN when there was no update) and the input's envelope Cμ
         (NaN: not given). An envelope jump from the last sample with G·|ΔCμ| > σ_fp (G =
         ``input_gain``) is a step of the operating point: its transient is held off as a
-        commanded step's is (:meth:`_transient`), whoever moved the input."""
+        commanded step's is (:meth:`_transient`) — unless the monitor was told a reference's steps
+        (:meth:`set_steps`): in a closed loop the operating point moves when the reference does,
+        and the envelope's own jumps are the controller's answer to the estimate (its feedback),
+        not steps of it."""
         if envelope == envelope:
             d = envelope - self._prev_env
             if d > self.input_jump or d < -self.input_jump:
@@ -451,8 +453,9 @@ class DepartureMonitor:
             k += 1
         self._next_step = k
         if self._jump_at >= 0:                                 # a step seen in the input within it
-            self._transient(self._jump_at, self._jump_size)
-            self.input_steps += 1
+            if not steps.size:      # told a reference's steps, the input's own jumps are the loop's feedback
+                self._transient(self._jump_at, self._jump_size)
+                self.input_steps += 1
             self._jump_at, self._jump_size = -1, 0.0
         start = self._sample - self.block
         if row[0] > 0:
@@ -473,7 +476,8 @@ class DepartureMonitor:
 
     def _input_against(self, level: float, held: bool) -> float:
         """The scale factor σ_run / σ_fp of the ``bias``, ``level`` and ``trend`` tests, decided on the
-        run's first ``window`` judged evaluations: when the residual's spread there (``level``, in
+        run's first ``window`` evaluations (those of them judged; later ones, which may hold a change,
+        never decide): when the residual's spread there (``level``, in
         σ_fp) exceeds :data:`INPUT_SPREAD` × the largest the model showed on its own identification
         records (``level_null``, its print's persistent maximum), the input being observed is one the print
         has no null for (a broadband envelope on a model identified on sines and sweeps shows it
@@ -482,9 +486,8 @@ class DepartureMonitor:
         the run's start, as ``bias`` is), ``whiteness`` is not judged, and the summary says so
         (thresholds from other inputs: ``--monitor calibrate`` gives them for this one). Returns
         the factor in force for this evaluation."""
-        if held or level <= 0.0 or self._first_judged >= self.window_blocks:
+        if held or level <= 0.0 or self.evaluations >= self.window_blocks:
             return self.input_scale
-        self._first_judged += 1
         if level > INPUT_SPREAD * self.level_null and level > self.input_scale:
             self.input_scale = level
             if self.outside_print_s is None:
