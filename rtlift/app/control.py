@@ -262,13 +262,8 @@ class LiftController:
         self._filtered = 0.0
         """The lead–lag's output (ΔCL), what the PI acts on."""
         self._last_err = 0.0
-        self._count = 0
-        self._err_sum = 0.0
-        self._est_sum = 0.0
         self._point = 0.0
-        self._ref_sum = 0.0
-        self._ref_n = 0
-        self._n = 0
+        self._start_period()
         nq, npl = (len(self._taps[0]), len(self._taps[2])) if getattr(self, "_taps", None) else (0, 0)
         self._w_hist = [0.0] * npl
         """The internal-model controller's past outputs w = v − r as applied (after the limits), a ring."""
@@ -277,6 +272,16 @@ class LiftController:
         self._ex_hist = [0.0] * nq
         self._w_pos = 0
         self._e_pos = 0
+
+    def _start_period(self) -> None:
+        """Empty the decision period's accumulators (sums of error, estimate and reference over
+        the samples since the last decision, and their counts)."""
+        self._count = 0
+        self._err_sum = 0.0
+        self._est_sum = 0.0
+        self._ref_sum = 0.0
+        self._ref_n = 0
+        self._n = 0
 
     def carry_from(self, other: LiftController) -> None:
         """Take over ``other``'s integrator, last decision and place in the period (a model swap
@@ -347,12 +352,7 @@ class LiftController:
         if not self._youla:          # the internal-model controller's step sets it exactly (w)
             self.feedback_dcl = min(max(v, self.dcl_min), self.dcl_max) - ref
         self.envelope = self.inverse(v)
-        self._count = 0
-        self._err_sum = 0.0
-        self._est_sum = 0.0
-        self._ref_sum = 0.0
-        self._ref_n = 0
-        self._n = 0
+        self._start_period()
         self.updated = True
         return self.envelope
 
