@@ -30,29 +30,18 @@ from firmware_io.samples import STATUS_HOST_CONTROL, STATUS_WATCHDOG, Counters, 
 from firmware_io.serial_codec import (
     COMMAND_PACKET_LEN,
     SAMPLE_PACKET_LEN_V2,
-    SerialDecoder,
     decode_command,
     encode_command,
     encode_sample,
 )
 from hil_sim.devices.serial_daq import cobs_data_positions
+from tests.test_io_serial_codec import decode_cut as decode
 
 COUNTS = (1_000_000, -2_000_000, 35_000_000, 250_000_000, -1, 2**31 - 1)
 
 
 def v2_frame(seq: int, cmd_seq: int | None, status: int = 0x09, volt_cv: int = 6000) -> bytes:
     return encode_sample(seq, seq * 2500, volt_cv, COUNTS, status, 4321, cmd_seq)
-
-
-def decode(stream: bytes, cuts: list[int] = ()) -> tuple[SerialDecoder, list[Sample]]:
-    out: list[Sample] = []
-    dec = SerialDecoder(out.append)
-    pos = 0
-    for n in cuts:
-        dec.feed(stream[pos:pos + n])
-        pos += n
-    dec.feed(stream[pos:])
-    return dec, out
 
 
 # -- serial samples, version 2 ------------------------------------------------------------------

@@ -10,6 +10,7 @@ from cobs import cobs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from firmware_io.samples import Sample
 from firmware_io.serial_codec import SAMPLE_PACKET_LEN, SerialDecoder, encode_event, encode_sample
 from hil_sim.devices.serial_daq import cobs_data_positions, invalid_chunks
 
@@ -22,6 +23,18 @@ def decode(stream: bytes, pieces: int = 1):
     step = max(1, len(stream) // pieces)
     for i in range(0, len(stream), step):
         dec.feed(stream[i:i + step])
+    return dec, out
+
+
+def decode_cut(stream: bytes, cuts: list[int] = ()) -> tuple[SerialDecoder, list[Sample]]:
+    """The decoder and the samples it gave, ``stream`` fed in pieces of the lengths ``cuts`` (then the rest)."""
+    out: list[Sample] = []
+    dec = SerialDecoder(out.append)
+    pos = 0
+    for n in cuts:
+        dec.feed(stream[pos:pos + n])
+        pos += n
+    dec.feed(stream[pos:])
     return dec, out
 
 
@@ -124,13 +137,7 @@ def test_every_single_byte_corruption_of_a_packet_body_is_detected():
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=600), st.lists(st.integers(1, 64), max_size=20))
 def test_decoder_never_raises_on_arbitrary_bytes_in_any_chunking(data, cuts):
-    out = []
-    dec = SerialDecoder(out.append)
-    pos = 0
-    for n in cuts:
-        dec.feed(data[pos:pos + n])
-        pos += n
-    dec.feed(data[pos:])
+    dec, out = decode_cut(data, cuts)
     c = dec.counters
     assert c.received == len(out) and min(c.received, c.crc_errors, c.lost, c.resyncs) >= 0
 
@@ -184,13 +191,7 @@ def test_counters_are_exact_for_any_mix_of_drops_duplicates_corruption_and_garba
         delivered.append(i)
         expect["duplicates"] += op == "dup"
 
-    out = []
-    dec = SerialDecoder(out.append)
-    data, pos = bytes(stream), 0
-    for n in cuts:
-        dec.feed(data[pos:pos + n])
-        pos += n
-    dec.feed(data[pos:])
+    dec, out = decode_cut(bytes(stream), cuts)
 
     assert [s.volt_cv for s in out] == delivered
     assert [s.seq for s in out] == [(seq0 + i) & 0xFFFF for i in delivered]
