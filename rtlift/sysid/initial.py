@@ -83,7 +83,8 @@ def initial_state(model, u: np.ndarray, y: np.ndarray, n: int) -> np.ndarray:
 
     def cost(x: np.ndarray) -> float:
         r = run(x)
-        c = float(r @ r)
+        with np.errstate(all="ignore"):
+            c = float(r @ r)
         return c if np.isfinite(c) else np.inf
 
     def steady(level: float) -> np.ndarray:
