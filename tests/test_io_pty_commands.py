@@ -6,6 +6,7 @@ only bounded generously (a shared 2-core machine)."""
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 
 import can
 import pytest
@@ -38,6 +39,16 @@ DEVICES = [(SerialDaq, serial_config), (SlcanAdapter, can_config)]
 IDS = ["serial", "slcan"]
 
 
+@contextmanager
+def streaming(make, config, seed: int, **extra):
+    """(device, link): a ``make`` device streaming the static experiment (``seed``), started, and
+    the link ``config`` (with ``extra``) opens to it; both closed on the way out."""
+    dev = make(daq_stream("static", seed=seed))
+    with dev, open_link({**config(dev), **extra}) as link:
+        dev.start()
+        yield dev, link
+
+
 def read_until(link, done, timeout_s=GENEROUS_S):
     """Samples until ``done(sample)`` (that one included); fails after ``timeout_s``."""
     out = []
@@ -66,9 +77,7 @@ def read_for(link, n):
 
 @pytest.mark.parametrize("make,config", DEVICES, ids=IDS)
 def test_commands_are_echoed_and_counted_exactly(make, config):
-    dev = make(daq_stream("static", seed=1))
-    with dev, open_link(config(dev)) as link:
-        dev.start()
+    with streaming(make, config, 1) as (dev, link):
         before = read_for(link, 40)
         sent = []
         for k in range(1, 41):
@@ -97,9 +106,7 @@ def test_commands_are_echoed_and_counted_exactly(make, config):
 
 @pytest.mark.parametrize("make,config", DEVICES, ids=IDS)
 def test_commands_faster_than_samples_are_applied_or_superseded_exactly(make, config):
-    dev = make(daq_stream("static", seed=6))
-    with dev, open_link(config(dev)) as link:
-        dev.start()
+    with streaming(make, config, 6) as (dev, link):
         read_for(link, 10)
         for k in range(300):
             link.send_command(k, watchdog_ms_div10=200)
@@ -118,9 +125,7 @@ def test_commands_faster_than_samples_are_applied_or_superseded_exactly(make, co
 
 def test_serial_device_streams_version_1_until_the_first_command(tmp_path):
     log = tmp_path / "raw.bin"
-    dev = SerialDaq(daq_stream("static", seed=2))
-    with dev, open_link({**serial_config(dev), "log": str(log)}) as link:
-        dev.start()
+    with streaming(SerialDaq, serial_config, 2, log=str(log)) as (dev, link):
         read_for(link, 30)
         cmd_seq = link.send_command(3000)
         read_until(link, lambda s: s.cmd_seq == cmd_seq)
@@ -134,9 +139,7 @@ def test_serial_device_streams_version_1_until_the_first_command(tmp_path):
 
 @pytest.mark.parametrize("make,config", DEVICES, ids=IDS)
 def test_a_corrupted_command_is_counted_by_the_device_and_not_applied(make, config):
-    dev = make(daq_stream("static", seed=3))
-    with dev, open_link(config(dev)) as link:
-        dev.start()
+    with streaming(make, config, 3) as (dev, link):
         read_for(link, 10)
         if make is SerialDaq:
             good = encode_command(1, 7000)
@@ -155,9 +158,7 @@ def test_a_corrupted_command_is_counted_by_the_device_and_not_applied(make, conf
 
 @pytest.mark.parametrize("make,config", DEVICES, ids=IDS)
 def test_a_command_that_is_not_newer_is_ignored(make, config):
-    dev = make(daq_stream("static", seed=4))
-    with dev, open_link(config(dev)) as link:
-        dev.start()
+    with streaming(make, config, 4) as (dev, link):
         for _ in range(3):
             cmd_seq = link.send_command(1000 * link._commands.next_seq())
         read_until(link, lambda s: s.cmd_seq == cmd_seq)
@@ -173,9 +174,7 @@ def test_a_command_that_is_not_newer_is_ignored(make, config):
 
 @pytest.mark.parametrize("make,config", DEVICES, ids=IDS)
 def test_silence_trips_the_watchdog_and_the_next_command_takes_control_again(make, config):
-    dev = make(daq_stream("static", seed=5))
-    with dev, open_link(config(dev)) as link:
-        dev.start()
+    with streaming(make, config, 5) as (dev, link):
         first = link.send_command(8000, watchdog_ms_div10=10)  # 100 ms
         applied = read_until(link, lambda s: s.cmd_seq == first)[-1]
         tripped = read_until(link, lambda s: s.status & STATUS_WATCHDOG)
