@@ -43,6 +43,22 @@ def noisy_measurement(model, cmu, env, sigma, rng, offset=0.0):
     return truth, truth + rng.normal(0.0, sigma, truth.size)
 
 
+def noisy_case(rng, n, **model_kw):
+    """(model, cmu, env, truth, z): a random model (:func:`testkit.synthetic.make_model` with
+    ``model_kw``), ``n`` samples of burst input, its ΔCL and that measured with σ = 0.004 noise."""
+    model = make_model(rng, **model_kw)
+    cmu, env = burst_input(rng, n)
+    truth, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    return model, cmu, env, truth, z
+
+
+def stepped(obs, cmu, env, z, n):
+    """``obs`` after its steps on the first ``n`` samples (returned)."""
+    for k in range(n):
+        obs.step(cmu[k], env[k], z[k])
+    return obs
+
+
 @pytest.mark.parametrize("path", ["compiled", "reference"])
 @pytest.mark.parametrize(("output_form", "cfg"), [(False, CFG), (True, CFG), (False, FULL), (True, FULL)],
                          ids=["input_gain", "output_nonlinearity", "input_gain_all_states", "output_all_states"])
@@ -50,9 +66,7 @@ def test_step_is_filterpy_predict_then_joseph_update_with_the_time_varying_H(rng
     """The compiled step and the in-place BLAS reference step each equal filterpy's predict +
     Joseph update on the same row H(k) = [N C, 1, h_noise, ΔCL_H(k), Cμ_env(k)·basis(φ(k))] to
     1e-12 relative, every sample."""
-    model = make_model(rng, output_form=output_form)
-    cmu, env = burst_input(rng, 600)
-    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    model, cmu, env, _, z = noisy_case(rng, 600, output_form=output_form)
     cfg = dataclasses.replace(cfg, gate_probability=1.0)    # every sample updates: compare all of them
     obs = Observer(model, cfg)
     assert obs.compiled
@@ -159,9 +173,7 @@ def test_dense_outliers_open_the_gate_isolated_ones_stay_out(rng):
     """Outliers every 173rd sample are all rejected; a stretch where every other sample is out
     of the gate (a real change the model misses) piles up 1 − 1/4 per pair and opens it at the
     15th outlier (count 0.75 · 14 ≥ 10); it then stays open for the rest of the stretch."""
-    model = make_model(rng)
-    cmu, env = burst_input(rng, 3000)
-    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    model, cmu, env, _, z = noisy_case(rng, 3000)
     cfg = ObserverConfig(R=1.6e-5, q_x=1e-9, q_bias=1e-9, p0_bias=1e-4, max_rejections=10)
     isolated = z.copy()
     isolated[500::173] += 0.3
@@ -178,12 +190,8 @@ def test_dense_outliers_open_the_gate_isolated_ones_stay_out(rng):
 
 
 def test_a_missing_sample_is_predict_only_and_grows_the_covariance(rng):
-    model = make_model(rng)
-    cmu, env = burst_input(rng, 300)
-    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
-    obs = Observer(model, CFG)
-    for k in range(299):
-        obs.step(cmu[k], env[k], z[k])
+    model, cmu, env, _, z = noisy_case(rng, 300)
+    obs = stepped(Observer(model, CFG), cmu, env, z, 299)
     x_before, p_before = obs.kf.x.copy(), np.trace(obs.kf.P)
     est = obs.step(cmu[299], env[299], None)
     st = obs.layout
@@ -194,14 +202,9 @@ def test_a_missing_sample_is_predict_only_and_grows_the_covariance(rng):
 
 
 def test_an_outlier_is_gated_out_counted_and_leaves_the_estimate_on_the_prediction(rng):
-    model = make_model(rng)
-    cmu, env = burst_input(rng, 600)
-    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
-    obs = Observer(model, CFG)
-    twin = Observer(model, CFG)
-    for k in range(599):
-        obs.step(cmu[k], env[k], z[k])
-        twin.step(cmu[k], env[k], z[k])
+    model, cmu, env, _, z = noisy_case(rng, 600)
+    obs = stepped(Observer(model, CFG), cmu, env, z, 599)
+    twin = stepped(Observer(model, CFG), cmu, env, z, 599)
     est = obs.step(cmu[599], env[599], z[599] + 0.5)        # a 125 σ spike
     missing = twin.step(cmu[599], env[599], None)
     assert est.flags == FLAG_REJECTED and obs.rejected == 1
@@ -222,12 +225,8 @@ def test_a_persistent_step_is_accepted_after_max_rejections(rng):
 
 @pytest.mark.parametrize("cfg", [CFG, FULL], ids=["plain", "all_states"])
 def test_get_state_set_state_resumes_bit_for_bit(rng, cfg):
-    model = make_model(rng)
-    cmu, env = burst_input(rng, 500)
-    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
-    obs = Observer(model, cfg)
-    for k in range(250):
-        obs.step(cmu[k], env[k], z[k])
+    model, cmu, env, _, z = noisy_case(rng, 500)
+    obs = stepped(Observer(model, cfg), cmu, env, z, 250)
     saved = obs.get_state()
     first = [obs.step(cmu[k], env[k], z[k]).as_tuple() for k in range(250, 500)]
     other = Observer(model, cfg)
@@ -261,9 +260,7 @@ def test_the_bias_state_tracks_a_sensor_offset_the_model_lacks(rng):
 
 def test_nis_is_consistent_when_the_model_is_right(rng):
     """With the true model and the true R, NIS is χ²₁: mean ≈ 1, 95 % inside the band."""
-    model = make_model(rng)
-    cmu, env = burst_input(rng, 8000)
-    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    model, cmu, env, _, z = noisy_case(rng, 8000)
     obs = Observer(model, ObserverConfig(R=0.004**2, q_x=0.0, q_bias=1e-12, p0_bias=1e-8))
     obs.run(cmu, env, z)
     assert obs.nis_mean == pytest.approx(1.0, abs=0.06)
@@ -277,9 +274,7 @@ def test_a_step_allocates_nothing_that_stays(rng, cfg, path):
     """tracemalloc: after warm-up, steps retain only the few floats of the reused Estimate
     (not growing with the number of steps) and their transient peak is a few hundred bytes
     (the reference step builds a burst period's basis table when the period changes)."""
-    model = make_model(rng, kernel_len=300)
-    cmu, env = burst_input(rng, 5000)
-    _, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    model, cmu, env, _, z = noisy_case(rng, 5000, kernel_len=300)
     cmu, env, z = cmu.tolist(), env.tolist(), z.tolist()
     obs = Observer(model, cfg)
     step = obs.step if path == "compiled" else obs.reference_step
@@ -336,9 +331,7 @@ class _Pickup(OutputStage, register=False):
 
 def test_an_accepted_periodic_disturbance_adds_oscillator_states_that_remove_the_pickup(rng, monkeypatch):
     monkeypatch.setitem(STAGES, "periodic_disturbance", _Pickup)
-    model = make_model(rng)
-    cmu, env = burst_input(rng, 6000)
-    truth, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    model, cmu, env, truth, z = noisy_case(rng, 6000)
     t = np.arange(1, z.size + 1) / 400.0
     z = z + 0.01 * np.sin(2 * np.pi * 20.0 * t + 1.3)         # phase unknown to the model
     augmented = model.with_stages(output_stages=(_Pickup(20.0, 0.01, 400.0),))
@@ -355,9 +348,7 @@ def test_an_accepted_periodic_disturbance_adds_oscillator_states_that_remove_the
 
 def test_a_pickup_with_harmonics_adds_two_oscillator_states_per_line_that_remove_it(rng):
     """What the diagnosis now accepts for mains: the fundamental and its harmonics as sampled."""
-    model = make_model(rng)
-    cmu, env = burst_input(rng, 6000)
-    truth, z = noisy_measurement(model, cmu, env, 0.004, rng)
+    model, cmu, env, truth, z = noisy_case(rng, 6000)
     t = np.arange(1, z.size + 1) / 400.0
     z = z + 0.01 * np.sin(2 * np.pi * 60.02 * t + 1.3) + 0.004 * np.sin(2 * np.pi * 99.9 * t - 0.4)
     pickup = PeriodicDisturbance(60.02, 0.01, 0.0, 400.0, [{"n": 5, "amplitude": 0.004}])   # 300.1 -> 99.9 Hz
