@@ -18,6 +18,16 @@ def add_link_arguments(parser: argparse.ArgumentParser, required: bool = True) -
                        help="python-can interface and channel, e.g. slcan:/dev/ttyACM0")
 
 
+def add_live_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add what a command running the observer live on a link reads: the link
+    (:func:`add_link_arguments`), ``--model`` (the model file with observer settings),
+    ``--calibration`` (the bench's when absent) and ``--log`` (the raw frame log)."""
+    add_link_arguments(parser)
+    parser.add_argument("--model", required=True, metavar="MODEL.json", help="model file with observer settings")
+    parser.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
+    parser.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
+
+
 def add_reconnect_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--reconnect [GIVE_UP_S]`` (read by :func:`link_config_from_args`)."""
     parser.add_argument("--reconnect", nargs="?", const=-1.0, type=float, metavar="GIVE_UP_S",

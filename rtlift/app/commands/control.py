@@ -32,7 +32,7 @@ from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from rtlift.app.link_options import add_link_arguments, add_reconnect_argument
+    from rtlift.app.link_options import add_live_arguments, add_reconnect_argument
     from rtlift.app.view.arguments import add_view_argument
     from rtlift.app.watch import add_arguments as add_watch_arguments
 
@@ -41,8 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           "the burst envelope (feedforward from the model, optional PI "
                                           "feedback), sent as commands over protocol version 2 at 400 Hz. "
                                           "The actuator is switched off on the way out.")
-    add_link_arguments(p)
-    p.add_argument("--model", required=True, metavar="MODEL.json", help="model file with observer settings")
+    add_live_arguments(p)
     p.add_argument("--reference", required=True, metavar="SPEC",
                    help="steps:V@T,V@T,... | sine:mean=M,amp=A,hz=F | a CSV file with columns t, dcl_ref")
     p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of tracking "
@@ -56,8 +55,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the gains of a saved design (rtlift design's report.json) instead of designing at start")
     p.add_argument("--accept-design-warnings", action="store_true",
                    help="run a design that misses one of its targets (refused otherwise)")
-    p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
-    p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
     p.add_argument("--json", metavar="SUMMARY.json", help="counters, command latency, tracking RMSE")
     add_reconnect_argument(p)
     add_watch_arguments(p)

@@ -19,7 +19,7 @@ from rtlift.core.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from rtlift.app.link_options import add_link_arguments, add_reconnect_argument
+    from rtlift.app.link_options import add_live_arguments, add_reconnect_argument
     from rtlift.app.view.arguments import add_view_argument
     from rtlift.app.watch import add_arguments as add_watch_arguments
 
@@ -28,10 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           "a serial or CAN link: each sample's lift estimate, optionally "
                                           "written to a file, logged raw for a later replay, and shown "
                                           "on a live plot. Ctrl-C stops.")
-    add_link_arguments(p)
-    p.add_argument("--model", required=True, metavar="MODEL.json", help="model file with observer settings")
-    p.add_argument("--calibration", metavar="FILE", help="calibration TOML (default: the bench's)")
-    p.add_argument("--log", metavar="FILE", help="raw frame log: .bin/.raw (serial) or .asc/.blf (CAN)")
+    add_live_arguments(p)
     p.add_argument("--out", metavar="ESTIMATES.csv", help="estimates, one row per sample")
     p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of device time "
                    "(a device that sends nothing for 5 s ends the run: exit 1)")
