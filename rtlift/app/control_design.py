@@ -28,7 +28,14 @@ observer's own closed loop (its bias state), F_o(e^{jω/f_s}) = Σ h_o[n] e^{−
 
     y/d = S_o = 1 − F_o T,   T = L/(1 + L)     (S_o = S = 1/(1 + L) when F_o = 1)
 
-so the margins are L's and the predicted gust map (peak, f₆) is S_o's. On the bench model F_o is
+so the margins are L's and the predicted gust map (peak, f₆) is S_o's — read where the plant's output is
+sampled. The lift is continuous and the gust enters it between samples: the gust map the design
+predicts and bounds (design version 7, :func:`gust_map`) is the continuous lift's component at f,
+S_o = 1 − F_o G_y (K_A M + K_X)/(1 + L), M the period's mean of a sinusoid and G_y the lift's answer to
+a held, sampled one (:func:`gust_gain`, from the lift's pulse response :func:`pulse_response`, whose
+lifting is P). On calibration draws 1–3 the lifted form under-predicted |S_o| by 2–5 dB at 0.2–0.35 Hz
+for the internal-model controller; this one is within 1.6 dB of every measurement there
+(docs/results/control.md, "Fourth pass"). On the bench model F_o is
 0.99 at −6.6° at 0.35 Hz and 0.94 at −18° at 1 Hz: a slower disturbance path than the bias
 state's 9 Hz suggested, and the reason the design's f₆ is now predicted 0.32–0.38 Hz, not
 0.43–0.52 Hz (the bench measured 0.35–0.36 Hz).
@@ -241,6 +248,10 @@ class Gains:
         g = (1.0 - self.b) / (1.0 - self.a)
         return (self.kp + self.ki * z / (z - 1.0)) * g * (z - self.a) / (z - self.b)
 
+    def parts(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(K_A, K_X) at the points ``z``: v − r = K_A e_A + K_X e_X with K_A = C − K_x, K_X = K_x."""
+        return self.response(z) - self.kx, np.full(np.shape(z), self.kx, dtype=complex)
+
     def loop_response(self, z: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
         """L(z) = C P_A + K_x (P_X − P_A) at the points ``z``."""
         pa, px = plant_response(p, z), plant_response(q, z)
@@ -411,6 +422,9 @@ class PointDesign:
     """r: h̄[n] = h̄[N−1] r^{n−N+1} beyond the stored N taps (0: none)."""
     observer_period: int = 0
     """P: ``observer`` is h_o averaged over P samples, h̄ (0: h_o itself)."""
+    pulse: list[float] = field(default_factory=list)
+    """h: the lift's response per unit v₀ at 400 Hz from its decision instant (:func:`pulse_response`;
+    empty: a design older than version 7, whose gust map is the lifted one, 1 − F_o T)."""
 
     @property
     def gm_db(self) -> float:
@@ -447,9 +461,46 @@ class PointDesign:
         return observer_response(self.observer, self.fs_hz, f_hz, self.observer_tail, self.observer_period)
 
     def sensitivity(self, f_hz: np.ndarray, dt: float) -> np.ndarray:
-        """Predicted map from a lift gust to the lift, S_o = 1 − F_o L/(1 + L) (complex)."""
-        L = self.loop_response(f_hz, dt)
-        return 1.0 - self.observer_response(f_hz) * L / (1.0 + L)
+        """Predicted map from a lift gust to the lift, :func:`gust_map` (complex)."""
+        f_hz = np.asarray(f_hz, dtype=float)
+        z = np.exp(2j * np.pi * f_hz * dt)
+        return gust_map(f_hz, dt, self.fs_hz, self.loop_response(f_hz, dt), self.gains.parts(z),
+                        self.observer_response(f_hz), self.pulse)
+
+
+def window_mean(f_hz: np.ndarray, dt: float) -> np.ndarray:
+    """M(f): the mean over the period (t − T, t] of e^{jωs} over e^{jωt}, (1 − e^{−jωT})/(jωT)."""
+    x = 2j * np.pi * np.asarray(f_hz, dtype=float) * dt
+    return np.where(np.abs(x) > 0, (1.0 - np.exp(-x)) / np.where(np.abs(x) > 0, x, 1.0), 1.0)
+
+
+def gust_gain(h: list[float] | np.ndarray, fs_hz: float, period: int, f_hz: np.ndarray) -> np.ndarray:
+    """G_y(f) = (1/P) Σ_n h[n] e^{−j2πf n/f_s}: the lift's component at f per unit of a sampled sinusoid
+    v_k = e^{jωt_k} decided at the instants t_k (every P samples) and held from the next onset, ``h``
+    its response per unit v₀ from t₀ (:func:`pulse_response`)."""
+    zeta = np.exp(-2j * np.pi * np.asarray(f_hz, dtype=float) / fs_hz)
+    return np.polyval(np.asarray(h, dtype=float)[::-1], zeta) / period
+
+
+def gust_map(f_hz: np.ndarray, dt: float, fs_hz: float, L: np.ndarray, parts: tuple[np.ndarray, np.ndarray],
+             f_o: np.ndarray, pulse: list[float] | np.ndarray) -> np.ndarray:
+    """The lift's response to a lift gust d = e^{jωt} with the loop closed (complex, per frequency):
+
+        S_o = 1 − F_o G_y (K_A M + K_X)/(1 + L)
+
+    The gust reaches the estimate through the observer (F_o); the controller reads it at the decision
+    instants t_k as the period's mean (M, :func:`window_mean`) and the latest value, v − r = −F_o (K_A M +
+    K_X) e^{jωt_k}/(1 + L); the continuous lift answers that held, sampled sinusoid with G_y
+    (:func:`gust_gain` of the lift's pulse response ``pulse``). The lifted loop's own 1 − F_o T
+    (T = L/(1 + L): the gust taken as if it entered where the plant's output is sampled) is what an
+    empty ``pulse`` gives: it predicted −9.9 dB at 0.25 Hz on calibration draw 2's internal-model design
+    where the loop measured −5.6 (with the model as the plant, −5.3; this map −5.4: docs/results/control.md,
+    "Fourth pass")."""
+    if len(pulse) == 0:
+        return 1.0 - f_o * L / (1.0 + L)
+    ka, kx = parts
+    period = int(round(dt * fs_hz))
+    return 1.0 - f_o * gust_gain(pulse, fs_hz, period, f_hz) * (ka * window_mean(f_hz, dt) + kx) / (1.0 + L)
 
 
 def observer_response(h: list[float] | np.ndarray, fs_hz: float, f_hz: np.ndarray, tail: float = 0.0,
@@ -561,6 +612,7 @@ class Design:
         for p in self.points:
             d = asdict(p)
             d["observer"] = [float(f"{v:.6g}") for v in p.observer]
+            d["pulse"] = [float(f"{v:.6g}") for v in p.pulse]
             d["gains"] = asdict(p.gains)
             d["ti_s"] = self.dt / p.gains.ki if isinstance(p.gains, Gains) else None
             d.update({k: getattr(p, k) for k in ("gm_db", "pm_deg", "peak_s_db", "f6_hz", "crossover_hz")})
@@ -584,7 +636,7 @@ class Design:
                               np.asarray(p.get("observer") or [], float), float(p.get("fs_hz") or 400.0), unc,
                               designed=bool(p.get("designed", True)), limit=p.get("limit_f6_hz"),
                               tail=float(p.get("observer_tail") or 0.0), period=int(p.get("observer_period") or 0),
-                              cross_check=False)
+                              cross_check=False, pulse=np.asarray(p.get("pulse") or [], float))
                   for p in doc["points"]]
         return cls(points, dt, int(doc.get("period_samples", BURST_PERIOD_SAMPLES)),
                    int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc, doc.get("observer"))
@@ -631,9 +683,30 @@ def _operating_input(model: Any, controller: LiftController, dcl0: float, n: int
 def lifted_plant(model: Any, controller: LiftController, dcl0: float, *, period: int = BURST_PERIOD_SAMPLES,
                  margin: int = MARGIN_SAMPLES, n_periods: int = LIFT_PERIODS,
                  rel: float = 0.02, simulate: Any = None) -> tuple[np.ndarray, np.ndarray]:
-    """(``p_j``, ``q_j``) of the module docstring at ΔCL₀ (the model simulated, central differences).
-    ``simulate(cmu, cmu_envelope) -> ΔCL`` (per sample, from rest) replaces the model's own
-    simulation: the same lifting of another plant (``benchmarks/model_error.py``: the bench's truth)."""
+    """(``p_j``, ``q_j``) of the module docstring at ΔCL₀ from :func:`pulse_response` h (decision j at
+    h[jP]): p_j the mean of h over (jP − P, jP], q_j = h[jP]."""
+    return lift_pulse(pulse_response(model, controller, dcl0, period=period, margin=margin, n_periods=n_periods,
+                                     rel=rel, simulate=simulate), period, n_periods)
+
+
+def lift_pulse(h: np.ndarray, period: int = BURST_PERIOD_SAMPLES,
+               n_periods: int = LIFT_PERIODS) -> tuple[np.ndarray, np.ndarray]:
+    """(p_j, q_j), j < ``n_periods``, of the pulse response ``h`` (decision j at h[jP]): p_j the mean of
+    h over (jP − P, jP], q_j = h[jP] (h is 0 before n = 0)."""
+    h = np.r_[np.zeros(period), np.asarray(h, dtype=float)]
+    ends = np.arange(n_periods) * period + period + 1      # window j: [end − period, end) of the padded h
+    return np.array([h[e - period:e].mean() for e in ends]), h[ends - 1].copy()
+
+
+def pulse_response(model: Any, controller: LiftController, dcl0: float, *, period: int = BURST_PERIOD_SAMPLES,
+                   margin: int = MARGIN_SAMPLES, n_periods: int = LIFT_PERIODS, rel: float = 0.02,
+                   simulate: Any = None) -> np.ndarray:
+    """h[n] = ∂ΔCL(t₀ + n/f_s)/∂v₀, n = 0 … n_periods·P + margin − 1: the lift's response per unit of the
+    controller's output v₀ (ΔCL) decided at t₀, ``margin`` samples before the onset that latches it for
+    one period, bursts on at every onset, at ΔCL₀ (the model simulated from 4 s at the operating point,
+    central differences ±``rel``). ``simulate(cmu, cmu_envelope) -> ΔCL`` (per sample, from rest)
+    replaces the model's own simulation: the same for another plant (``benchmarks/model_error.py``:
+    the bench's truth)."""
     warm = 8 * period * 4                  # 4 s at the operating point first
     n = warm + n_periods * period
     gate = (np.arange(n) % period) < max(1, int(round(BURST_S * model.fs_hz)))
@@ -648,9 +721,7 @@ def lifted_plant(model: Any, controller: LiftController, dcl0: float, *, period:
         m = model.copy()
         m.reset()
         ys.append(np.asarray(m.simulate(np.where(gate, env, 0.0), env).total))
-    y = (ys[0] - ys[1]) / (2.0 * dv)
-    ends = warm + np.arange(n_periods) * period - margin + 1   # window j: [end − period, end)
-    return np.array([y[e - period:e].mean() for e in ends]), y[ends - 1].copy()
+    return ((ys[0] - ys[1]) / (2.0 * dv))[warm - margin:]
 
 
 def observer_impulse(model: Any, controller: LiftController, dcl0: float, *, period: int = BURST_PERIOD_SAMPLES,
@@ -722,27 +793,34 @@ def _shortfall(m: Margins, targets: Targets, nyquist_gain: float) -> float:
 
 def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed: int = 1,
                  start: Gains | None = None, f_o: np.ndarray | None = None,
-                 weight: np.ndarray | None = None, f: np.ndarray | None = None) -> Gains:
+                 weight: np.ndarray | None = None, f: np.ndarray | None = None,
+                 g_y: np.ndarray | None = None) -> Gains:
     """The gains that maximise f₆ under the targets (module docstring); ``start`` (the neighbouring
     operating point's gains) is first continued locally (Nelder–Mead from it), and that is the design
     when it meets every target: the global search from scratch put neighbours in the search's two
     basins, whose gains interpolated half-way missed the targets by up to 6 dB of |S| (calibration
-    draws 1 and 2); else the global search, seeded with ``start``. ``f_o`` and ``weight``
-    the observer's response and the uncertainty weight on the search grid ``f``."""
+    draws 1 and 2); else the global search, seeded with ``start``. ``f_o``, ``weight`` and ``g_y``
+    the observer's response, the uncertainty weight and :func:`gust_gain` on the search grid ``f``
+    (``g_y`` None: the lifted gust map 1 − F_o T)."""
     from scipy.optimize import differential_evolution, minimize
 
     f = analysis_grid(dt, 800) if f is None else f
     z = np.exp(2j * np.pi * f * dt)
     fo = np.ones(f.shape) if f_o is None else f_o
     pa, dx = plant_response(p, z), plant_response(q, z) - plant_response(p, z)
+    gust = None if g_y is None else fo * g_y        # S_o = 1 − F_o G_y ((C − K_x) M + K_x)/(1 + L)
+    mean = window_mean(f, dt)
 
     def parts(x: np.ndarray) -> tuple[float, float]:
         """(f₆, shortfall) of the gains ``x``; an unstable loop: (0, 100)."""
         g = Gains(*map(float, x))
         if not _stable(g, p, q):
             return 0.0, 100.0
-        L = g.response(z) * pa + g.kx * dx           # L = C P_A + K_x (P_X − P_A)
-        m = loop_margins(f, L, 1.0 - fo * L / (1.0 + L), weight)
+        c = g.response(z)
+        L = c * pa + g.kx * dx                       # L = C P_A + K_x (P_X − P_A)
+        s_o = (1.0 - fo * L / (1.0 + L) if gust is None
+               else 1.0 - gust * ((c - g.kx) * mean + g.kx) / (1.0 + L))
+        m = loop_margins(f, L, s_o, weight)
         return m.f6_hz, _shortfall(m, targets, g.nyquist_gain())
 
     def cost(x: np.ndarray) -> float:
@@ -766,16 +844,17 @@ def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed
 def check_point(cmu: float, dcl: float, p: np.ndarray, q: np.ndarray, g: Gains | YoulaGains, dt: float,
                 h_o: np.ndarray, fs_hz: float, unc: Uncertainty, *, designed: bool = True,
                 limit: float | None = None, tail: float = 0.0, period: int = 0,
-                cross_check: bool = True) -> PointDesign:
+                cross_check: bool = True, pulse: np.ndarray | list[float] = ()) -> PointDesign:
     """Every margin on the dense :func:`analysis_grid` (:func:`loop_margins`); closed-loop poles from
     the characteristic polynomial and, with ``cross_check``, from python-control too (both must say
     stable). A saved design is re-checked without it (:meth:`Design.from_dict`): the cross-check ran
     when it was designed, and importing python-control (matplotlib with it) was 2.9 of the 3.4 s a
     cached ``rtlift control`` start spent re-checking its design (docs/results/control.md)."""
     f = analysis_grid(dt)
-    L = g.loop_response(np.exp(2j * np.pi * f * dt), p, q)
+    z = np.exp(2j * np.pi * f * dt)
+    L = g.loop_response(z, p, q)
     fo = observer_response(h_o, fs_hz, f, tail, period)
-    m = loop_margins(f, L, 1.0 - fo * L / (1.0 + L), unc.weight(f))
+    m = loop_margins(f, L, gust_map(f, dt, fs_hz, L, g.parts(z), fo, pulse), unc.weight(f))
     stable = g.stable(p, q)
     if cross_check:
         import control as ct
@@ -784,12 +863,12 @@ def check_point(cmu: float, dcl: float, p: np.ndarray, q: np.ndarray, g: Gains |
             warnings.simplefilter("ignore", RuntimeWarning)   # L at z = 1 (the integrator): no stderr line
             stable = bool(np.all(np.abs(ct.feedback(g.loop_tf(p, q, dt), 1).poles()) < 1.0)) and stable
     return PointDesign(cmu, dcl, [float(v) for v in p], [float(v) for v in q], g, [float(v) for v in h_o],
-                       fs_hz, m, stable, designed, limit, tail, period)
+                       fs_hz, m, stable, designed, limit, tail, period, [float(v) for v in pulse])
 
 
 def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, f_o: Any = None,
                     unc: Uncertainty | None = None, taps: int = LIMIT_TAPS, gm_db: float | None = None,
-                    nyquist_gain: float | None = None) -> float:
+                    nyquist_gain: float | None = None, g_y: Any = None) -> float:
     """The widest band [0, f_B] of |S_o| ≤ 0.5 that *any* causal linear controller acting on the two
     lifted measurements can reach on this plant, subject to |S_o| ≤ ``peak_db`` and |S| ≤ ``peak_db``
     everywhere and robust stability |W T| ≤ 1 (module docstring, "The limit"; docs/DESIGN.md); with
@@ -806,9 +885,10 @@ def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, 
     polygon; the bounds on 190 frequencies, 0.025 Hz apart above 0.4 Hz, far finer than the FIR's
     resolution); the band is the highest point f_B of a log grid (90 points to Nyquist, 6 % apart) up
     to which some Q keeps |S_o| ≤ 0.5 (a feasibility LP, HiGHS; binary search over the grid).
-    ``f_o``: callable F_o(f) (None: 1)."""
+    ``f_o``: callable F_o(f) (None: 1); ``g_y``: callable G_y(f) (:func:`gust_gain`), the gust's map
+    S_o = 1 − F_o G_y (Q_A M + Q_X) (:func:`gust_map` with K/(1 + L) = Q; None: 1 − F_o T)."""
     return YoulaProgram(p, q, dt, peak_db, f_o=f_o, unc=unc, taps=taps, gm_db=gm_db,
-                        nyquist_gain=nyquist_gain).band()
+                        nyquist_gain=nyquist_gain, g_y=g_y).band()
 
 
 class YoulaProgram:
@@ -825,21 +905,26 @@ class YoulaProgram:
 
     def __init__(self, p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, f_o: Any = None,
                  unc: Uncertainty | None = None, taps: int = LIMIT_TAPS, gm_db: float | None = None,
-                 nyquist_gain: float | None = None, controller: bool = False) -> None:
+                 nyquist_gain: float | None = None, controller: bool = False, g_y: Any = None) -> None:
         self.taps = taps
         nyq = 0.5 / dt
 
         def t_rows(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            """(T = rows @ x at ``f``, F_o at ``f``); x = (Q_A taps, Q_X taps)."""
+            """(T = rows @ x at ``f``, F_o G_y (Q_A M + Q_X) = rows @ x at ``f``, the gust's part of
+            S_o, :func:`gust_map`; F_o T without ``g_y``); x = (Q_A taps, Q_X taps)."""
             z = np.exp(2j * np.pi * f * dt)
             shifts = z[:, None] ** -np.arange(taps)[None, :]
             fo = np.ones(f.shape, complex) if f_o is None else np.asarray(f_o(f))
-            return np.c_[plant_response(p, z)[:, None] * shifts, plant_response(q, z)[:, None] * shifts], fo
+            rows = np.c_[plant_response(p, z)[:, None] * shifts, plant_response(q, z)[:, None] * shifts]
+            if g_y is None:
+                return rows, fo[:, None] * rows
+            gy = fo * np.asarray(g_y(f))
+            return rows, np.c_[(gy * window_mean(f, dt))[:, None] * shifts, gy[:, None] * shifts]
 
         f_all = np.r_[np.geomspace(0.01, nyq / 10, 30, endpoint=False), np.linspace(nyq / 10, nyq, 160)]
-        rows_all, fo_all = t_rows(f_all)  # the bounds everywhere: dense (an FIR of 3 s resolves 0.33 Hz)
+        rows_all, gust_all = t_rows(f_all)  # the bounds everywhere: dense (an FIR of 3 s resolves 0.33 Hz)
         self.f = np.geomspace(0.02, nyq, 90)       # the band's edge: 6 % apart
-        self.rows, self.fo = t_rows(self.f)
+        self.rows, self.gust = t_rows(self.f)
         w = (unc or Uncertainty()).weight(f_all)
         self.ang = np.exp(-2j * np.pi * np.arange(LIMIT_SIDES) / LIMIT_SIDES)
         self.shrink = math.cos(math.pi / LIMIT_SIDES) if controller else 1.0
@@ -848,7 +933,7 @@ class YoulaProgram:
         ones = np.ones(f_all.size)
         # |S|, |S_o| ≤ λ M and |W T| ≤ λ: the column of λ (last) carries −r cos(π/n); λ ≤ 1 by its bound
         scaled = [(self.polygon(-rows_all, ones, 0.0), self.mpk),
-                  (self.polygon(-fo_all[:, None] * rows_all, ones, 0.0), self.mpk),
+                  (self.polygon(-gust_all, ones, 0.0), self.mpk),
                   (self.polygon(w[:, None] * rows_all, 0.0 * ones, 0.0), 1.0)]
         self.a_peak = np.vstack([np.c_[a, np.full(a.shape[0], -r * self.shrink)] for (a, _), r in scaled])
         self.b_peak = np.concatenate([b for (_, b), _ in scaled])
@@ -882,7 +967,7 @@ class YoulaProgram:
         """(A_ub, b_ub) on (Q taps, t): |S_o| ≤ 0.5 on f[0..top], the fixed bounds, and with the
         controller-gain bound the sign of S(−1) assumed (``sign``: ±Q_A ± Q_X ≤ N sign (1 − T),
         sign (1 − T) ≥ 0)."""
-        a, b = self.polygon(-self.fo[:top + 1, None] * self.rows[:top + 1], np.ones(top + 1), 0.0)
+        a, b = self.polygon(-self.gust[:top + 1], np.ones(top + 1), 0.0)
         a = np.c_[a, np.full(a.shape[0], -0.5 * self.shrink)]       # |S_o| ≤ 0.5 λ
         n_g = self.nyquist_gain
         extra = ([] if sign is None else
@@ -1030,31 +1115,38 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     watched = with_q_bias(model, q_bias) if observer else model
     obs = None if not observer else {"q_bias": q_bias, "factor": factor, "model_q_bias": q_bias / factor,
                                      "max_gap_to_0p5_hz": gap}
-    plants: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, float]] = {}
+    plants: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]] = {}
     limits: dict[float, float | None] = {}
 
-    def plant_at(dcl0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    def plant_at(dcl0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
+        """(p, q, h_o, r, pulse) at ΔCL₀: the lifted plant, the observer's response and its tail, the
+        lift's pulse response (:func:`pulse_response`, of which p and q are the lifting)."""
         if dcl0 not in plants:
-            p, q = lifted_plant(model, ctl, dcl0, period=cfg.period)
+            pulse = pulse_response(model, ctl, dcl0, period=cfg.period)
+            p, q = lift_pulse(pulse, cfg.period)
             h, r = observer_impulse(watched, ctl, dcl0, period=cfg.period) if observer else (np.zeros(0), 0.0)
-            plants[dcl0] = (p, q, h, r)
+            plants[dcl0] = (p, q, h, r, pulse)
         return plants[dcl0]
 
     def fo_at(dcl0: float) -> Any:
-        _, _, h, r = plant_at(dcl0)
+        _, _, h, r, _ = plant_at(dcl0)
         return lambda x: observer_response(h, fs, x, r, per)
+
+    def gy_at(dcl0: float, scale: float = 1.0) -> Any:
+        pulse = plant_at(dcl0)[4] / scale
+        return lambda x: gust_gain(pulse, fs, cfg.period, x)
 
     def limit_at(dcl0: float) -> float | None:
         if limit and dcl0 not in limits:
-            p, q, _, _ = plant_at(dcl0)
+            p, q, _, _, _ = plant_at(dcl0)
             limits[dcl0] = rejection_limit(p, q, dt, targets.peak_db, f_o=fo_at(dcl0), unc=unc, gm_db=targets.gm_db,
-                                           nyquist_gain=NYQUIST_GAIN_MAX)
+                                           nyquist_gain=NYQUIST_GAIN_MAX, g_y=gy_at(dcl0))
         return limits.get(dcl0)
 
     def check(cmu: float, dcl0: float, g: Gains | YoulaGains, designed: bool = True) -> PointDesign:
-        p, q, h, r = plant_at(dcl0)
+        p, q, h, r, pulse = plant_at(dcl0)
         return check_point(cmu, dcl0, p, q, g, dt, h, fs, unc, designed=designed,
-                           limit=limit_at(dcl0) if designed else None, tail=r, period=per)
+                           limit=limit_at(dcl0) if designed else None, tail=r, period=per, pulse=pulse)
 
     def misses(pt: PointDesign) -> bool:
         return bool(Design([pt], dt, cfg.period, MARGIN_SAMPLES, targets, unc).violations())
@@ -1081,9 +1173,9 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         return out
 
     def pi_at(dcl0: float, start: Gains | YoulaGains | None) -> PointDesign:
-        p, q, h, r = plant_at(dcl0)
+        p, q, h, r, _ = plant_at(dcl0)
         g = design_point(p, q, dt, targets, start=start if isinstance(start, Gains) else None,
-                         f_o=observer_response(h, fs, f, r, per), weight=unc.weight(f), f=f)
+                         f_o=observer_response(h, fs, f, r, per), weight=unc.weight(f), f=f, g_y=gy_at(dcl0)(f))
         return check(ctl.inverse(dcl0), dcl0, g)
 
     def youla_build() -> Design:
@@ -1099,10 +1191,11 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         for _ in range(max_inserted + 1):
             progs, gains = [], []
             for dcl0 in dcls:
-                p, q, _, _ = plant_at(dcl0)
+                p, q, _, _, _ = plant_at(dcl0)
                 g0 = float(np.sum(p))
                 gains.append(g0)
                 progs.append(YoulaProgram(p / g0, q / g0, dt, targets.peak_db, f_o=fo_at(dcl0), unc=unc,
+                                          g_y=gy_at(dcl0, g0),
                                           gm_db=targets.gm_db, nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True))
             band, frac, points = joint_band(progs), backoff, None
             while frac >= YOULA_FLOOR - 1e-9:
@@ -1110,7 +1203,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 if sol is not None:
                     designed = []
                     for dcl0, g0 in zip(dcls, gains, strict=True):
-                        p, q, _, _ = plant_at(dcl0)
+                        p, q, _, _, _ = plant_at(dcl0)
                         yg = YoulaGains(tuple(float(v) / g0 for v in sol[0]), tuple(float(v) / g0 for v in sol[1]),
                                         tuple(map(float, p)), tuple(map(float, q)))
                         designed.append(check(ctl.inverse(dcl0), dcl0, yg))
@@ -1158,7 +1251,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     return pi
 
 
-DESIGN_VERSION = 6
+DESIGN_VERSION = 7
 """Changes when the design computes something else: a cached design of another version is redone."""
 REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 
