@@ -19,12 +19,15 @@ and at the half-way points the schedule's own error: the model's internal plant 
 Cμ between its neighbours (as :func:`~rtlift.app.control.youla_at` runs it) against the model at
 that point.
 
-``--design`` (with ``--structure``/``--backoff``) then designs the loop on each draw's model and,
-at the point the loop runs (the checked point nearest ΔCL 0.08), evaluates the predicted gust map
-three ways with the design's controller K = (K_A, K_X) and the observer's F_o:
+``--design`` (with ``--structure``/``--backoff``) then designs the loop on each draw's model (or
+reuses ``--keep``'s ``N_design_STRUCTURE.json``: the map is computed again from the model's pulse
+response, so a design of version 6, without one, is evaluated too) and,
+at the point the loop runs (the checked point nearest ΔCL 0.08), evaluates the gust map three ways
+with the design's controller K = (K_A, K_X) and the observer's F_o:
 
-    model:   S_o = 1 − F_o (K_A P_A + K_X P_X)/(1 + L),  L = K_A P_A + K_X P_X   (the design's)
-    truth:   the same with the truth's P in T's numerator and L_eff = K·P_eff,
+    model:   S_o = 1 − F_o G_y (K_A M + K_X)/(1 + L)   (the design's, :func:`~rtlift.app.control_design.gust_map`)
+    lifted:  1 − F_o L/(1 + L)                          (what the design predicted before version 7)
+    truth:   the design's map with the truth's pulse response in G_y and L_eff = K·P_eff,
              P_eff = P_model (1 − F_o) + F_o P_sensed   (the estimate of a plant that is not the model)
 
 beside the measured suppression of ``--measured JSONL`` (``benchmarks/control_family.py``'s
@@ -82,16 +85,6 @@ def truth_simulator(draw: int, sensed: bool = False):
         return y
 
     return simulate
-
-
-def controller_parts(g, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(K_A, K_X) of a design's controller at ``z``: u = K_A ê_A + K_X ê_X (the PI's
-    L = C P_A + K_x (P_X − P_A): K_A = C − K_x, K_X = K_x)."""
-    from rtlift.app.control_design import YoulaGains
-
-    if isinstance(g, YoulaGains):
-        return g.parts(z)
-    return g.response(z) - g.kx, np.full(z.shape, g.kx, dtype=complex)
 
 
 def relative_error(pm: np.ndarray, pt: np.ndarray, z: np.ndarray) -> dict:
@@ -157,28 +150,35 @@ def plant_errors(model, draw: int, f: np.ndarray) -> list[dict]:
 
 
 def gust_maps(design, model, draw: int, f: np.ndarray) -> dict:
-    """At the point the loop runs: S_o predicted on the model and with the truth's plant (module docstring)."""
+    """At the point the loop runs: the gust map predicted on the model (:func:`~rtlift.app.control_design.
+    gust_map`), the lifted form 1 − F_o T it replaced, and the same map with the truth's plant (module
+    docstring): S_o = 1 − F_o G_y,true (K_A M + K_X)/(1 + L_eff), L_eff = K·P_eff."""
     from rtlift.app.control import ControlConfig, LiftController
-    from rtlift.app.control_design import lifted_plant, plant_response
+    from rtlift.app.control_design import gust_map, lift_pulse, plant_response, pulse_response
 
     point = min(design.points, key=lambda pt: abs(pt.dcl - 0.08))
     ctl = LiftController(model, ControlConfig(fs_hz=model.fs_hz))
     z = np.exp(2j * np.pi * f * design.dt)
-    ka, kx = controller_parts(point.gains, z)
+    parts = point.gains.parts(z)
     fo = point.observer_response(f)
+    lm = point.loop_response(f, design.dt)
+    true_pulse = pulse_response(model, ctl, point.dcl, simulate=truth_simulator(draw))
+    sensed = [plant_response(v, z) for v in lift_pulse(pulse_response(model, ctl, point.dcl,
+                                                                      simulate=truth_simulator(draw, True)))]
     pm = [plant_response(np.asarray(v), z) for v in (point.plant, point.plant_point)]
-    pt = [plant_response(v, z) for v in lifted_plant(model, ctl, point.dcl, simulate=truth_simulator(draw))]
-    ps = [plant_response(v, z) for v in lifted_plant(model, ctl, point.dcl, simulate=truth_simulator(draw, True))]
-    lm = ka * pm[0] + kx * pm[1]
-    s_model = 1.0 - fo * lm / (1.0 + lm)
-    peff = [m * (1.0 - fo) + fo * s for m, s in zip(pm, ps, strict=True)]
-    leff = ka * peff[0] + kx * peff[1]
-    s_truth = 1.0 - fo * (ka * pt[0] + kx * pt[1]) / (1.0 + leff)
+    peff = [m * (1.0 - fo) + fo * s for m, s in zip(pm, sensed, strict=True)]
+    leff = parts[0] * peff[0] + parts[1] * peff[1]
+
+    def db(s: np.ndarray) -> list[float]:
+        return (20 * np.log10(np.abs(s))).tolist()
+
     return {"dcl": point.dcl, "scheduled": point.designed, "f_hz": f.tolist(),
-            "model_db": (20 * np.log10(np.abs(s_model))).tolist(),
-            "truth_db": (20 * np.log10(np.abs(s_truth))).tolist(),
-            "design_point_db": (20 * np.log10(np.abs(point.sensitivity(f, design.dt)))).tolist(),
-            "T_abs": np.abs(lm / (1.0 + lm)).tolist()}
+            "model_db": db(gust_map(f, design.dt, point.fs_hz, lm, parts, fo,
+                                    pulse_response(model, ctl, point.dcl))),
+            "lifted_db": db(gust_map(f, design.dt, point.fs_hz, lm, parts, fo, [])),
+            "truth_db": db(gust_map(f, design.dt, point.fs_hz, leff, parts, fo, true_pulse)),
+            "T_abs": np.abs(lm / (1.0 + lm)).tolist(),
+            "K_A_abs": np.abs(parts[0]).tolist(), "K_X_abs": np.abs(parts[1]).tolist()}
 
 
 def main() -> None:
@@ -225,25 +225,29 @@ def main() -> None:
                           + " ".join(f"{100 * v:5.1f}" for v in s["mag"])
                           + " | phase " + " ".join(f"{v:+5.1f}" for v in s["phase_deg"]))
         if args.design:
-            from rtlift.app.control_design import design_loop
+            from rtlift.app.control_design import design_loop, load_design
 
             extra = {} if args.backoff is None else {"backoff": args.backoff}
-            design = design_loop(model, structure=args.structure, **extra)
-            if args.keep:            # the design too, in report.json's form (benchmarks/gust_rejection.py --design)
+            saved = os.path.join(args.keep or "", f"{n}_design_{args.structure}.json")
+            if args.keep and os.path.exists(saved):      # a design kept by an earlier run: reused
+                design = load_design(saved, accept_warnings=True)
+            else:
+                design = design_loop(model, structure=args.structure, **extra)
+            if args.keep and not os.path.exists(saved):  # kept in report.json's form (gust_rejection.py --design)
                 from rtlift.app.control_design import report_doc
                 from rtlift.core.jsonfile import write_json_atomic
 
-                write_json_atomic(os.path.join(args.keep, f"{n}_design_{args.structure}.json"),
-                                  report_doc(design, path), stage="design")
+                write_json_atomic(saved, report_doc(design, path), stage="design")
             maps = gust_maps(design, model, n, f)
             res["gust"] = maps
             meas = measured.get(n, {})
-            print(f"  gust map at dCL {maps['dcl']:.3f} ({args.structure}): f / measured / predicted (model) / "
-                  "with the truth's plant (dB)")
+            print(f"  gust map at dCL {maps['dcl']:.3f} ({args.structure}): f / measured / predicted (the design's "
+                  "map) / the lifted 1 - F_o T / the map with the truth's plant (dB)")
             for i, fv in enumerate(FREQS):
                 mv = meas.get(fv, math.nan)
-                print(f"    {fv:5.2f}  {mv:+6.2f}  {maps['model_db'][i]:+6.2f}  {maps['truth_db'][i]:+6.2f}   "
-                      f"|T| {maps['T_abs'][i]:.2f}")
+                print(f"    {fv:5.2f}  {mv:+6.2f}  {maps['model_db'][i]:+6.2f}  {maps['lifted_db'][i]:+6.2f}  "
+                      f"{maps['truth_db'][i]:+6.2f}   |T| {maps['T_abs'][i]:.2f} |K_A| {maps['K_A_abs'][i]:.1f} "
+                      f"|K_X| {maps['K_X_abs'][i]:.1f}")
             res["measured"] = meas
         res["cpu_s"] = time.process_time() - t0
         results.append(res)
