@@ -61,9 +61,32 @@ def burst_input(rng: np.random.Generator, n: int, period: int = 50, width: int =
     return np.where(gate, env, 0.0), env
 
 
+def step_rows(step, cmu: np.ndarray, env: np.ndarray) -> np.ndarray:
+    """``step(cmu[k], env[k])`` sample by sample (a model's ``step`` or ``reference_step``):
+    rows (total, high, low), shape (3, N) (ΔCL units; N = 0 gives (3, 0))."""
+    return np.array([step(c, e) for c, e in zip(cmu, env, strict=True)]).reshape(-1, 3).T
+
+
 def model_steps(model, cmu: np.ndarray, env: np.ndarray) -> np.ndarray:
     """``model.step`` sample by sample: rows (total, high, low)."""
-    return np.array([model.step(c, e) for c, e in zip(cmu, env, strict=True)]).T
+    return step_rows(model.step, cmu, env)
+
+
+def assert_step_equals_reference(model: HybridModel, cmu: np.ndarray, env: np.ndarray, warm: int,
+                                 tol: float) -> None:
+    """The compiled ``model.step`` against its judge ``model.reference_step`` from a state that is
+    not the rest state (``warm`` reference steps first): outputs (total, high, low) within
+    ``tol`` × max(1, max |reference|) (ΔCL units) and the state after the steps within ``tol``
+    absolute or 1e-12 relative."""
+    step_rows(model.reference_step, cmu[:warm], env[:warm])
+    start = model.get_state()
+    compiled = step_rows(model.step, cmu[warm:], env[warm:])
+    after_compiled = model.get_state()
+    model.set_state(start)
+    reference = step_rows(model.reference_step, cmu[warm:], env[warm:])
+    scale = max(1.0, float(np.max(np.abs(reference))))
+    np.testing.assert_allclose(compiled, reference, atol=tol * scale, rtol=0)
+    np.testing.assert_allclose(after_compiled, model.get_state(), atol=tol, rtol=1e-12)
 
 
 def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int = 2, delay: int = 0,

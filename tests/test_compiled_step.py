@@ -20,13 +20,9 @@ from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
 from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import load_model
-from testkit.synthetic import burst_input, make_model
+from testkit.synthetic import assert_step_equals_reference, burst_input, make_model, step_rows
 
 TOL = 1e-12
-
-
-def _run(step, cmu, env):
-    return np.array([step(c, e) for c, e in zip(cmu, env, strict=True)]).reshape(-1, 3).T
 
 
 def _stages(delay: int, fade: int) -> tuple:
@@ -87,15 +83,7 @@ def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_orde
     _hysteresis(m, hysteresis)
     assert m.compiled
     cmu, env = burst_input(rng, n + warm)
-    _run(m.reference_step, cmu[:warm], env[:warm])         # a state that is not the rest state
-    start = m.get_state()
-    compiled = _run(m.step, cmu[warm:], env[warm:])
-    after_compiled = m.get_state()
-    m.set_state(start)
-    reference = _run(m.reference_step, cmu[warm:], env[warm:])
-    scale = max(1.0, float(np.max(np.abs(reference))))
-    np.testing.assert_allclose(compiled, reference, atol=TOL * scale, rtol=0)
-    np.testing.assert_allclose(after_compiled, m.get_state(), atol=TOL, rtol=1e-12)
+    assert_step_equals_reference(m, cmu, env, warm, TOL)     # from a state that is not the rest state
 
 
 @settings(max_examples=20, deadline=None)
@@ -109,13 +97,13 @@ def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay, 
     m.output_stages = _outputs(outputs)
     _hysteresis(m, hysteresis)
     cmu, env = burst_input(rng, 200)
-    whole = _run(m.step, cmu, env)
+    whole = step_rows(m.step, cmu, env)
     m.reset()
-    _run(m.step, cmu[:cut], env[:cut])
+    step_rows(m.step, cmu[:cut], env[:cut])
     saved = m.get_state()
     m.reset()
     m.set_state(saved)
-    np.testing.assert_array_equal(_run(m.step, cmu[cut:], env[cut:]), whole[:, cut:])
+    np.testing.assert_array_equal(step_rows(m.step, cmu[cut:], env[cut:]), whole[:, cut:])
 
 
 def test_paper_model_takes_the_compiled_step():
@@ -143,9 +131,9 @@ def _fallback_models():
 def test_models_with_uncompiled_effects_step_with_the_reference(name, model):
     assert not model.compiled
     cmu, env = burst_input(np.random.default_rng(5), 300)
-    stepped = _run(model.step, cmu, env)
+    stepped = step_rows(model.step, cmu, env)
     model.reset()
-    np.testing.assert_array_equal(stepped, _run(model.reference_step, cmu, env))
+    np.testing.assert_array_equal(stepped, step_rows(model.reference_step, cmu, env))
 
 
 def test_assigning_stages_switches_between_compiled_and_reference():
@@ -165,9 +153,10 @@ def test_output_stages_state_is_the_compiled_steps():
     m = make_model(rng)
     m.output_stages = _outputs([0, 2, 3])
     cmu, env = burst_input(rng, 200)
-    mixed = np.concatenate([_run(m.step, cmu[:100], env[:100]), _run(m.reference_step, cmu[100:], env[100:])], axis=1)
+    mixed = np.concatenate([step_rows(m.step, cmu[:100], env[:100]),
+                            step_rows(m.reference_step, cmu[100:], env[100:])], axis=1)
     m.reset()
-    alone = _run(m.reference_step, cmu, env)
+    alone = step_rows(m.reference_step, cmu, env)
     np.testing.assert_allclose(mixed, alone, atol=TOL, rtol=0)
     m.output_stages = _outputs([0])
     drift = m.output_stages[0]
@@ -181,7 +170,7 @@ def test_warm_up_leaves_the_state_untouched():
     rng = np.random.default_rng(7)
     m = make_model(rng)
     cmu, env = burst_input(rng, 50)
-    _run(m.step, cmu, env)
+    step_rows(m.step, cmu, env)
     before = m.get_state()
     assert m.warm_up() >= 0.0
     np.testing.assert_array_equal(m.get_state(), before)
@@ -221,12 +210,12 @@ def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, o
     _hysteresis(m, hysteresis)
     cmu, env = burst_input(rng, 450)
     a, b = sorted(cuts)
-    expect = _run(m.step, cmu, env)
+    expect = step_rows(m.step, cmu, env)
     after_steps = m.get_state()
     m.reset()
-    first = _run(m.step, cmu[:a], env[:a])
+    first = step_rows(m.step, cmu[:a], env[:a])
     batch = np.array(m.simulate(cmu[a:b], env[a:b])).reshape(3, -1)
-    last = _run(m.step, cmu[b:], env[b:])
+    last = step_rows(m.step, cmu[b:], env[b:])
     got = np.concatenate([first, batch, last], axis=1)
     scale = max(1.0, float(np.max(np.abs(expect))))
     np.testing.assert_allclose(got, expect, atol=TOL * scale, rtol=0)
@@ -246,7 +235,7 @@ def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay
     m.output_stages = _outputs(outputs)
     _hysteresis(m, hysteresis)
     cmu, env = burst_input(rng, warm + n)
-    _run(m.step, cmu[:warm], env[:warm])
+    step_rows(m.step, cmu[:warm], env[:warm])
     start = m.get_state()
     fused = np.array(m.simulate(cmu[warm:], env[warm:]))
     after = m.get_state()

@@ -16,7 +16,16 @@ from rtlift.blocks.interaction import InteractionConvolution
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig
-from testkit.synthetic import OUTPUT_STAGES, burst_input, interaction_model, model_steps, run_in_chunks, with_effects
+from testkit.synthetic import (
+    OUTPUT_STAGES,
+    assert_step_equals_reference,
+    burst_input,
+    interaction_model,
+    model_steps,
+    run_in_chunks,
+    step_rows,
+    with_effects,
+)
 
 TOL = 1e-12
 
@@ -54,10 +63,6 @@ def test_interaction_chunks_and_steps_carry_state_through_get_set(seed, cuts):
     np.testing.assert_allclose(run_in_chunks(m, cmu, env, cuts), whole, atol=TOL, rtol=0)
 
 
-def _run(step, cmu, env):
-    return np.array([step(c, e) for c, e in zip(cmu, env, strict=True)]).reshape(-1, 3).T
-
-
 EFFECTS = dict(fade=st.booleans(), outputs=st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3),
                hysteresis=st.integers(0, 2))
 """What the diagnosis adds to a model (:func:`testkit.synthetic.with_effects`)."""
@@ -75,15 +80,7 @@ def test_compiled_interaction_step_equals_reference_step(seed, n, kernel_len, or
     m = with_effects(interaction_model(rng, kernel_len, order, delay, output_form), fade, tuple(outputs), hysteresis)
     assert m.compiled
     cmu, env = burst_input(rng, n + warm, period=int(rng.integers(5, 300)))
-    _run(m.reference_step, cmu[:warm], env[:warm])
-    start = m.get_state()
-    compiled = _run(m.step, cmu[warm:], env[warm:])
-    after_compiled = m.get_state()
-    m.set_state(start)
-    reference = _run(m.reference_step, cmu[warm:], env[warm:])
-    scale = max(1.0, float(np.max(np.abs(reference))))
-    np.testing.assert_allclose(compiled, reference, atol=TOL * scale, rtol=0)
-    np.testing.assert_allclose(after_compiled, m.get_state(), atol=TOL, rtol=1e-12)
+    assert_step_equals_reference(m, cmu, env, warm, TOL)     # from a state that is not the rest state
 
 
 @settings(max_examples=40, deadline=None)
@@ -97,7 +94,7 @@ def test_compiled_interaction_batch_equals_the_numpy_batch(seed, n, warm, delay,
     rng = np.random.default_rng(seed)
     m = with_effects(interaction_model(rng, 300, 2, delay, output_form), fade, tuple(outputs), hysteresis)
     cmu, env = burst_input(rng, warm + n, period=int(rng.integers(20, 300)))
-    _run(m.step, cmu[:warm], env[:warm])
+    step_rows(m.step, cmu[:warm], env[:warm])
     start = m.get_state()
     fused = np.array(m.simulate(cmu[warm:], env[warm:]))
     after = m.get_state()
@@ -114,9 +111,9 @@ def test_interaction_model_with_its_stages_in_another_order_steps_with_the_refer
     m.input_stages = (ActuatorFade(0.6, 0.05, FS), *m.input_stages)
     assert not m.compiled
     cmu, env = burst_input(np.random.default_rng(4), 300, period=60)
-    stepped = _run(m.step, cmu, env)
+    stepped = step_rows(m.step, cmu, env)
     m.reset()
-    np.testing.assert_array_equal(stepped, _run(m.reference_step, cmu, env))
+    np.testing.assert_array_equal(stepped, step_rows(m.reference_step, cmu, env))
 
 
 def test_delivered_momentum_settles_at_the_envelope_for_bursts_at_the_duty():
@@ -162,7 +159,7 @@ def test_a_model_of_the_first_merged_form_runs_with_its_wiener_input_m():
     np.testing.assert_array_equal(out.high, old.copy().convolution.simulate(cmu, np.zeros(600)))
     np.testing.assert_array_equal(out.low, old.copy().wiener.simulate(m)[0])
     old.reset()
-    np.testing.assert_allclose(_run(old.step, cmu, env), np.array(out), atol=1e-12, rtol=0)
+    np.testing.assert_allclose(step_rows(old.step, cmu, env), np.array(out), atol=1e-12, rtol=0)
 
 
 def test_an_isolated_burst_with_unit_gains_and_no_wiener_part_is_the_papers_convolution():
@@ -238,7 +235,7 @@ def test_a_hysteresis_factor_on_the_interaction_model_streams_as_it_batches(seed
     rng = np.random.default_rng(seed)
     m = with_effects(interaction_model(rng, 30, 2, output_form=output_form), hysteresis=hysteresis)
     cmu, env = burst_input(rng, n, period=int(rng.integers(5, 120)))
-    streamed = _run(m.reference_step, cmu, env)
+    streamed = step_rows(m.reference_step, cmu, env)
     m.reset()
     out = m.simulate(cmu, env)
     scale = max(1.0, float(np.max(np.abs(streamed))))
