@@ -10,6 +10,8 @@ Effect parameters are drawn (seeded) from the documented ranges of ``hil_sim.eff
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -86,22 +88,26 @@ def drawn(name: str, seed: int = 100) -> Effect:
     return EFFECTS[name].draw(np.random.default_rng(seed))
 
 
-def test_delay_is_found_to_one_sample_and_its_error_recovered(clean_model, clean_val_rmse):
-    eff = drawn("delay")
+def found_alone(clean_model, eff: Effect) -> tuple[dict, Any, list]:
+    """(the parameters the diagnosis found, the diagnosis, the validation records): ``eff`` put
+    on the bench alone and diagnosed; it must be the only accepted effect."""
     diag, val = run_case(clean_model, [eff])
     found = accepted(diag)
-    assert set(found) == {"delay"}
+    assert set(found) == {eff.name}
+    return found[eff.name]["params"], diag, val
+
+
+def test_delay_is_found_to_one_sample_and_its_error_recovered(clean_model, clean_val_rmse):
+    eff = drawn("delay")
+    p, diag, val = found_alone(clean_model, eff)
     applied = round(eff.params["seconds"] * FS)                 # the bench delays whole samples
-    assert abs(round(found["delay"]["params"]["seconds"] * FS) - applied) <= 1
+    assert abs(round(p["seconds"] * FS) - applied) <= 1
     assert_recovers(diag, val, clean_val_rmse)
 
 
 def test_actuator_fade_is_found_with_its_fraction_and_time_constant(clean_model, clean_val_rmse):
     eff = drawn("actuator_fade")
-    diag, val = run_case(clean_model, [eff])
-    found = accepted(diag)
-    assert set(found) == {"actuator_fade"}
-    p = found["actuator_fade"]["params"]
+    p, diag, val = found_alone(clean_model, eff)
     assert p["clock"] == "on_time"                          # the bench fades with burst on-time
     assert p["final_fraction"] == pytest.approx(eff.params["final_fraction"], abs=0.05)
     # the training record holds ~1.3 s of burst on-time, a fifth of tau: what it determines is
@@ -115,10 +121,7 @@ def test_actuator_fade_is_found_with_its_fraction_and_time_constant(clean_model,
 @pytest.mark.parametrize("seed", [100, 101])
 def test_zero_drift_is_found_in_either_form(clean_model, clean_val_rmse, seed):
     eff = drawn("zero_drift", seed)
-    diag, val = run_case(clean_model, [eff])
-    found = accepted(diag)
-    assert set(found) == {"zero_drift"}
-    p = found["zero_drift"]["params"]
+    p, diag, val = found_alone(clean_model, eff)
     for key, value in eff.params.items():            # the same form, each parameter close
         tol = {"rate_per_s": 0.15, "amplitude": 0.2, "time_constant_s": 0.35}[key]
         assert p[key] == pytest.approx(value, rel=tol), key
@@ -127,10 +130,7 @@ def test_zero_drift_is_found_in_either_form(clean_model, clean_val_rmse, seed):
 
 def test_periodic_disturbance_is_a_line_with_its_frequency_and_amplitude(clean_model, clean_val_rmse):
     eff = drawn("periodic_disturbance")
-    diag, val = run_case(clean_model, [eff])
-    found = accepted(diag)
-    assert set(found) == {"periodic_disturbance"}
-    p = found["periodic_disturbance"]["params"]
+    p, diag, val = found_alone(clean_model, eff)
     assert p["frequency_hz"] == pytest.approx(eff.params["frequency_hz"], abs=0.01)
     assert p["amplitude"] == pytest.approx(eff.params["amplitude"], rel=0.15)
     assert_recovers(diag, val, clean_val_rmse)
@@ -138,11 +138,9 @@ def test_periodic_disturbance_is_a_line_with_its_frequency_and_amplitude(clean_m
 
 def test_hysteresis_is_found_with_its_magnitude(clean_model, clean_val_rmse):
     eff = drawn("hysteresis")
-    diag, val = run_case(clean_model, [eff])
-    found = accepted(diag)
-    assert set(found) == {"hysteresis"}
-    assert found["hysteresis"]["params"]["magnitude"] == pytest.approx(eff.params["magnitude"], rel=0.2)
-    assert found["hysteresis"]["params"]["driver"] == "cmu"        # the bench's gain follows the command
+    p, diag, val = found_alone(clean_model, eff)
+    assert p["magnitude"] == pytest.approx(eff.params["magnitude"], rel=0.2)
+    assert p["driver"] == "cmu"        # the bench's gain follows the command
     assert_recovers(diag, val, clean_val_rmse)
 
 
@@ -170,12 +168,10 @@ def test_sensor_resonance_is_named_within_10_percent_and_accepted_only_where_it_
 
 def test_a_subtle_pickup_is_still_named(clean_model, clean_val_rmse):
     eff = Effect("periodic_disturbance", {"frequency_hz": 37.3, "amplitude": 0.002})
-    diag, val = run_case(clean_model, [eff])
+    p, diag, val = found_alone(clean_model, eff)
     before = pooled(diag, "baseline", val)
     assert before - clean_val_rmse < 0.03 * clean_val_rmse          # it adds < 3 % error
-    found = accepted(diag)
-    assert set(found) == {"periodic_disturbance"}
-    assert found["periodic_disturbance"]["params"]["frequency_hz"] == pytest.approx(37.3, abs=0.01)
+    assert p["frequency_hz"] == pytest.approx(37.3, abs=0.01)
 
 
 def test_a_clean_record_accepts_nothing(clean_model):
@@ -214,10 +210,7 @@ def test_a_mode_on_a_burst_harmonic_is_fitted_with_its_damping(clean_model, clea
     into the spectrum's bins next to the line and makes the peak look far narrower than it is
     (a spectral fit alone ends at ζ's lower bound); the output error fixes ζ."""
     eff = Effect("sensor_resonance", {"frequency_hz": 24.0, "damping_ratio": 0.06})
-    diag, val = run_case(clean_model, [eff])
-    found = accepted(diag)
-    assert set(found) == {"sensor_resonance"}
-    p = found["sensor_resonance"]["params"]
+    p, diag, val = found_alone(clean_model, eff)
     assert p["frequency_hz"] == pytest.approx(24.0, rel=0.02)
     assert p["damping_ratio"] == pytest.approx(0.06, rel=0.2)
     assert_recovers(diag, val, clean_val_rmse)
