@@ -121,38 +121,36 @@ def test_the_hysteresis_is_fitted_to_what_changed_and_driven_by_the_lift(model, 
     assert min(row["recovered"].values()) >= 0.5
 
 
-def test_a_hysteresis_and_a_pickup_together_are_both_named(model, clean_rmse):
-    mix = compose(DEFAULT_DATA, ("hysteresis", "mains"), model.parent / "mixes")
-    row, _ = run_case(model, clean_rmse, mix)
-    assert sorted(row["accepted"]) == ["hysteresis", "periodic_disturbance"]
+def assert_mix_named(model: Path, clean_rmse: dict, cases: tuple[str, ...], names: list[str]) -> dict:
+    """The diagnosis of ``cases`` composed into one (:func:`benchmarks.independent_plant.compose`)
+    accepts exactly ``names`` (sorted) and is right; its report."""
+    mix = compose(DEFAULT_DATA, cases, model.parent / "mixes")
+    row, report = run_case(model, clean_rmse, mix)
+    assert sorted(row["accepted"]) == names
     assert row["right"], row
+    return report
+
+
+def test_a_hysteresis_and_a_pickup_together_are_both_named(model, clean_rmse):
+    assert_mix_named(model, clean_rmse, ("hysteresis", "mains"), ["hysteresis", "periodic_disturbance"])
 
 
 def test_a_drift_and_a_pickup_together_are_both_named(model, clean_rmse):
     """A mix the set does not show, composed exactly (both add to the measured lift): clean plus
     the drift case's and the mains case's departures from it (one noise seed for all cases)."""
-    mix = compose(DEFAULT_DATA, ("drift", "mains"), model.parent / "mixes")
-    row, _ = run_case(model, clean_rmse, mix)
-    assert sorted(row["accepted"]) == ["periodic_disturbance", "zero_drift"]
-    assert row["right"], row
+    assert_mix_named(model, clean_rmse, ("drift", "mains"), ["periodic_disturbance", "zero_drift"])
 
 
 def test_a_resonance_and_a_pickup_together_are_both_named(model, clean_rmse):
     """Exact (the pickup adds to the measured lift after the balance's mode): the mode is fitted
     where it is (31 Hz, lightly damped) although the 60 Hz line stands far higher above the print."""
-    mix = compose(DEFAULT_DATA, ("resonance", "mains"), model.parent / "mixes")
-    row, report = run_case(model, clean_rmse, mix)
-    assert sorted(row["accepted"]) == ["periodic_disturbance", "sensor_resonance"]
-    assert row["right"], row
+    report = assert_mix_named(model, clean_rmse, ("resonance", "mains"), ["periodic_disturbance", "sensor_resonance"])
     mode = next(e for e in report["effects"] if e["name"] == "sensor_resonance")
     assert mode["params"]["damping_ratio"] == pytest.approx(0.05, rel=0.3)
 
 
 def test_a_resonance_and_a_drift_together_are_both_named(model, clean_rmse):
-    mix = compose(DEFAULT_DATA, ("resonance", "drift"), model.parent / "mixes")
-    row, _ = run_case(model, clean_rmse, mix)
-    assert sorted(row["accepted"]) == ["sensor_resonance", "zero_drift"]
-    assert row["right"], row
+    assert_mix_named(model, clean_rmse, ("resonance", "drift"), ["sensor_resonance", "zero_drift"])
 
 
 def test_a_hysteresis_of_half_the_size_is_confirmed_at_the_lower_bar(model, clean_rmse):
