@@ -89,6 +89,23 @@ def assert_step_equals_reference(model: HybridModel, cmu: np.ndarray, env: np.nd
     np.testing.assert_allclose(after_compiled, model.get_state(), atol=tol, rtol=1e-12)
 
 
+def assert_batch_equals_reference(model: HybridModel, cmu: np.ndarray, env: np.ndarray, warm: int,
+                                  tol: float) -> None:
+    """The fused ``model.simulate`` against the numpy/scipy chain ``model.reference_simulate``
+    from a mid-record state (``warm`` steps first): (total, high, low) within ``tol`` ×
+    max(1, max |reference|) (ΔCL units; an empty record passes) and the state left within
+    ``tol`` absolute or 1e-12 relative."""
+    step_rows(model.step, cmu[:warm], env[:warm])
+    start = model.get_state()
+    fused = np.array(model.simulate(cmu[warm:], env[warm:]))
+    after = model.get_state()
+    model.set_state(start)
+    reference = np.array(model.reference_simulate(cmu[warm:], env[warm:]))
+    scale = max(1.0, float(np.max(np.abs(reference), initial=0.0)))
+    np.testing.assert_allclose(fused, reference, atol=tol * scale, rtol=0)
+    np.testing.assert_allclose(after, model.get_state(), atol=tol, rtol=1e-12)
+
+
 def interaction_model(rng: np.random.Generator, kernel_len: int = 40, order: int = 2, delay: int = 0,
                       output_form: bool = False, fs_hz: float = FS_HZ, hp_order: int | None = None) -> HybridModel:
     """A random model of the ``interaction`` structure (:mod:`rtlift.blocks.interaction`):

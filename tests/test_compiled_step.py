@@ -20,7 +20,13 @@ from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
 from rtlift.blocks.zero_drift import ZeroDrift
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import load_model
-from testkit.synthetic import assert_step_equals_reference, burst_input, make_model, step_rows
+from testkit.synthetic import (
+    assert_batch_equals_reference,
+    assert_step_equals_reference,
+    burst_input,
+    make_model,
+    step_rows,
+)
 
 TOL = 1e-12
 
@@ -235,15 +241,7 @@ def test_compiled_batch_equals_the_numpy_batch(seed, n, warm, output_form, delay
     m.output_stages = _outputs(outputs)
     _hysteresis(m, hysteresis)
     cmu, env = burst_input(rng, warm + n)
-    step_rows(m.step, cmu[:warm], env[:warm])
-    start = m.get_state()
-    fused = np.array(m.simulate(cmu[warm:], env[warm:]))
-    after = m.get_state()
-    m.set_state(start)
-    reference = np.array(m.reference_simulate(cmu[warm:], env[warm:]))
-    scale = max(1.0, float(np.max(np.abs(reference), initial=0.0)))
-    np.testing.assert_allclose(fused, reference, atol=TOL * scale, rtol=0)
-    np.testing.assert_allclose(after, m.get_state(), atol=TOL, rtol=1e-12)
+    assert_batch_equals_reference(m, cmu, env, warm, TOL)
 
 
 @pytest.mark.parametrize("name,model", list(_fallback_models()), ids=lambda v: v if isinstance(v, str) else "")

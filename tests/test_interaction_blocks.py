@@ -18,6 +18,7 @@ from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, ObserverConfig
 from testkit.synthetic import (
     OUTPUT_STAGES,
+    assert_batch_equals_reference,
     assert_step_equals_reference,
     burst_input,
     interaction_model,
@@ -94,15 +95,7 @@ def test_compiled_interaction_batch_equals_the_numpy_batch(seed, n, warm, delay,
     rng = np.random.default_rng(seed)
     m = with_effects(interaction_model(rng, 300, 2, delay, output_form), fade, tuple(outputs), hysteresis)
     cmu, env = burst_input(rng, warm + n, period=int(rng.integers(20, 300)))
-    step_rows(m.step, cmu[:warm], env[:warm])
-    start = m.get_state()
-    fused = np.array(m.simulate(cmu[warm:], env[warm:]))
-    after = m.get_state()
-    m.set_state(start)
-    reference = np.array(m.reference_simulate(cmu[warm:], env[warm:]))
-    scale = max(1.0, float(np.max(np.abs(reference), initial=0.0)))
-    np.testing.assert_allclose(fused, reference, atol=TOL * scale, rtol=0)
-    np.testing.assert_allclose(after, m.get_state(), atol=TOL, rtol=1e-12)
+    assert_batch_equals_reference(m, cmu, env, warm, TOL)
 
 
 def test_interaction_model_with_its_stages_in_another_order_steps_with_the_reference():
