@@ -22,7 +22,8 @@ appends each draw's line to FILE and skips the draws already there (a run stoppe
 the totals are over every line in it. ``--fault SPEC`` adds a closed loop per draw with that bench
 effect (a ``zero_drift`` of either sign: what its departures name); ``--open-loop TYPE ...`` adds
 clean open-loop streams of those experiments on the draw's plant, stepped as ``rtlift observe``
-steps them (no controller), and their false departures per hour.
+steps them (no controller), and their false departures per hour (``--open-baseline``: each judged
+by thresholds from a clean baseline stream of the same input, the ``--monitor calibrate`` path).
 
 Per draw one JSON line: the model's thresholds and where they came from; per run the departures
 (time on the monitor's clock, test, statistic, suspect), every evaluation's statistics (so other
@@ -200,6 +201,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="clean open-loop streams per draw (rtlift observe's loop, no controller): random sine_k025")
     ap.add_argument("--open-seconds", type=float, default=600.0, help="each open-loop stream's length (default 600)")
     ap.add_argument("--open-seeds", type=int, default=1, help="open-loop streams of each type per draw (default 1)")
+    ap.add_argument("--open-baseline", action="store_true",
+                    help="judge each open-loop stream by thresholds from a clean baseline stream of the same input "
+                         "(seed 9000 + N + 10000 j), as --monitor calibrate then --monitor FILE would")
     ap.add_argument("--out", default=None, help="append each draw's line here; skip the draws already there")
     args = ap.parse_args(argv)
     work = Path(args.work or tempfile.mkdtemp(prefix="rtlift-family-"))
@@ -234,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
                 row["fade"] = run(6000 + draw, (FADE,), "fade")
             row["faults"] = [dict(run(7000 + draw + 10000 * j, (spec,), f"fault{j}"), spec=spec)
                              for j, spec in enumerate(args.fault)]
-            row["open_loop"] = [open_loop(model, draw, kind, 8000 + draw + 10000 * j, args.open_seconds)
+            row["open_loop"] = [open_loop(model, draw, kind, 8000 + draw + 10000 * j, args.open_seconds,
+                                          9000 + draw + 10000 * j if args.open_baseline else None)
                                 for j in range(args.open_seeds) for kind in args.open_loop]
         except Exception as exc:  # noqa: BLE001 - a failed draw is listed, the others go on
             row = {"draw": draw, "error": f"{type(exc).__name__}: {exc}", "trace": traceback.format_exc()[-2000:]}
@@ -309,15 +314,24 @@ def totals(rows: list[dict]) -> dict:
             **open_totals([o for r in ok for o in r.get("open_loop", [])])}
 
 
-def open_loop(model, draw: int, kind: str, seed: int, seconds: float) -> dict:
+def open_loop(model, draw: int, kind: str, seed: int, seconds: float, baseline_seed: int | None = None) -> dict:
     """A clean open-loop stream of plant ``draw`` (the bench running experiment ``kind`` over and
     over, ``seconds`` long, no controller) through the observer and the monitor as ``rtlift
-    observe``'s loop steps them (:func:`benchmarks.monitor_null.monitor_record`): its departures."""
+    observe``'s loop steps them (:func:`benchmarks.monitor_null.monitor_record`): its departures.
+    With ``baseline_seed``, the user's path for an input the model's print does not cover: a clean
+    baseline stream of the same input (that seed) gives thresholds as ``--monitor calibrate`` does
+    (:func:`rtlift.app.watch.calibration_doc`), and the measured stream is judged by them."""
     from benchmarks.monitor_null import bench_stream, monitor_record
+    from rtlift.app.watch import calibration_doc
 
     t0 = time.perf_counter()
-    mon = monitor_record(model, bench_stream(kind, seed, seconds, plant_draw=draw), history=True)
+    baseline = None
+    if baseline_seed is not None:
+        base = monitor_record(model, bench_stream(kind, baseline_seed, seconds, plant_draw=draw), history=True)
+        baseline = {k: v for k, v in calibration_doc(base, "model")["thresholds"].items() if v is not None}
+    mon = monitor_record(model, bench_stream(kind, seed, seconds, plant_draw=draw), history=True, baseline=baseline)
     return {"kind": kind, "seed": seed, "seconds": seconds, "wall_s": time.perf_counter() - t0,
+            "baseline_seed": baseline_seed, "thresholds": dict(mon.thresholds),
             "departures": [{k: d[k] for k in ("t_s", "test", "statistic", "threshold", "suspect")}
                            for d in mon.departures],
             "max": {k: max((h[k] for h in mon.history), default=0.0) for k in TESTS},

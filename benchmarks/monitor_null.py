@@ -55,11 +55,15 @@ def bench_stream(name: str, seed: int, seconds: float, plant_draw: int = 0) -> R
     return run.to_record(f"{name}_s{seed}")
 
 
-def new_monitor(model, thresholds: dict | None = None, history: bool = False) -> DepartureMonitor:
-    """The model's monitor, with thresholds overridden and every evaluation kept if asked."""
+def new_monitor(model, thresholds: dict | None = None, history: bool = False,
+                baseline: dict | None = None) -> DepartureMonitor:
+    """The model's monitor, with thresholds overridden, or a baseline run's (``--monitor FILE``),
+    and every evaluation kept if asked."""
     mon = DepartureMonitor.for_model(model)
     if thresholds:
         mon.thresholds.update(thresholds)
+    if baseline:
+        mon.use_thresholds(baseline, "a baseline run (--monitor calibrate)")
     if history:
         mon.history = []
     return mon
@@ -115,10 +119,11 @@ def closed_loop(model, seed: int, seconds: float, effects: tuple[str, ...] = (),
     return mon
 
 
-def monitor_record(model, rec: Record, thresholds: dict | None = None, history: bool = False) -> DepartureMonitor:
+def monitor_record(model, rec: Record, thresholds: dict | None = None, history: bool = False,
+                   baseline: dict | None = None) -> DepartureMonitor:
     """The observer and the monitor over one record, as the live loop steps them."""
     obs = Observer.from_model(model)
-    mon = new_monitor(model, thresholds, history)
+    mon = new_monitor(model, thresholds, history, baseline)
     step, mstep = obs.step, mon.step
     for c, v, z in zip(rec.cmu.tolist(), rec.cmu_envelope.tolist(), rec.dcl.tolist(), strict=True):
         est = step(c, v, z)
