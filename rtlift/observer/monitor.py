@@ -761,8 +761,9 @@ class DepartureMonitor:
                            f"run's start, beyond its largest on the records its thresholds came from "
                            f"({', '.join(self.print_inputs) or 'its identification records'}: "
                            f"{self.level_null:.2f}): bias, level and trend were judged on the run's own scale "
-                           f"(changes from its start), whiteness not at all; for thresholds from this input, "
-                           f"run a clean baseline with --monitor calibrate OUT.json, then --monitor OUT.json")
+                           f"(changes from its start), whiteness not at all; thresholds from this input need a "
+                           f"clean baseline of it (--monitor calibrate OUT.json, then --monitor OUT.json) long "
+                           f"enough to hold its own spread: on a random envelope 10 minutes were not")
         return out
 
     def summary(self) -> dict[str, Any]:
