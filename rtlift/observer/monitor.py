@@ -69,7 +69,10 @@ null distribution of every statistic on the model's own identification records,
 constants :data:`THRESHOLDS`, set from clean runs of our bench and the independent plant only
 (``benchmarks/monitor_null.py --calibrate``: the largest value each statistic held for
 ``persist`` consecutive evaluations over the calibration seeds' clean streams, times
-:data:`MARGIN`). The summary says which were in force (``thresholds_from``).
+:data:`MARGIN`). The summary says which were in force (``thresholds_from``). A print's thresholds
+hold for the inputs it was computed on: an input that shows the model more spread from the run's
+first window on (:data:`INPUT_SPREAD`) is judged on the run's own scale, without ``whiteness``,
+and the summary says so (``input``, :meth:`DepartureMonitor._input_against`).
 
 The suspect named with a departure is what the diagnosis would try first (the diagnosis that
 ``--adapt`` runs decides). ``bias``, ``trend`` and ``hold`` see one thing — the residual's level
