@@ -43,10 +43,12 @@ def _start(make, feedback: str, tmp: Path):
     cmd = [sys.executable, "-m", "rtlift", "control", *link, "--model", str(MODEL), "--reference", REFERENCE,
            "--seconds", str(SECONDS), "--feedback", feedback, "--json", str(summary), "--log", str(log)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return dev, stream, proc, summary, log
+
+
+def _link_open(proc) -> None:
     line = proc.stderr.readline()
     assert "link open" in line, line + proc.stderr.read()
-    dev.start()
-    return dev, stream, proc, summary, log
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +56,13 @@ def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("control")
     started = {name: _start(make, fb, tmp) for name, make, fb in (
         ("serial_on", SerialDaq, "on"), ("serial_off", SerialDaq, "off"), ("slcan_on", SlcanAdapter, "on"))}
+    # the three hosts start together and every device streams only once all three links are
+    # open: a host starting (imports, the compiled steps loaded) beside a running loop took
+    # the cores from it on a loaded machine, long enough for the device's 500 ms watchdog
+    for _, _, proc, _, _ in started.values():
+        _link_open(proc)
+    for dev, *_ in started.values():
+        dev.start()
     out = {}
     for name, (dev, stream, proc, summary, log) in started.items():
         try:
