@@ -76,6 +76,7 @@ identified from the bench (seed 1, 2nd-order Wiener) and the observer tuned on a
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import subprocess
 import sys
@@ -99,11 +100,11 @@ class TimedMonitor:
         self.block_end = np.zeros(capacity, dtype=bool)
         self.n = 0
 
-    def step(self, dcl, model_dcl: float, innovation: float) -> None:
+    def step(self, dcl, model_dcl: float, innovation: float, envelope: float = math.nan) -> None:
         mon, k = self.monitor, self.n
         nb = mon._nb
         t0 = time.perf_counter()
-        mon.step(dcl, model_dcl, innovation)
+        mon.step(dcl, model_dcl, innovation, envelope)
         dt = time.perf_counter() - t0
         if k < self.times.size:
             self.times[k] = dt
