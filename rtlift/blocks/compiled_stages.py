@@ -5,6 +5,7 @@ Input stages, each on its own arrays (the stage's ``kernel_arrays()``, not copie
 
     delay            Cμ′(k) = Cμ(k − D), Cμ_env′(k) = Cμ_env(k − D)                 (:func:`_delayed`)
     actuator_fade    g(k) = f + (1 − f) exp(−E(k)/τ),  (Cμ′, Cμ_env′) = g (Cμ, Cμ_env)   (:func:`_faded`)
+    onset_hold       Cμ_env′(k) = Cμ_env at the last burst onset, 0 while Cμ_env ≤ 0  (in the fade's slot)
 
 Output stages, any number in any order, each in the state-space form every output stage states
 (:meth:`rtlift.blocks.stage_base.OutputStage.statespace`, the paper's timing), on the stage's own state:
@@ -48,14 +49,28 @@ def _delayed(cmu, env, d_cmu, d_env, d_pos):
 def _faded(cmu, env, fpar, fstate):
     """The ``actuator_fade`` stage (:class:`rtlift.blocks.actuator_fade.ActuatorFade`):
     (g Cμ, g Cμ_env), E advanced by 1/fs when Cμ > 0 (or always, clock "time"). ``fpar`` =
-    [on, f, τ, 1/fs, clock is "time"] (on = 0: no stage), ``fstate`` = [E]."""
+    [on, f, τ, 1/fs, clock is "time"] (on = 0: no stage), ``fstate`` = [E]. The same slot
+    runs the ``onset_hold`` stage (:class:`rtlift.blocks.onset_hold.OnsetHold`) when ``fpar`` is
+    its array [1, 1, 1, 1/fs, 0, 1, u, Cμ(k−1)] (a fade of g = 1 exactly, then the hold, its
+    state in ``fpar[6:8]``)."""
     if fpar[0] == 0.0:
         return cmu, env
     f = fpar[1]
     g = f + (1.0 - f) * math.exp(-fstate[0] / fpar[2])
     if cmu > 0.0 or fpar[4] != 0.0:
         fstate[0] = fstate[0] + fpar[3]
-    return cmu * g, env * g
+    cmu, env = cmu * g, env * g
+    if fpar.shape[0] > 5 and fpar[5] != 0.0:
+        if not env > 0.0:
+            u = 0.0
+        elif cmu > 0.0 and not fpar[7] > 0.0:
+            u = env
+        else:
+            u = fpar[6]
+        fpar[6] = u
+        fpar[7] = cmu
+        env = u
+    return cmu, env
 
 
 @njit_cached(inline="always")

@@ -70,6 +70,8 @@ def bound_observer(model: HybridModel, config: ObserverConfig | None = None) -> 
     """The observer of ``model`` (its stored Q and R unless ``config``), refused with one line
     naming what has no compiled step (the C module is that step's translation)."""
     obs = Observer.from_model(model) if config is None else Observer(model, config)
+    if any(st.name == "onset_hold" for st in model.input_stages):      # compiled, not translated (issue 47)
+        raise ExportError("cannot export to C: the input stage 'onset_hold' has no C translation")
     if not obs.compiled:
         raise ExportError(f"cannot export to C: {_uncompiled_part(obs.model)}")
     return obs

@@ -47,6 +47,7 @@ from rtlift.blocks.delay import Delay
 from rtlift.blocks.delivered import DeliveredEnvelope
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.interaction import IDENTITY_SOS, InteractionConvolution
+from rtlift.blocks.onset_hold import OnsetHold
 from rtlift.blocks.stage_base import InputStage, OutputStage
 from rtlift.blocks.wiener import WienerBlock
 
@@ -119,14 +120,17 @@ class HybridModel(BlockChain):
 
     def _input_state(self, stages: tuple[InputStage, ...]) -> tuple[np.ndarray, ...] | None:
         """The compiled step's input-stage arrays when ``stages`` is at most one ``delay`` followed
-        by at most one ``actuator_fade``: the delay's rings and position, then the fade's
-        parameters and state (zeros, "no stage", without one); else None."""
+        by at most one ``actuator_fade`` or one ``onset_hold``: the delay's rings and position, then
+        the fade's (or the hold's) parameters and state (zeros, "no stage", without one); else None."""
         rest = list(stages)
         delay: tuple[np.ndarray, ...] = (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
         if rest and type(rest[0]) is Delay:
             delay = rest.pop(0).kernel_arrays()[1]
         faded: tuple[np.ndarray, ...] = (np.zeros(5), np.zeros(1))
         if rest and type(rest[0]) is ActuatorFade:
+            (fpar,), (fstate,) = rest.pop(0).kernel_arrays()
+            faded = (fpar, fstate)
+        elif rest and type(rest[0]) is OnsetHold:       # in the fade's slot (rtlift.blocks.onset_hold)
             (fpar,), (fstate,) = rest.pop(0).kernel_arrays()
             faded = (fpar, fstate)
         if rest:

@@ -1,0 +1,139 @@
+"""The ``onset_hold`` input stage (issue 47): the envelope each burst delivered, held until the
+next onset — its equation, its streaming/batch twins, and the compiled model step that runs it."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rtlift.blocks.actuator_fade import ActuatorFade
+from rtlift.blocks.delay import Delay
+from rtlift.blocks.onset_hold import OnsetHold
+from rtlift.core.rate import FS_HZ as FS
+from rtlift.model.modelfile import model_from_dict, model_to_dict
+from testkit.synthetic import assert_batch_equals_reference, assert_step_equals_reference, make_model, step_rows
+
+TOL = 1e-12
+PERIOD, WIDTH = 50, 4
+
+
+def _bursts(rng: np.random.Generator, n: int, period: int = PERIOD, offset: int = 0,
+            off_runs: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth envelope (Cμ) with runs at 0 (actuators off), bursts of WIDTH samples every
+    ``period`` from ``offset``: (Cμ, Cμ_env) as the bench records them."""
+    k = np.arange(n)
+    env = np.clip(0.011 + 0.009 * np.sin(2 * np.pi * k / rng.uniform(60, 500)) + rng.normal(0, 0.001, n), 0, 0.025)
+    if off_runs and n > 10:
+        a = int(rng.integers(0, n))
+        env[a:a + int(rng.integers(1, 3 * period))] = 0.0
+    gate = ((k - offset) % period) < WIDTH
+    return np.where(gate, env, 0.0), env
+
+
+def test_smooth_and_held_envelopes_delivering_the_same_bursts_give_the_same_input():
+    """The equation: u is the envelope at each onset, held; so the smooth envelope and the one
+    latched at each onset (the loop's), with the same bursts, map to the same u, exactly; u = 0
+    where the envelope is 0; the Cμ column passes unchanged."""
+    rng = np.random.default_rng(3)
+    cmu, env = _bursts(rng, 2000, offset=7)
+    onsets = np.flatnonzero((cmu > 0) & (np.concatenate(([0.0], cmu[:-1])) <= 0))
+    held = np.zeros_like(env)                                  # the equation, sample by sample
+    for k in range(1, env.size):
+        held[k] = 0.0 if env[k] <= 0 else env[k] if k in onsets else held[k - 1]
+    c_out, u = OnsetHold(FS).simulate(cmu, env)
+    np.testing.assert_array_equal(c_out, cmu)
+    np.testing.assert_array_equal(u, held)
+    assert np.all(u[:7] == 0.0)                               # before the first onset: nothing delivered
+    latched = np.where(env > 0, held, 0.0)                     # the envelope as the loop holds it
+    np.testing.assert_array_equal(OnsetHold(FS).simulate(cmu, latched)[1], u)
+    assert np.max(np.abs(u - env)) > 1e-3                      # the stage does change a smooth envelope
+
+
+def test_constant_envelope_with_sparse_bursts_is_unchanged():
+    """Single bursts and trains at a held amplitude: u = Cμ_env from the first onset on (the
+    stage does not touch those records), and 0 where the envelope is."""
+    env = np.full(3000, 0.0022)
+    env[:800] = 0.0
+    env[2500:] = 0.0
+    cmu = np.where((np.arange(3000) % 377) < WIDTH, env, 0.0)
+    first = int(np.flatnonzero(cmu > 0)[0])
+    _, u = OnsetHold(FS).simulate(cmu, env)
+    np.testing.assert_array_equal(u[first:], env[first:])
+    assert np.all(u[:first] == 0.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 600), cut=st.integers(0, 600),
+       period=st.integers(5, 120))
+def test_streaming_equals_batch_from_any_state(seed, n, cut, period):
+    """step and simulate agree exactly (≤ 1e-12) and leave the same state, from a mid-record state."""
+    rng = np.random.default_rng(seed)
+    cmu, env = _bursts(rng, n + cut, period, int(rng.integers(0, period)))
+    a, b = OnsetHold(FS), OnsetHold(FS)
+    a.simulate(cmu[:cut], env[:cut])
+    b.set_state(a.get_state())
+    streamed = np.array([a.step(c, e) for c, e in zip(cmu[cut:], env[cut:], strict=True)]).reshape(-1, 2).T
+    batch = np.array(b.simulate(cmu[cut:], env[cut:]))
+    np.testing.assert_allclose(batch, streamed, atol=TOL, rtol=0)
+    np.testing.assert_array_equal(a.get_state(), b.get_state())
+
+
+def _model(seed: int, delay: int, output_form: bool):
+    rng = np.random.default_rng(seed)
+    m = make_model(rng, kernel_len=40, output_form=output_form)
+    m.input_stages = ((Delay(delay / FS, FS),) if delay else ()) + (OnsetHold(FS),)
+    return m, rng
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), warm=st.integers(0, 120), delay=st.integers(0, 4),
+       output_form=st.booleans())
+def test_compiled_step_and_batch_with_the_hold_equal_the_reference(seed, n, warm, delay, output_form):
+    """A model with [delay,] onset_hold takes the compiled step; step and fused batch equal the
+    reference step and the numpy chain to 1e-12 from a mid-record state."""
+    m, rng = _model(seed, delay, output_form)
+    assert m.compiled
+    cmu, env = _bursts(rng, n + warm, offset=int(rng.integers(0, PERIOD)))
+    assert_step_equals_reference(m, cmu, env, warm, TOL)
+    m.reset()
+    assert_batch_equals_reference(m, cmu, env, warm, TOL)
+
+
+def test_the_hold_changes_the_model_and_copies_keep_their_own_state():
+    """The hold moves the model's output (against the same model without it), and a copy, a
+    pickle and a model-file round trip step exactly as the original (the stage's state a view
+    into the compiled slot, made again in each)."""
+    m, rng = _model(5, 2, False)
+    cmu, env = _bursts(rng, 1500, offset=11, off_runs=False)
+    plain = m.copy()
+    plain.input_stages = (Delay(2 / FS, FS),)
+    with_hold = step_rows(m.step, cmu[:700], env[:700])
+    without = step_rows(plain.step, cmu[:700], env[:700])
+    assert np.max(np.abs(with_hold[2] - without[2])) > 1e-4 * np.max(np.abs(without[2]))
+    twins = [copy.deepcopy(m), pickle.loads(pickle.dumps(m)), model_from_dict(model_to_dict(m))]
+    for t in twins[2:]:
+        t.set_state(m.get_state())
+    rest = step_rows(m.step, cmu[700:], env[700:])
+    for t in twins:
+        assert t.compiled
+        np.testing.assert_allclose(step_rows(t.step, cmu[700:], env[700:]), rest, atol=TOL, rtol=0)
+
+
+def test_fade_and_hold_take_the_reference_step():
+    """Both in the fade's slot cannot be: such a model takes the reference step (and is right)."""
+    m, rng = _model(7, 0, False)
+    m.input_stages = (ActuatorFade(0.6, 0.05, FS), OnsetHold(FS))
+    assert not m.compiled
+    cmu, env = _bursts(rng, 300)
+    got = step_rows(m.step, cmu, env)
+    assert np.all(np.isfinite(got))
+
+
+def test_bad_state_is_refused():
+    with pytest.raises(ValueError, match="shape"):
+        OnsetHold(FS).set_state(np.zeros(3))
