@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from rtlift.app.control import ControlConfig, LiftController, static_map
+from rtlift.app.control import ACTUATOR_CMU_LIMIT, ControlConfig, LiftController, static_map
 from rtlift.app.reference import parse_reference
 from rtlift.core.errors import UserError
 from rtlift.core.rate import FS_HZ
@@ -83,8 +83,17 @@ def test_the_inverse_static_map_is_the_models_static_map_inverted():
     cmu, dcl = static_map(model, 0.022)
     for c in (0.002, 0.008, 0.015, 0.021):
         assert ctl.inverse(float(np.interp(c, cmu, dcl))) == pytest.approx(c, rel=1e-6)
-    assert ctl.inverse(-1.0) == 0.0 and ctl.inverse(10.0) == pytest.approx(0.022)
-    assert 0.18 < ctl.dcl_max < 0.26
+    assert ctl.inverse(-1.0) == 0.0 and ctl.inverse(10.0) == pytest.approx(ACTUATOR_CMU_LIMIT)
+    assert 0.18 < ctl.dcl_max < 0.26 and ctl.dcl_max == pytest.approx(float(dcl[-1]), rel=1e-12)
+    # the feedback's reach: the map extrapolated to the actuator's 200 V, the same below 0.022
+    assert ACTUATOR_CMU_LIMIT == pytest.approx(0.02444, rel=1e-3)
+    assert ctl.dcl_reach > ctl.dcl_max + 0.005
+    reach_cmu, reach_dcl = static_map(model, 0.022, reach=ACTUATOR_CMU_LIMIT)
+    assert np.array_equal(reach_dcl[:dcl.size], dcl) and reach_cmu[-1] == ACTUATOR_CMU_LIMIT
+    assert np.max(np.diff(reach_cmu)) <= 0.022 / 200 * (1 + 1e-9)
+    # with the feedback off, the feedforward stays on the identified map
+    ff = LiftController(model, ControlConfig(feedback=False))
+    assert ff.inverse(10.0) == pytest.approx(0.022) and ff.dcl_reach == ff.dcl_max == ctl.dcl_max
 
 
 def test_feedback_halves_the_tracking_error_of_feedforward_under_an_actuator_fade():
@@ -103,14 +112,14 @@ def test_no_windup_after_a_reference_beyond_reach():
                       seconds=16.0, fade=None)
     ctl = run["ctl"]
     reached = run["env"][int(9.5 * FS)]
-    assert reached == pytest.approx(ctl.config.cmu_max)
+    assert reached == pytest.approx(ctl.config.cmu_reach) and ctl.config.cmu_reach == ACTUATOR_CMU_LIMIT
     assert settling_s(run, 10.0) <= 1.0
 
 
 def test_the_envelope_stays_within_the_actuator_limits_and_changes_only_once_per_period():
     run = closed_loop(lambda t: 0.3 * np.sin(2 * np.pi * 0.5 * t), seconds=6.0)
     env = run["env"]
-    assert env.min() >= 0.0 and env.max() <= 0.022 + 1e-12
+    assert env.min() >= 0.0 and env.max() == pytest.approx(ACTUATOR_CMU_LIMIT)
     changes = np.nonzero(np.diff(env))[0] + 1
     assert np.all(changes % PERIOD == 0)
 

@@ -8,7 +8,7 @@ the burst ripple (the high-passed convolution) has no mean. Its static map is th
 
 concave and saturating. :class:`LiftController` implements
 
-    v = r + K_p ē_f + K_x (ΔĈL_mean − ΔĈL_last) + I,        u = S⁻¹(v) clamped to [0, Cμ_max]
+    v = r + K_p ē_f + K_x (ΔĈL_mean − ΔĈL_last) + I,        u = S⁻¹(v) clamped to [0, Cμ_reach]
 
 with ``ē`` the tracking error ``r − ΔĈL`` averaged over one burst period (the ripple's
 period, so the average removes it), ``ē_f`` it through the lead–lag ``g (Z − a)/(Z − b)``
@@ -27,7 +27,9 @@ its range), so one pair (K_p, T_i) serves the whole range.
 Why PI with conditional integration. The envelope can only change at burst onsets (8 Hz),
 so a model-predictive law has one move per 125 ms and little to gain over PI on a plant whose
 slow part is nearly first order; what it needs is bounded behaviour at the actuator limits
-(Cμ ≥ 0, the firmware's 200 V). Conditional integration (the integrator holds while the
+(Cμ ≥ 0, the firmware's 200 V: Cμ_reach, :data:`ACTUATOR_CMU_LIMIT`, beyond the identified map's
+top Cμ_max = 0.022, the map extrapolated there — under an actuator fade the delivered Cμ stays inside
+it). Conditional integration (the integrator holds while the
 command is saturated and the error would push it further) needs no extra tuning constant,
 unlike back-calculation's tracking time, and guarantees the integrator never grows while the
 actuator is pinned, so a reference beyond reach leaves no windup to unwind. The integrator is
@@ -69,12 +71,20 @@ from typing import Any
 import numpy as np
 
 from rtlift.core.errors import UserError
+from rtlift.core.programs import ENVELOPE_LIMIT_V
 from rtlift.core.rate import FS_HZ
+from rtlift.core.wing import CMU_PER_VOLT2
 
 BURST_PERIOD_SAMPLES = 50
 """The lift-optimal 8 Hz burst rate at 400 Hz: the envelope changes once per period."""
 DEFAULT_CMU_MAX = 0.022
-"""Top of the identified static map (the bench's 200 V limit gives ≈ 0.0245)."""
+"""Top of the identified static map (the bench's 200 V limit gives ≈ 0.0244)."""
+ACTUATOR_CMU_LIMIT = CMU_PER_VOLT2 * ENVELOPE_LIMIT_V ** 2
+"""The actuator's own top, Cμ = κ V² at the firmware's 200 V clamp with the rig's κ (≈ 0.0244): how
+far the feedback may drive the envelope (``ControlConfig.cmu_reach``). Under a 70 % actuator fade the
+reference 0.16 needs Cμ 0.0275 on calibration draw 2 (0.019 without it): held at the map's top 0.022
+the loop's tracking error there was 0.0194 against 0.0102 with this reach (docs/results/control.md,
+"Fifth pass")."""
 MAP_POINTS = 201
 
 
@@ -85,7 +95,10 @@ class ControlConfig:
     ``kx`` the gain on the latest estimate's departure from the period's mean (0: none),
     ``schedule`` rows ``(Cμ, kp, ti_s, a, b, kx)`` in increasing Cμ that replace the five by
     their interpolation at the feedforward's Cμ (:mod:`rtlift.app.control_design` designs them),
-    ``feedback``, ``cmu_max`` actuator limit as Cμ, ``period`` samples between envelope updates."""
+    ``feedback``, ``cmu_max`` the top of the identified static map (Cμ: the feedforward's and the
+    design's range), ``cmu_reach`` how far the feedback may drive the envelope (Cμ, the actuator's
+    own limit :data:`ACTUATOR_CMU_LIMIT`; beyond ``cmu_max`` through the model's map extrapolated),
+    ``period`` samples between envelope updates."""
 
     kp: float = 0.5
     ti_s: float = 0.25
@@ -96,6 +109,7 @@ class ControlConfig:
     lead_zero: float = 0.0
     lead_pole: float = 0.0
     kx: float = 0.0
+    cmu_reach: float = ACTUATOR_CMU_LIMIT
     schedule: tuple[tuple[float, float, float, float, float, float], ...] = ()
     youla: tuple[tuple[Any, ...], ...] = ()
     """Rows ``(Cμ, Q_A taps, Q_X taps, P_A taps, P_X taps)`` in increasing Cμ: the internal-model
@@ -103,7 +117,7 @@ class ControlConfig:
     :mod:`rtlift.app.control_design` designs them). Empty: the PI."""
 
     def __post_init__(self) -> None:
-        for name in ("kp", "ti_s", "cmu_max", "fs_hz"):
+        for name in ("kp", "ti_s", "cmu_max", "cmu_reach", "fs_hz"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0) and not (name == "kp" and v == 0):
                 raise ValueError(f"control {name} must be a positive number, got {v!r}")
@@ -136,16 +150,18 @@ def gains_text(cfg: ControlConfig) -> str:
     """The feedback gains of ``cfg`` as one line of JSON (a command log's ``gains`` metadata:
     ``rtlift replay`` rebuilds the same controller from it, floats exact)."""
     return json.dumps({"kp": cfg.kp, "ti_s": cfg.ti_s, "lead_zero": cfg.lead_zero, "lead_pole": cfg.lead_pole,
-                       "kx": cfg.kx, "schedule": [list(row) for row in cfg.schedule],
+                       "kx": cfg.kx, "cmu_reach": cfg.cmu_reach, "schedule": [list(row) for row in cfg.schedule],
                        "youla": [[row[0], *(list(t) for t in row[1:])] for row in cfg.youla]})
 
 
 def config_from_gains_text(text: str, feedback: bool, fs_hz: float) -> ControlConfig:
-    """The :class:`ControlConfig` :func:`gains_text` wrote (:class:`UserError` if garbled)."""
+    """The :class:`ControlConfig` :func:`gains_text` wrote (:class:`UserError` if garbled); a log
+    written before ``cmu_reach`` was its feedback held at the map's top, ``cmu_max``."""
     try:
         d = json.loads(text)
         return ControlConfig(kp=float(d["kp"]), ti_s=float(d["ti_s"]), lead_zero=float(d["lead_zero"]),
                              lead_pole=float(d["lead_pole"]), kx=float(d["kx"]),
+                             cmu_reach=float(d.get("cmu_reach", DEFAULT_CMU_MAX)),
                              schedule=tuple(tuple(float(v) for v in row) for row in d["schedule"]),
                              youla=youla_rows(d.get("youla", ())), feedback=feedback, fs_hz=fs_hz)
     except (ValueError, KeyError, TypeError) as exc:
@@ -178,15 +194,20 @@ def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> float:
                                                               np.asarray(B, dtype=float)))
 
 
-def static_map(model: Any, cmu_max: float, points: int = MAP_POINTS) -> tuple[np.ndarray, np.ndarray]:
+def static_map(model: Any, cmu_max: float, points: int = MAP_POINTS,
+               reach: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(Cμ grid on [0, cmu_max], S(Cμ)) of the model's Wiener part (and of the interaction
-    structure's burst part, whose slow response has a mean), made non-decreasing. The Wiener
+    structure's burst part, whose slow response has a mean), made non-decreasing; with ``reach`` >
+    ``cmu_max`` the grid goes on at the same spacing to ``reach`` (the model extrapolated). The Wiener
     input is the envelope, or what the interaction structure's ``delivered_envelope`` stage makes
     of it under lift-optimal bursting (:meth:`~rtlift.blocks.delivered.DeliveredEnvelope.steady`:
     the envelope, or its static lift)."""
     w = model.wiener
     g0 = dc_gain(w.A, w.B, w.C)
     cmu = np.linspace(0.0, cmu_max, points)
+    if reach > cmu_max:
+        more = max(1, math.ceil((reach - cmu_max) * (points - 1) / cmu_max))
+        cmu = np.r_[cmu, np.linspace(cmu_max, reach, more + 1)[1:]]
     steady = getattr(model.input_stages[-1], "steady", None) if model.input_stages else None
     u = np.array([steady(c) for c in cmu]) if steady is not None else cmu
     nl = w.nonlinearity
@@ -205,14 +226,18 @@ class LiftController:
 
     def __init__(self, model: Any, config: ControlConfig | None = None) -> None:
         self.config = cfg = config or ControlConfig()
-        cmu, dcl = static_map(model, cfg.cmu_max)
+        cmu, dcl = static_map(model, cfg.cmu_max, reach=cfg.cmu_reach if cfg.feedback else 0.0)
         keep = np.concatenate([[True], np.diff(dcl) > 0])  # strictly increasing for the inverse
         self._map_dcl = [float(v) for v in dcl[keep]]
         self._map_cmu = [float(v) for v in cmu[keep]]
         if len(self._map_dcl) < 2 or not all(map(math.isfinite, self._map_dcl)):
             raise UserError("model: its static map does not increase with Cμ; cannot invert it for control")
         self.dcl_min = self._map_dcl[0]
-        self.dcl_max = self._map_dcl[-1]
+        self.dcl_max = float(dcl[MAP_POINTS - 1])
+        """S(cmu_max): the top of the identified map (the design's operating range)."""
+        self.dcl_reach = self._map_dcl[-1]
+        """S(cmu_reach): the top the feedback may drive ``v`` to (the actuator's limit; with the
+        feedback off, S(cmu_max))."""
         self._rows = [tuple(float(v) for v in row) for row in cfg.schedule]
         self._set_gains(cfg.kp, cfg.ti_s, cfg.lead_zero, cfg.lead_pole, cfg.kx)
         self._youla = youla_rows(cfg.youla)
@@ -290,7 +315,7 @@ class LiftController:
         LiftController.reset(probe)            # the state is what reset() sets: one list of it
         for name in vars(probe):
             setattr(self, name, getattr(other, name))
-        span = self.dcl_max - self.dcl_min
+        span = self.dcl_reach - self.dcl_min
         self.integral = min(max(self.integral, -span), span)
 
     def sync(self, samples_to_decision: int) -> None:
@@ -299,7 +324,7 @@ class LiftController:
         self._count = self.config.period - max(1, int(samples_to_decision))
 
     def inverse(self, dcl: float) -> float:
-        """S⁻¹(ΔCL) as Cμ, clamped to the map's range [0, cmu_max]."""
+        """S⁻¹(ΔCL) as Cμ, clamped to the map's range [0, cmu_reach] ([0, cmu_max] with the feedback off)."""
         xs = self._map_dcl
         if dcl <= xs[0]:
             return self._map_cmu[0]
@@ -340,7 +365,7 @@ class LiftController:
             self._last_err = e
             fast = self.kx * (self._est_sum / self._n - self._point)
             v = ref + self.kp * err + fast + self.integral
-            lo, hi = self.dcl_min, self.dcl_max
+            lo, hi = self.dcl_min, self.dcl_reach
             pushing_high = v >= hi and err > 0.0
             pushing_low = v <= lo and err < 0.0
             if not (pushing_high or pushing_low):  # conditional integration
@@ -348,9 +373,9 @@ class LiftController:
                 span = hi - lo
                 self.integral = min(max(self.integral, -span), span)
                 v = ref + self.kp * err + fast + self.integral
-        self.saturated = v >= self.dcl_max or v <= self.dcl_min
+        self.saturated = v >= self.dcl_reach or v <= self.dcl_min
         if not self._youla:          # the internal-model controller's step sets it exactly (w)
-            self.feedback_dcl = min(max(v, self.dcl_min), self.dcl_max) - ref
+            self.feedback_dcl = min(max(v, self.dcl_min), self.dcl_reach) - ref
         self.envelope = self.inverse(v)
         self._start_period()
         self.updated = True
@@ -376,8 +401,8 @@ class LiftController:
             k = (self._e_pos - i) % nq
             w += qa[i] * self._ea_hist[k] + qx[i] * self._ex_hist[k]
         self._e_pos = (self._e_pos + 1) % nq
-        if ref + w > self.dcl_max:
-            w = self.dcl_max - ref
+        if ref + w > self.dcl_reach:
+            w = self.dcl_reach - ref
         elif ref + w < self.dcl_min:
             w = self.dcl_min - ref
         wh[self._w_pos] = w
