@@ -99,9 +99,9 @@ def relative_error(pm: np.ndarray, pt: np.ndarray, z: np.ndarray) -> dict:
 
 
 def model_for(draw: int, keep: str | None) -> str:
-    """The draw's identified model file (draw 0: the bench model of tests/data; others as
-    ``benchmarks/control_family.py`` identifies them, kept in ``keep``)."""
-    if draw == 0:
+    """The draw's identified model file (draw 0: ``keep``'s 0_model.json if there, else the bench
+    model of tests/data; others as ``benchmarks/control_family.py`` identifies them, kept in ``keep``)."""
+    if draw == 0 and not (keep and os.path.exists(os.path.join(keep, "0_model.json"))):
         return os.path.join(ROOT, "tests", "data", "bench_model.json")
     from benchmarks.control_family import identified_model
 

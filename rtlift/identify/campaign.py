@@ -29,6 +29,15 @@
 6. the residual fingerprint of the final model on the three records
    (:mod:`rtlift.residual.fingerprint`), stored in the model file for later diagnoses, and
    the model's domain (burst periods and Cμ range of the three records, :mod:`rtlift.model.domain`).
+7. the Wiener part's input (``envelope``; issue 47): the envelope as recorded (the default, the
+   paper's), or as the bursts delivered it — the ``onset_hold`` stage
+   (:mod:`rtlift.blocks.onset_hold`: the envelope at each burst onset, held to the next, 0 while
+   it is 0), applied to the static sweep and the training record before steps 3–5 (the static
+   map stays the recorded sweep's: 40 s ramps, the half period moves it by < 0.2 %) and stored
+   as the model's last input stage, so the model computes it in every loop. A smooth envelope and
+   one held per burst period (the loop's) then give the model the same input when they deliver
+   the same bursts. ``"auto"`` identifies both and keeps the delivered one unless the recorded
+   one's held-out RMSE is lower by more than ``structure_tolerance`` (twice the time).
 
 Pure: takes :class:`~rtlift.core.records.Record` objects, returns an :class:`Identification`
 holding the :class:`~rtlift.model.hybrid.HybridModel` and plain dicts for the model file.
@@ -36,7 +45,7 @@ holding the :class:`~rtlift.model.hybrid.HybridModel` and plain dicts for the mo
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import signal
@@ -44,6 +53,7 @@ from scipy import signal
 from rtlift.blocks.convolution import RingConvolution
 from rtlift.blocks.delay import Delay
 from rtlift.blocks.highpass import HighPassFilter
+from rtlift.blocks.onset_hold import OnsetHold
 from rtlift.blocks.wiener import InputGain, OutputNonlinearity, WienerBlock
 from rtlift.core.errors import require_finite
 from rtlift.core.metrics import scores
@@ -59,6 +69,7 @@ from rtlift.model.hybrid import HybridModel
 from rtlift.residual.fingerprint import FINGERPRINT_START_S, fingerprint
 
 WIENER_FORMS = ("input_gain", "output_map")
+ENVELOPES = ("recorded", "delivered", "auto")
 
 
 @dataclass(frozen=True)
@@ -81,6 +92,8 @@ class IdentifyOptions:
     phi: str = "auto"                         # "single_burst" (paper), "train" or "auto"
     kernel: str = "auto"                      # "single_burst" (paper) or "auto": first period refined
     control_band_hz: float = 1.0              # HF must reject ≥ 20 dB up to here (k = 0.25)
+    envelope: str = "recorded"                # the Wiener input: "recorded", "delivered" (onset_hold) or
+                                              # "auto" (both identified, by held-out RMSE; step 7)
 
 
 @dataclass
@@ -116,6 +129,14 @@ def nonlinearity_for(static: StaticMap, form: str):
 def convolution_output(kernel: SingleBurstKernel, cmu: np.ndarray) -> np.ndarray:
     """φ Σ_j h(j) Cμ(k−j) from rest (paper eq. 1)."""
     return kernel.phi * signal.lfilter(kernel.kernel, [1.0], cmu)
+
+
+def delivered(rec: Record, fs: float) -> Record:
+    """The record with its envelope replaced by what the bursts delivered (the ``onset_hold``
+    stage from rest: the envelope at each burst onset, held to the next, 0 while it is 0)."""
+    out = rec.slice(0, len(rec))
+    out.cmu_envelope = OnsetHold(fs).simulate(rec.cmu, rec.cmu_envelope)[1]
+    return out
 
 
 def delayed(rec: Record, samples: int) -> Record:
@@ -273,13 +294,19 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
         raise ValueError(f"training record too short ({n} samples)")
     if opt.phi not in ("auto", "single_burst", "train"):
         raise ValueError(f"unknown phi choice {opt.phi!r}")
+    if opt.envelope not in ENVELOPES:
+        raise ValueError(f"unknown envelope convention {opt.envelope!r}; expected one of {ENVELOPES}")
+    if opt.envelope == "auto":
+        return _envelope_by_holdout(static_rec, burst_rec, train_rec, opt)
+    hold = opt.envelope == "delivered" and burst_onsets(train_rec.cmu).size > 0
+    fit_static, fit_train = (delivered(static_rec, fs), delivered(train_rec, fs)) if hold else (static_rec, train_rec)
     forms = WIENER_FORMS if opt.form == "auto" else (opt.form,)
     dead_times = range(opt.max_dead_time + 1) if opt.dead_time is None else (opt.dead_time,)
-    sweep = static_rec if opt.static_in_cost else None
+    sweep = fit_static if opt.static_in_cost else None
     rest = int(round(opt.rest_s * fs))
 
     def data(d: int) -> _Joint:
-        return _joint(sweep, train_rec, d, n_est, skip, rest)
+        return _joint(sweep, fit_train, d, n_est, skip, rest)
 
     first = {form: _fit_structure(static, kernel, data(dead_times[0]), opt, form, dead_times[0], skip, fs)
              for form in forms}
@@ -310,7 +337,7 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
 
     lti = pem.lti
     wiener = WienerBlock(lti.A, lti.B, lti.C, nonlinearity_for(static, form))
-    stages = (Delay(dead_time / fs, fs),) if dead_time else ()
+    stages = ((Delay(dead_time / fs, fs),) if dead_time else ()) + ((OnsetHold(fs),) if hold else ())
     model = HybridModel(RingConvolution(kernel.kernel, phi), hpf, wiener, fs, input_stages=stages)
     refined = _refine_kernel_under_highpass(model, train_rec, n_est, skip, opt)
     model.convolution = RingConvolution(refined.kernel, phi)
@@ -353,6 +380,8 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
             "form": form,
             "dead_time_samples": dead_time,
             "static_in_cost": opt.static_in_cost,
+            "envelope": "delivered (onset_hold: the envelope at each burst onset, held to the next)" if hold
+                        else "recorded",
             "rule": f"by held-out RMSE of the training record's last {100 * opt.holdout_fraction:.0f} %; "
                     f"the paper's form and the smaller dead time within "
                     f"{100 * opt.structure_tolerance:.0f} % of the best",
@@ -384,6 +413,22 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     observer = {"measurement_noise_std": noise_std,
                 "model_residual_std": metrics["residual_std_train"]}
     return Identification(model, static, kernel, hp, choice, pem, provenance, metrics, observer)
+
+
+def _envelope_by_holdout(static_rec: Record, burst_rec: Record, train_rec: Record,
+                         opt: IdentifyOptions) -> Identification:
+    """Step 7 (module docstring): the model identified with each Wiener input; the delivered
+    envelope's unless the recorded one's held-out RMSE is lower by more than ``structure_tolerance``."""
+    both = {e: identify_hybrid(static_rec, burst_rec, train_rec, replace(opt, envelope=e))
+            for e in ("delivered", "recorded")}
+    err = {e: float(idf.metrics["holdout"]["rmse"]) for e, idf in both.items()}
+    pick = "delivered" if err["delivered"] <= err["recorded"] * (1 + opt.structure_tolerance) else "recorded"
+    idf = both[pick]
+    idf.provenance["structure"]["envelope_choice"] = {
+        "used": pick, "holdout_rmse": err,
+        "rule": f"by held-out RMSE of the training record's last {100 * opt.holdout_fraction:.0f} %; the delivered "
+                f"envelope (the loop's convention) within {100 * opt.structure_tolerance:.0f} % of the recorded one"}
+    return idf
 
 
 def fit_metrics(resid: np.ndarray, noise_std: float, static: StaticMap, kernel: SingleBurstKernel,
