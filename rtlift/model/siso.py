@@ -153,6 +153,23 @@ class FeedbackModel:
     velocity, output units per sample) and the model outputs its running sum,
     c + p(k), p(k) = p(k−1) + y(k) (a position: EMPS's force in, position out); the state gains
     p, last. Neither is written to the file while unused (files as before).
+
+    ``hysteresis`` (α, g, d) adds a Bouc–Wen state z (a force, the input's units) to the map:
+    Noël & Schoukens' hysteretic benchmark, m ÿ + c ẏ + k y + z = u, ż = α ẏ − β(γ|ẏ||z|^(ν−1)z +
+    δ ẏ|z|^ν), at ν = 1 (g = βγ, d = βδ, per output unit). The recursion then runs ``substeps`` M
+    times per sample (B/A a linear block at M fs, the input held over the sample as a ZOH), each
+    substep j coupling z to the output's increment h = y − y_prev by the trapezoidal rule:
+
+        r = Σ b_i v(j−i) − Σ a_i y(j−i),   κ = α − g sgn(r − y_prev) z − d |z|,
+        h = (r − y_prev) / (1 + b₁κ/2),   z_new = z + κ h,   y = y_prev + h,
+        v(j−1) ← v(j−1) − (z_new − z)/2,   v(j) = u_held − k₂y² − k₃y³ − z_new,
+
+    (the force over the substep just ended is the input less the mean of z at its two ends;
+    u_held the previous sample's input but on the last substep, the present one). The output is
+    c + y of the last substep; the state is [y…, v…, z, u_prev] (the histories at M fs). Euler in
+    y with z fed a substep late, at M = 1, erred 34 µm on the simulated benchmark's held-out data
+    from the true parameters refined; this form at M = 4, 10.6 µm (its noise 8 µm). Not with a
+    limit, ``integrating``, friction or a feedthrough; not written to the file while unused.
     """
 
     structure = "nonlinear_feedback"
@@ -161,7 +178,8 @@ class FeedbackModel:
                  provenance: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None,
                  state_limits: tuple[float, float] = (-np.inf, np.inf), offset: float = 0.0,
                  feedthrough: float = 0.0, friction: tuple[float, float, float] = (0.0, 0.0, 1.0),
-                 integrating: bool = False) -> None:
+                 integrating: bool = False, hysteresis: tuple[float, float, float] | None = None,
+                 substeps: int = 1) -> None:
         a, b, k = (np.asarray(v, dtype=float).ravel() for v in (a, b, feedback))
         if a.size != b.size or a.size == 0 or k.size != 2 or not all(np.all(np.isfinite(v)) for v in (a, b, k)):
             raise ValueError("nonlinear_feedback needs finite a, b of one length and two feedback coefficients")
@@ -188,15 +206,57 @@ class FeedbackModel:
         self._y = [0.0] * self.n
         self._v = [0.0] * self.n
         self._p = 0.0
+        self.hysteresis = None if hysteresis is None else tuple(float(v) for v in hysteresis)
+        self.substeps = int(substeps)
+        self._z = self._u = 0.0
+        if self.hysteresis is not None:
+            if len(self.hysteresis) != 3 or not all(np.isfinite(self.hysteresis)) or self.substeps < 1:
+                raise ValueError(f"nonlinear_feedback needs a finite hysteresis (alpha, g, d) and substeps >= 1, "
+                                 f"got {hysteresis}, {substeps}")
+            if self.integrating or self.limited or self.b0 != 0.0 or self.friction != (0.0, 0.0, 1.0):
+                raise ValueError("a hysteretic nonlinear_feedback model takes no limit, integration, friction or "
+                                 "feedthrough")
+
+    @property
+    def hysteretic(self) -> bool:
+        """Whether the map holds a Bouc–Wen state (``hysteresis``)."""
+        return self.hysteresis is not None
 
     @property
     def limited(self) -> bool:
         """Whether the state is limited (``saturation`` where ``state``)."""
         return bool(np.isfinite(self._lo) or np.isfinite(self._hi))
 
-    state_size = property(lambda self: 2 * self.n + self.integrating)
+    state_size = property(lambda self: 2 * self.n + self.integrating + 2 * self.hysteretic)
+
+    def _hysteretic_step(self, u: float) -> float:
+        """One sample of the hysteretic recursion (class docstring), ``substeps`` substeps."""
+        yh, vh, a, b = self._y, self._v, self._a, self._b
+        al, g, d = self.hysteresis
+        z, last = self._z, self.substeps - 1
+        y = yh[0]
+        for j in range(self.substeps):
+            r = 0.0
+            for i in range(self.n):
+                r += b[i] * vh[i] - a[i] * yh[i]
+            dr = r - yh[0]
+            s = 1.0 if dr >= 0.0 else -1.0
+            kap = al - g * s * z - d * abs(z)
+            h = dr / (1.0 + 0.5 * b[0] * kap)
+            zn = z + kap * h
+            y = yh[0] + h
+            vh[0] -= 0.5 * (zn - z)
+            z = zn
+            for i in range(self.n - 1, 0, -1):
+                yh[i], vh[i] = yh[i - 1], vh[i - 1]
+            yh[0] = y
+            vh[0] = (u if j == last else self._u) - self._k2 * y * y - self._k3 * y * y * y - z
+        self._z, self._u = z, u
+        return self.offset + y
 
     def step(self, u: float) -> float:
+        if self.hysteresis is not None:
+            return self._hysteretic_step(u)
         yh, vh = self._y, self._v
         y = self.b0 * u
         for i in range(self.n):
@@ -217,6 +277,12 @@ class FeedbackModel:
         order), the state carried on."""
         u = np.ascontiguousarray(u, dtype=float)
         out = np.empty(u.size)
+        if self.hysteresis is not None:
+            yh, vh, zu = np.array(self._y), np.array(self._v), np.array([self._z, self._u])
+            _hysteretic_run(self.a, self.b, self._k2, self._k3, self.offset, np.array(self.hysteresis), self.substeps,
+                            u, yh, vh, zu, out)
+            self._y[:], self._v[:], self._z, self._u = yh.tolist(), vh.tolist(), float(zu[0]), float(zu[1])
+            return out
         yh, vh, p = np.array(self._y), np.array(self._v), np.array([self._p])
         _feedback_run(self.a, self.b, self._k2, self._k3, self._lo, self._hi, self.offset, self.b0,
                       np.array(self.friction), self.integrating, u, yh, vh, p, out)
@@ -226,10 +292,11 @@ class FeedbackModel:
     def reset(self) -> None:
         self._y[:] = [0.0] * self.n
         self._v[:] = [0.0] * self.n
-        self._p = 0.0
+        self._p = self._z = self._u = 0.0
 
     def get_state(self) -> np.ndarray:
-        return np.array(self._y + self._v + ([self._p] if self.integrating else []))
+        return np.array(self._y + self._v + ([self._p] if self.integrating else [])
+                        + ([self._z, self._u] if self.hysteretic else []))
 
     @property
     def accumulator(self) -> int | None:
@@ -244,6 +311,8 @@ class FeedbackModel:
         self._y[:], self._v[:] = s[:self.n].tolist(), s[self.n:2 * self.n].tolist()
         if self.integrating:
             self._p = float(s[-1])
+        if self.hysteretic:
+            self._z, self._u = float(s[-2]), float(s[-1])
 
     def limits(self) -> dict[str, Any]:
         """The state limit as the report and the file give it (infinite sides as ``None``)."""
@@ -256,12 +325,15 @@ class FeedbackModel:
              "offset": self.offset, "feedthrough": self.b0, "provenance": self.provenance, "metrics": self.metrics}
         if self.integrating or self.friction != (0.0, 0.0, 1.0):
             d |= {"friction": list(self.friction), "integrating": self.integrating}
+        if self.hysteretic:
+            d |= {"hysteresis": list(self.hysteresis), "substeps": self.substeps}
         return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> FeedbackModel:
-        """The same model (coefficients, limits, offset, feedthrough, friction), a zero state."""
+        """The same model (coefficients, limits, offset, feedthrough, friction, hysteresis), a zero state."""
         return FeedbackModel(self.a.copy(), self.b.copy(), self.k.copy(), self.fs_hz, self.provenance, self.metrics,
-                             self.state_limits, self.offset, self.b0, self.friction, self.integrating)
+                             self.state_limits, self.offset, self.b0, self.friction, self.integrating,
+                             self.hysteresis, self.substeps)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FeedbackModel:
@@ -271,7 +343,7 @@ class FeedbackModel:
         return cls(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"), d.get("metrics"),
                    _limit_pair(sat) if sat is not None else (-np.inf, np.inf), float(d.get("offset", 0.0)),
                    float(d.get("feedthrough", 0.0)), tuple(d.get("friction", (0.0, 0.0, 1.0))),
-                   bool(d.get("integrating", False)))
+                   bool(d.get("integrating", False)), d.get("hysteresis"), int(d.get("substeps", 1)))
 
 
 @njit_cached
@@ -298,6 +370,39 @@ def _feedback_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, lo: float,
             out[k] = c + p[0]
         else:
             out[k] = c + y
+
+
+@njit_cached
+def _hysteretic_run(a: np.ndarray, b: np.ndarray, k2: float, k3: float, c: float, hyst: np.ndarray, substeps: int,
+                    u: np.ndarray, yh: np.ndarray, vh: np.ndarray, zu: np.ndarray,
+                    out: np.ndarray) -> None:   # pragma: no cover
+    """:meth:`FeedbackModel._hysteretic_step` over ``u`` (compiled; the same arithmetic in the same
+    order), advancing the histories ``yh``, ``vh`` (newest first) and ``zu`` = [z, u_prev] in place."""
+    n = a.size
+    al, g, d = hyst[0], hyst[1], hyst[2]
+    z, up, last = zu[0], zu[1], substeps - 1
+    for k in range(u.size):
+        y = yh[0]
+        for j in range(substeps):
+            r = 0.0
+            for i in range(n):
+                r += b[i] * vh[i] - a[i] * yh[i]
+            dr = r - yh[0]
+            s = 1.0 if dr >= 0.0 else -1.0
+            kap = al - g * s * z - d * abs(z)
+            h = dr / (1.0 + 0.5 * b[0] * kap)
+            zn = z + kap * h
+            y = yh[0] + h
+            vh[0] -= 0.5 * (zn - z)
+            z = zn
+            for i in range(n - 1, 0, -1):
+                yh[i] = yh[i - 1]
+                vh[i] = vh[i - 1]
+            yh[0] = y
+            vh[0] = (u[k] if j == last else up) - k2 * y * y - k3 * y * y * y - z
+        up = u[k]
+        out[k] = c + y
+    zu[0], zu[1] = z, up
 
 
 @njit_cached
