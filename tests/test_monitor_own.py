@@ -98,6 +98,44 @@ def test_no_window_holding_a_step_or_the_start_is_judged():
     assert told.departures and 65.0 < told.departures[0]["t_s"] <= 65.0 + 8.0, told.departures
 
 
+def test_an_actuator_switched_off_in_a_loop_told_its_steps_is_a_step():
+    """A device's watchdog (the host's commands late by over 500 ms under load) ramps the envelope
+    to 0 until the next command: in a clean closed loop on our bench that moved a hold's 1-s block
+    mean residual by up to 4.8e-3 ΔCL (21 σ_hold) without any reference step. The loop's feedback
+    never switches the actuator off, so it is held off as a step, even where G is not known (the
+    loop's own lift per Cμ then says where "off" is); a ramp stopped short of 0 is one too."""
+    m, e, starts, sizes = _stepped(60, seed=4, transient=0.0)
+    hold_scale = SIGMA / math.sqrt(FS_HZ)
+    settle = Settle(memory_s=0.2, tau_s=0.2)
+    n = m.size
+    env = m / 10.0
+    off = slice(int(37.30 * FS_HZ), int(37.36 * FS_HZ))       # off 60 ms, in the hold at 0.14 from 30 s
+    env[off] = 0.0
+    mm = m.copy()
+    mm[off] = 0.0                                            # the model follows the applied envelope;
+    since_on = (np.arange(n) - off.stop) / FS_HZ              # the lift hangs on, then dips a little
+    lag = np.where(since_on >= 0, -0.01 * np.exp(-np.maximum(since_on, 0.0) / 0.05), 0.0)
+    lag[off] = m[off]
+    z = mm + lag + e
+
+    def run(envelope):
+        mon = DepartureMonitor(SIGMA, settle=settle, hold_scale=hold_scale)
+        mon.set_steps(starts, sizes)
+        return monitor_arrays(mon, z, mm, e, envelope)
+
+    blind = run(None)                                        # the same residual, the input not given
+    assert [d["test"] for d in blind.departures] == ["hold"], blind.departures
+    seen = run(env)
+    assert seen.departures == [] and seen.switches == seen.input_steps == 1, seen.departures
+    assert seen.summary()["settle"]["actuator_switches"] == 1
+    # the watchdog's ramp cut short by the next command, 2 % of the envelope left: off all the same
+    short = run(np.where(env == 0.0, 0.02 * env.max(), env))
+    assert short.departures == [] and short.switches == 1
+    # a controller's kicks between the steps are still its feedback, not steps
+    kicks = run(env + np.where(np.arange(n) % 1000 == 0, 0.01, 0.0))
+    assert kicks.input_steps == 1 and kicks.departures == []
+
+
 def test_the_misfit_against_the_lift_is_learnt_and_removed():
     rng = np.random.default_rng(2)
     g = lambda m: 3 * SIGMA * np.sin(2 * np.pi * (m - 0.05) / 0.12)     # noqa: E731 - a slow misfit

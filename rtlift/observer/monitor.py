@@ -48,7 +48,11 @@ What no test judges: a block inside a transient — the run's start, a step of t
 commanded (:meth:`DepartureMonitor.set_steps`: ``rtlift control`` tells it its reference's steps)
 or seen in the input (an open loop has no reference: an envelope jump from one sample to the next
 whose lift-equivalent G·|ΔCμ| exceeds σ_fp, G the model's lift range over the envelope range it was
-identified on, :func:`input_gain_of`; a moving envelope is not a step), a swap of the model — is
+identified on, :func:`input_gain_of`; a moving envelope is not a step), the actuator switched off or
+on in a closed loop (where the envelope's other jumps are the controller's feedback: the envelope
+crossing σ_fp / G, G the model's, else the loop's own lift per Cμ over its last block — a device's
+watchdog does it when the host's commands come late; size G·|ΔCμ|, else the model's lift range), a
+swap of the model — is
 left out of every window (all its sums zero), by one hold-off (:meth:`DepartureMonitor._transient`)
 for the settling time :class:`Settle` derives from the model's own dynamics, prolonged (a commanded
 step's) while its transient ends with the model's lift still moving from one block to the next
@@ -290,6 +294,15 @@ class DepartureMonitor:
         self.input_jump = self.scale / self.input_gain if math.isfinite(self.input_gain) else math.inf
         self.input_steps = 0
         """Steps of the operating point seen in the input (the envelope) so far."""
+        self.switches = 0
+        """Input steps that switched the actuator off or on (counted in ``input_steps``)."""
+        self._told = False
+        self._off_env = self.input_jump if math.isfinite(self.input_gain) else 0.0
+        """The envelope at or below which the actuator is off (a closed loop, :meth:`step`): its
+        lift-equivalent within σ_fp of none, σ_fp / G — without G, G the loop's own lift per Cμ over
+        its last block (0 until one: exactly off)."""
+        self._switch_size = self.settle.start_size(self.scale)
+        """A switch of the actuator's size in ΔCL when G is not known: the model's lift range, as the start."""
         self.print_inputs: list[str] = []
         """The identification records the model's print was computed on (the inputs its thresholds are for)."""
         self.level_null = math.inf
@@ -357,6 +370,7 @@ class DepartureMonitor:
         order = np.argsort(np.asarray(samples, dtype=float), kind="stable")
         self._steps = np.asarray(samples, dtype=float)[order]
         self._step_sizes = np.abs(np.asarray(sizes, dtype=float))[order]
+        self._told = bool(self._steps.size)
         self._next_step = int(np.searchsorted(self._steps, self._sample))
 
     def reset(self) -> None:
@@ -368,6 +382,8 @@ class DepartureMonitor:
         self._prev_env = math.nan
         self._jump_at = -1              # the sample of the last input step seen in this block
         self._jump_size = 0.0           # the largest one's lift-equivalent size (ΔCL)
+        self._switched = False          # one of them switched the actuator off or on
+        self._env_sum, self._env_n = 0.0, 0     # the envelope's sum and count in this block
         self.clear_windows()
 
     def clear_windows(self) -> None:
@@ -410,10 +426,25 @@ class DepartureMonitor:
         commanded step's is (:meth:`_transient`) — unless the monitor was told a reference's steps
         (:meth:`set_steps`): in a closed loop the operating point moves when the reference does,
         and the envelope's own jumps are the controller's answer to the estimate (its feedback),
-        not steps of it."""
+        not steps of it; there only the actuator switched off or on is a step (the envelope
+        crossing σ_fp / G, where its lift is within σ_fp of none: a device's watchdog ramps it to 0
+        when the host's commands come 500 ms late, and no controller tracking a lift answers its
+        estimate's noise so)."""
         if envelope == envelope:
-            d = envelope - self._prev_env
-            if d > self.input_jump or d < -self.input_jump:
+            p = self._prev_env
+            d = envelope - p
+            self._env_sum += envelope
+            self._env_n += 1
+            if self._told:
+                off = self._off_env
+                if (envelope <= off) is not (p <= off) and p == p:
+                    # the actuator switched off or on: a step of the operating point, not feedback
+                    self._switched = True
+                    self._jump_at = self._sample
+                    d = abs(d) * self.input_gain if self.input_gain == self.input_gain else self._switch_size
+                    if d > self._jump_size:
+                        self._jump_size = d
+            elif d > self.input_jump or d < -self.input_jump:
                 self._jump_at = self._sample
                 d = abs(d) * self.input_gain
                 if d > self._jump_size:
@@ -456,10 +487,15 @@ class DepartureMonitor:
             k += 1
         self._next_step = k
         if self._jump_at >= 0:                                 # a step seen in the input within it
-            if not steps.size:      # told a reference's steps, the input's own jumps are the loop's feedback
-                self._transient(self._jump_at, self._jump_size)
-                self.input_steps += 1
-            self._jump_at, self._jump_size = -1, 0.0
+            self._transient(self._jump_at, self._jump_size)
+            self.input_steps += 1
+            self.switches += self._switched
+            self._jump_at, self._jump_size, self._switched = -1, 0.0, False
+        if self._env_n and row[0] > 0 and self.input_gain != self.input_gain:
+            u, m = self._env_sum / self._env_n, row[3] / row[0]
+            if u > 0.0 and m > 0.0:     # without G, the loop's own lift per Cμ over this block
+                self._off_env = self.scale * u / m
+        self._env_sum, self._env_n = 0.0, 0
         start = self._sample - self.block
         if row[0] > 0:
             m = row[3] / row[0]
@@ -779,6 +815,7 @@ class DepartureMonitor:
                 "settle": {"memory_s": self.settle.memory_s, "tau_s": self.settle.tau_s,
                            "start_s": self.settle.seconds(self.settle.start_size(self.scale), self.scale),
                            "steps": int(self._steps.size), "input_steps": self.input_steps,
+                           "actuator_switches": self.switches,
                            "input_jump_cmu": finite(self.input_jump)},
                 "operating_point_misfit": bool(self._op_m.size),
                 "input": self.input_summary(),
