@@ -137,3 +137,21 @@ def test_fade_and_hold_take_the_reference_step():
 def test_bad_state_is_refused():
     with pytest.raises(ValueError, match="shape"):
         OnsetHold(FS).set_state(np.zeros(3))
+
+
+def test_identification_applies_the_stage_to_its_records_and_refuses_an_unknown_convention():
+    """``delivered`` is the stage from rest on a record's envelope (Cμ and ΔCL untouched);
+    ``IdentifyOptions.envelope`` other than recorded/delivered/auto is one ValueError."""
+    from rtlift.core.records import Record
+    from rtlift.identify.campaign import IdentifyOptions, delivered, identify_hybrid
+
+    rng = np.random.default_rng(9)
+    cmu, env = _bursts(rng, 900, offset=4)
+    rec = Record(np.arange(900) / FS, cmu, env, rng.normal(0, 0.01, 900))
+    got = delivered(rec, FS)
+    np.testing.assert_array_equal(got.cmu_envelope, OnsetHold(FS).simulate(cmu, env)[1])
+    np.testing.assert_array_equal(got.cmu, rec.cmu)
+    np.testing.assert_array_equal(got.dcl, rec.dcl)
+    np.testing.assert_array_equal(rec.cmu_envelope, env)          # the record itself unchanged
+    with pytest.raises(ValueError, match="envelope convention 'held'"):
+        identify_hybrid(rec, rec, rec, IdentifyOptions(envelope="held"))

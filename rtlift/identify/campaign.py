@@ -279,6 +279,8 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
     opt = options or IdentifyOptions()
     if opt.form not in (*WIENER_FORMS, "auto"):
         raise ValueError(f"unknown Wiener form {opt.form!r}; expected one of {(*WIENER_FORMS, 'auto')}")
+    if opt.envelope not in ENVELOPES:
+        raise ValueError(f"unknown envelope convention {opt.envelope!r}; expected one of {ENVELOPES}")
     if opt.dead_time is not None and not 0 <= opt.dead_time <= 10 * opt.max_dead_time:
         raise ValueError(f"dead time {opt.dead_time} samples is out of range")
     fs = _check_rate([static_rec, burst_rec, train_rec])
@@ -294,8 +296,6 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
         raise ValueError(f"training record too short ({n} samples)")
     if opt.phi not in ("auto", "single_burst", "train"):
         raise ValueError(f"unknown phi choice {opt.phi!r}")
-    if opt.envelope not in ENVELOPES:
-        raise ValueError(f"unknown envelope convention {opt.envelope!r}; expected one of {ENVELOPES}")
     if opt.envelope == "auto":
         return _envelope_by_holdout(static_rec, burst_rec, train_rec, opt)
     hold = opt.envelope == "delivered" and burst_onsets(train_rec.cmu).size > 0
