@@ -155,3 +155,22 @@ def test_identification_applies_the_stage_to_its_records_and_refuses_an_unknown_
     np.testing.assert_array_equal(rec.cmu_envelope, env)          # the record itself unchanged
     with pytest.raises(ValueError, match="envelope convention 'held'"):
         identify_hybrid(rec, rec, rec, IdentifyOptions(envelope="held"))
+
+
+def test_the_bench_model_with_the_hold_is_compiled_and_refused_by_the_c_export():
+    """The bench model (an old file: no stage, its outputs unchanged by this stage's existence)
+    with the hold appended: compiled, its observer compiled, and `rtlift export c` refuses it in
+    one line (the C module has no translation of the hold)."""
+    from importlib.resources import files
+
+    from rtlift.export.filter_spec import ExportError, bound_observer
+    from rtlift.model.modelfile import load_model
+    from rtlift.observer import Observer
+
+    base = load_model(str(files("tests") / "data" / "bench_model.json"))
+    assert "onset_hold" not in [s.name for s in base.input_stages]
+    m = base.with_stages(input_stages=(OnsetHold(base.fs_hz),))
+    m.observer_config = base.observer_config
+    assert m.compiled and Observer.from_model(m).compiled
+    with pytest.raises(ExportError, match="onset_hold"):
+        bound_observer(m)
