@@ -12,7 +12,9 @@ Candidate structure (kind ``structure``: the model's form is too simple, not a n
   best linear approximation, its poles and zeros split between G₁ and G₂, f and both blocks
   refined jointly (:func:`rtlift.sysid.identify.identify_siso`).
 - ``nonlinear_feedback`` — the output fed back through a static map into the linear block's
-  input (an amplitude-dependent resonance, Duffing-like), identified jointly from the ARX fit.
+  input (an amplitude-dependent resonance, Duffing-like), identified jointly from the ARX fit;
+  with a Bouc–Wen hysteresis state in the map where that holds out better
+  (:mod:`rtlift.sysid.feedback`).
 - ``saturation`` — a hard limit on the output, y = min(max(M(u), lower), upper), or on the
   state, a store that cannot fill beyond its brim: the nonlinear-feedback recursion clipped
   inside the loop (:class:`rtlift.model.siso.FeedbackModel`), or two stores in cascade, each
