@@ -327,7 +327,10 @@ def open_loop(model, draw: int, kind: str, seed: int, seconds: float, baseline_s
     t0 = time.perf_counter()
     baseline = None
     if baseline_seed is not None:
-        base = monitor_record(model, bench_stream(kind, baseline_seed, seconds, plant_draw=draw), history=True)
+        # as --monitor calibrate records it: every threshold off, so the print's "outside" scaling never
+        # enters the baseline's statistics (they are on σ_fp's scale, as the judged stream's)
+        base = monitor_record(model, bench_stream(kind, baseline_seed, seconds, plant_draw=draw), history=True,
+                              baseline=dict.fromkeys(TESTS, math.inf))
         baseline = {k: v for k, v in calibration_doc(base, "model")["thresholds"].items() if v is not None}
     mon = monitor_record(model, bench_stream(kind, seed, seconds, plant_draw=draw), history=True, baseline=baseline)
     return {"kind": kind, "seed": seed, "seconds": seconds, "wall_s": time.perf_counter() - t0,
