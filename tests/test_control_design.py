@@ -208,6 +208,10 @@ def test_the_limit_bounds_the_design_and_falls_with_one_more_period_of_delay(des
     later = rejection_limit(np.r_[0.0, p[:-1]], np.r_[0.0, q[:-1]], design.dt, design.targets.peak_db, **args)
     assert lim >= pt.f6_hz / 1.07
     assert later < 0.8 * lim
+    # with integral action (design version 8): the Q at the limit's band has T(1) = 1 and Q_X(1) = 0
+    qa, qx, _ = YoulaProgram(p, q, design.dt, design.targets.peak_db, integral=True, **args).solve(lim)
+    assert float(np.sum(p) * np.sum(qa) + np.sum(q) * np.sum(qx)) == pytest.approx(1.0, abs=1e-7)
+    assert float(np.sum(qx)) == pytest.approx(0.0, abs=1e-7)
 
 
 def test_the_observer_passes_a_slow_disturbance_whole_and_lags_a_fast_one(design):

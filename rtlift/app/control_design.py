@@ -69,7 +69,8 @@ every scheduled point (docs/DESIGN.md). Not the default (:data:`DEFAULT_STRUCTUR
 draws 1–3 it measured 0.325–0.372 Hz of band at :data:`YOULA_BACKOFF` (the PI 0.19–0.22 Hz).
 
 The limit (:func:`rejection_limit`): the widest band of |S_o| ≤ 0.5 *any* causal linear
-controller on the two lifted measurements reaches under the same |S|, |S_o| and |W T| bounds —
+controller with integral action on the two lifted measurements reaches under the same |S|, |S_o|
+and |W T| bounds —
 a linear programme over the Youla parameter (docs/DESIGN.md derives it and the delay and Bode
 bounds it refines).
 
@@ -876,8 +877,15 @@ def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, 
     T(−1) ∈ (−1/(g − 1), g/(g − 1)), linear), and with ``nyquist_gain`` the design's bound on the
     controller's gain at 4 Hz, |K_A(−1)| + |K_X(−1)| ≤ N with K = Q/S: |Q_A(−1)| + |Q_X(−1)| ≤ N |S(−1)|,
     S(−1) = 1 − T(−1) real — linear for either sign of S(−1), so two LPs (the second only when the
-    first is infeasible). The phase margin is not imposed (not convex in Q; |S| ≤ 3 dB alone gives
-    ≥ 41°): the limit stays an upper bound on any design that meets every target.
+    first is infeasible). Integral action as every controller the loop runs has it (the fade's
+    tracking needs it): T(1) = 1 and Q_X(1) = 0 (K_X(1) S(1) for any finite K_X(1): the integral is on
+    the period's mean, which the latest estimate's constant ripple offset must not bias) — design
+    version 8; without it the limit was 16–21 % wider on calibration draws 1–3 (0.671 / 0.671 / 0.632
+    against 0.561 / 0.528 / 0.528 Hz at mid-range, docs/results/control.md, "Fifth pass"). The phase
+    margin is not imposed (not convex in Q; |S| ≤ 2.85 dB alone gives ≥ 42°); the sufficient convex
+    bounds |S| ≤ 1/(2 sin 22.5°) (PM ≥ 45°) and |T| ≤ 2 (the downward GM at every phase crossover) cost
+    one grid point on draws 1 and 3, none on 2: the limit stays an upper bound on any design that
+    meets every target, close to what one can reach.
 
     The plant is FIR, hence stable: every stabilising controller is u = −K y with
     T = Q_A P_A + Q_X P_X for stable Q (Youla), S = 1 − T, S_o = 1 − F_o T — affine in Q. With Q
@@ -888,7 +896,7 @@ def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, 
     ``f_o``: callable F_o(f) (None: 1); ``g_y``: callable G_y(f) (:func:`gust_gain`), the gust's map
     S_o = 1 − F_o G_y (Q_A M + Q_X) (:func:`gust_map` with K/(1 + L) = Q; None: 1 − F_o T)."""
     return YoulaProgram(p, q, dt, peak_db, f_o=f_o, unc=unc, taps=taps, gm_db=gm_db,
-                        nyquist_gain=nyquist_gain, g_y=g_y).band()
+                        nyquist_gain=nyquist_gain, g_y=g_y, integral=True).band()
 
 
 class YoulaProgram:
@@ -901,11 +909,13 @@ class YoulaProgram:
     of −20 log₁₀ λ dB from each, where the programme at its widest band has none), and two
     equalities for the integral action the PI has: T(1) = 1 (S(1) = 0: no
     steady error, a fade is integrated away) and Q_X(1) = 0 (the latest estimate's constant burst
-    ripple offset at the decisions' fixed phase cannot bias the mean, as K_x's difference in the PI)."""
+    ripple offset at the decisions' fixed phase cannot bias the mean, as K_x's difference in the PI).
+    ``integral``: those two equalities alone (the limit's, :func:`rejection_limit`)."""
 
     def __init__(self, p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, f_o: Any = None,
                  unc: Uncertainty | None = None, taps: int = LIMIT_TAPS, gm_db: float | None = None,
-                 nyquist_gain: float | None = None, controller: bool = False, g_y: Any = None) -> None:
+                 nyquist_gain: float | None = None, controller: bool = False, g_y: Any = None,
+                 integral: bool = False) -> None:
         self.taps = taps
         nyq = 0.5 / dt
 
@@ -950,7 +960,7 @@ class YoulaProgram:
         self.q_nyq = [np.r_[sa * alt, sx * alt] for sa in (1.0, -1.0) for sx in (1.0, -1.0)]   # ±Q_A(−1) ± Q_X(−1)
         self.nyquist_gain = nyquist_gain
         self.a_eq = self.b_eq = None
-        if controller:        # T(1) = 1, Q_X(1) = 0
+        if controller or integral:        # T(1) = 1, Q_X(1) = 0
             one = np.ones(taps)
             self.a_eq = np.array([np.r_[float(np.sum(p)) * one, float(np.sum(q)) * one, 0.0],
                                   np.r_[0.0 * one, one, 0.0]])
@@ -1257,7 +1267,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     return pi
 
 
-DESIGN_VERSION = 7
+DESIGN_VERSION = 8
 """Changes when the design computes something else: a cached design of another version is redone."""
 REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 
