@@ -58,7 +58,7 @@ def is_generic(model: Any) -> bool:
 
 def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any] = (), structure: str | None = None,
              order: int | None = None, form: str = "auto", phi: str = "auto", dead_time: int | None = None,
-             kernel: str = "auto", out: PathLike | None = None):
+             kernel: str = "auto", envelope: str = "recorded", out: PathLike | None = None):
     """The lift model of a campaign (``rtlift identify --static --single-burst [--trains] --train``):
     an identification result whose ``.model`` carries its observer settings (Q, R tuned on the
     training record) and whose ``.provenance``/``.metrics`` are what the model file stores;
@@ -85,6 +85,9 @@ def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any
         choice = choose_structure(trains, structure)
     except ValueError as exc:
         raise UserError(f"cannot identify from {names}: {exc}") from None
+    if choice.name == "interaction" and envelope != "recorded":
+        raise UserError(f"--envelope {envelope}: the interaction structure's Wiener input is its own "
+                        "delivered_envelope stage; --structure paper takes --envelope")
     if choice.name == "interaction" and phi != "auto":
         how = "--structure interaction" if structure else "the interaction structure (chosen for the --trains)"
         raise UserError(f"--phi: not a choice of {how}: its burst part's gains are fitted instead; "
@@ -92,7 +95,8 @@ def identify(static: Any, single_burst: Any, train: Any, *, trains: Sequence[Any
     try:
         idf, choice = identify_lift(
             static, single_burst, trains, train, structure,
-            hybrid=IdentifyOptions(order=order, form=form, phi=phi, dead_time=dead_time, kernel=kernel),
+            hybrid=IdentifyOptions(order=order, form=form, phi=phi, dead_time=dead_time, kernel=kernel,
+                                   envelope=envelope),
             interaction=InteractionOptions(order=order, dead_time=dead_time,
                                            form="input_gain" if form == "auto" else form, kernel=kernel))
     except ValueError as exc:

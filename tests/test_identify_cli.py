@@ -85,6 +85,19 @@ def test_textbook_wiener_form_stores_the_static_map_as_f_of_y(campaign, tmp_path
     assert load_model(out).wiener.nonlinearity.form == "output"
 
 
+def test_envelope_option_makes_the_wiener_input_what_the_bursts_delivered(campaign, tmp_path, capsys):
+    _, paths = campaign
+    out = tmp_path / "delivered.json"
+    assert main(identify_args(paths, out, "--envelope", "delivered", "--order", "1", "--phi", "single_burst")) == 0
+    m = load_model(out)
+    assert [s.name for s in m.input_stages][-1] == "onset_hold"
+    assert json.loads(out.read_text())["provenance"]["structure"]["envelope"].startswith("delivered")
+    assert "Wiener input: the envelope delivered" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exc:
+        main(identify_args(paths, tmp_path / "x.json", "--envelope", "held"))
+    assert exc.value.code == 2 and "invalid choice: 'held'" in capsys.readouterr().err
+
+
 def test_bad_record_is_a_one_line_error_with_exit_2(campaign, tmp_path, capsys):
     _, paths = campaign
     bad = tmp_path / "bad.csv"

@@ -50,6 +50,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the convolution kernel: single_burst, as averaged from the single bursts (paper); "
                         "auto, its first burst period re-estimated on the training record where that "
                         "lowers the held-out error (default)")
+    p.add_argument("--envelope", choices=("recorded", "delivered", "auto"), default="recorded",
+                   help="the Wiener part's input (the paper's hybrid): recorded, the envelope as recorded "
+                        "(default); delivered, what each burst delivered (the envelope at its onset, held to "
+                        "the next: the convention of a loop that holds the envelope per burst period, as "
+                        "rtlift control does); auto, delivered unless the recorded one's held-out error is "
+                        "lower by more than 1 %%")
     p.add_argument("-o", "--out", required=True, metavar="MODEL.json", help="model file to write")
     p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p.set_defaults(func=run)
@@ -90,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         idf = identify(args.static, args.single_burst, args.train,
                        trains=args.trains or (), structure=args.structure,
                        order=args.order, form=args.form, phi=args.phi, dead_time=args.dead_time,
-                       kernel=args.kernel, out=args.out)
+                       kernel=args.kernel, envelope=args.envelope, out=args.out)
     seconds = time.perf_counter() - t0
     if idf.provenance["structure"]["name"] == "interaction":
         print(interaction_summary(idf, args.out, seconds))
@@ -151,13 +157,24 @@ def summary(idf, out_path: str, seconds: float) -> str:
         f"(held-out RMSE {hp['holdout_rmse']:.4g}; zero-phase offline reference "
         f"{hp['zero_phase_holdout_rmse_offline_reference']:.4g})",
         f"  structure by held-out error: {w['form']} form, dead time "
-        f"{p['structure']['dead_time_samples']} samples",
+        f"{p['structure']['dead_time_samples']} samples; Wiener input: {_envelope_line(p['structure'])}",
         f"  Wiener LTI ({w['form']}): order {w['order']}, poles {poles}, "
         f"DC gain {w['dc_gain']:.4g} +/- {w['uncertainty']['dc_gain_std']:.2g}",
         f"  training record {tr['record']}: corr {tr['corr']:.4f}, NRMSE {tr['nrmse']:.4f}, "
         f"RMSE {tr['rmse']:.4g}",
     ]
     return "\n".join(lines)
+
+
+def _envelope_line(st: dict) -> str:
+    """The Wiener part's input and, under ``--envelope auto``, why (provenance.structure)."""
+    used = st.get("envelope", "recorded")
+    c = st.get("envelope_choice")
+    if not c:
+        return f"the envelope {used}"
+    ho = c["holdout_rmse"]
+    return (f"the envelope {used} (held-out RMSE delivered {ho['delivered']:.4g}, "
+            f"recorded {ho['recorded']:.4g})")
 
 
 def run_generic(args: argparse.Namespace) -> int:
