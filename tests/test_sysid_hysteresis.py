@@ -67,7 +67,7 @@ def test_without_hysteresis_the_model_and_its_file_are_as_before():
     z moves the output, and what the recursion cannot take is refused."""
     b, a = signal.cont2discrete(([1.0], [2.0, 10.0, 5e4]), 1.0 / FS, "zoh")[:2]
     plain = FeedbackModel(a[1:], np.ravel(b)[1:], [0.0, 0.0], FS)
-    assert "hysteresis" not in plain.to_dict() and "substeps" not in plain.to_dict() and plain.state_size == 4
+    assert "bouc_wen" not in plain.to_dict() and "substeps" not in plain.to_dict() and plain.state_size == 4
     u = np.random.default_rng(3).normal(size=2000) * 50.0
     y = plain.simulate(u)
     linear = signal.lfilter(np.ravel(b), a, u)                # k₂ = k₃ = 0: the linear block alone
@@ -97,7 +97,7 @@ def test_a_hysteretic_plant_is_identified_with_its_hysteresis(monkeypatch):
     rec = SisoRecord(np.arange(n) / FS, u, y, name="bw")
     opt = SisoOptions(feedback_orders=(2, 3))
     model = identify_siso(rec, "nonlinear_feedback", options=opt)
-    assert model.hysteretic and model.substeps == 4 and "hysteresis" in model.provenance
+    assert model.hysteretic and model.substeps == 4 and "bouc_wen" in model.provenance
     assert model.metrics["holdout_rmse"] < 1.5 * noise
     monkeypatch.setattr(feedback, "HYSTERESIS_ORDERS", 0)
     plain = identify_siso(rec, "nonlinear_feedback", options=opt)

@@ -169,7 +169,8 @@ class FeedbackModel:
     c + y of the last substep; the state is [y…, v…, z, u_prev] (the histories at M fs). Euler in
     y with z fed a substep late, at M = 1, erred 34 µm on the simulated benchmark's held-out data
     from the true parameters refined; this form at M = 4, 10.6 µm (its noise 8 µm). Not with a
-    limit, ``integrating``, friction or a feedthrough; not written to the file while unused.
+    limit, ``integrating``, friction or a feedthrough; not written to the file while unused (its
+    key ``bouc_wen``: ``hysteresis`` names a lift effect).
     """
 
     structure = "nonlinear_feedback"
@@ -326,7 +327,7 @@ class FeedbackModel:
         if self.integrating or self.friction != (0.0, 0.0, 1.0):
             d |= {"friction": list(self.friction), "integrating": self.integrating}
         if self.hysteretic:
-            d |= {"hysteresis": list(self.hysteresis), "substeps": self.substeps}
+            d |= {"bouc_wen": list(self.hysteresis), "substeps": self.substeps}
         return {**d, "saturation": self.limits()} if self.limited else d
 
     def copy(self) -> FeedbackModel:
@@ -343,7 +344,7 @@ class FeedbackModel:
         return cls(d["a"], d["b"], d["feedback"], float(d["fs_hz"]), d.get("provenance"), d.get("metrics"),
                    _limit_pair(sat) if sat is not None else (-np.inf, np.inf), float(d.get("offset", 0.0)),
                    float(d.get("feedthrough", 0.0)), tuple(d.get("friction", (0.0, 0.0, 1.0))),
-                   bool(d.get("integrating", False)), d.get("hysteresis"), int(d.get("substeps", 1)))
+                   bool(d.get("integrating", False)), d.get("bouc_wen"), int(d.get("substeps", 1)))
 
 
 @njit_cached

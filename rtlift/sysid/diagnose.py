@@ -102,7 +102,7 @@ def _structure_params(model, limited: bool = True) -> dict[str, Any]:
     if model.structure == "nonlinear_feedback":
         return {"feedback": {"k2": float(model.k[0]), "k3": float(model.k[1])}, "offset": model.offset,
                 "feedthrough": model.b0,
-                **({"hysteresis": dict(zip(("alpha", "g", "d"), model.hysteresis, strict=True)),
+                **({"bouc_wen": dict(zip(("alpha", "g", "d"), model.hysteresis, strict=True)),
                     "substeps": model.substeps} if model.hysteretic else {}),
                 "order": model.n,
                 "poles": [[float(p.real), float(p.imag)] for p in np.roots(np.concatenate([[1.0], model.a]))]}

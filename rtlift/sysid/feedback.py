@@ -151,7 +151,7 @@ def identify_feedback(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np
     held, model, n = best
     model.provenance = {"structure": "nonlinear_feedback", "order": n}
     if getattr(model, "hysteretic", False):
-        model.provenance["hysteresis"] = ("a Bouc-Wen state (nu = 1) in the map, refined from the plain model of "
+        model.provenance["bouc_wen"] = ("a Bouc-Wen state (nu = 1) in the map, refined from the plain model of "
                                           "this order: its held-out error was the lower")
     if getattr(model, "integrating", False):
         model.provenance["integrating"] = ("fitted on the differenced output with friction in the map, run "
