@@ -347,7 +347,11 @@ class _Run:
         wait_until = None
         while True:
             i = rec._index
-            if i >= t0 + rec.settle_samples:
+            # kept from LEAD_SAMPLES before the tare's nominal start: the first burst can come up to
+            # LEAD_SAMPLES - 1 before its nominal onset (the command goes out LEAD_SAMPLES ahead and the
+            # off state's onsets run on their own clock), and the program's origin, hence the tare,
+            # moves with it (the record then had one row too few and every burst one sample early)
+            if i >= t0 + rec.settle_samples - LEAD_SAMPLES:
                 samples.append((i, s))
             if bar is not None and bar.n + 1 < bar.total:
                 bar.update(1)
