@@ -50,6 +50,7 @@ RUNS: dict[str, tuple[str, ...]] = {
     "step_latency": ("step_latency",),
     "observer_loop_spin": ("observer_loop", "--spin", "--seconds", "24"),
     "observer_loop_load": ("observer_loop", "--load"),
+    "machine_tail": ("machine_tail", "--seconds", "30"),
     "identify_speed": ("identify_speed",),
     "soak": ("soak", "--quiet"),
     "soak_can": ("soak", "--can", "--quiet"),

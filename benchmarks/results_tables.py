@@ -262,7 +262,7 @@ def _latency(p: dict, what: str) -> str:
     return f"{p['loop_latency_p50_ms']:.3f} / {p['loop_latency_p99_ms']:.3f} ms {what}"
 
 
-def render_speed(step: dict, live: dict, load: dict, ident: dict, soak: dict, can: dict) -> str:
+def render_speed(step: dict, live: dict, load: dict, tail: dict, ident: dict, soak: dict, can: dict) -> str:
     phases = {"the sleeping loop": live, "spinning without the touch": live["spin"], "`--spin`": live["spin_touch"],
               "`--spin 0.5`": live["spin_tail"]}
     missed = [n for n, p in phases.items() if p["observer_step_median_us"] > 15 or p["observer_step_p99_us"] > 60]
@@ -301,6 +301,14 @@ def render_speed(step: dict, live: dict, load: dict, ident: dict, soak: dict, ca
                     _phase(live["spin_tail"], "`--spin 0.5` (asleep until 0.5 ms before each sample is due)"),
                     _phase(live["spin"], "spinning without the touch")]),
          f"median ≤ 15 µs, p99 ≤ 60 µs: {verdict}"],
+        ["the machine's own floor under that p99 (`machine_tail.py --seconds 30`: a fixed "
+         f"{tail['work']['tight']['median_us']:.0f} µs pure-Python workload, no rtlift code, alternated in one run)",
+         f"tight {us(tail['work']['tight']['median_us'], tail['work']['tight']['p99_us'])}; after sleeping to a "
+         f"400 Hz deadline {us(tail['work']['sleep']['median_us'], tail['work']['sleep']['p99_us'])}; after spinning "
+         f"to it {us(tail['work']['spin']['median_us'], tail['work']['spin']['p99_us'])}; a thread that never sleeps "
+         f"is interrupted for > 50 µs {tail['gaps']['per_s_over_50us']:.1f} times a second (longest "
+         f"{tail['gaps']['longest_us']:.0f} µs), load {tail['loadavg_1min']:.1f}",
+         "the p99 a woken step cannot go below on this machine"],
         ["receive → estimate latency live, p50 / p99",
          "; ".join([_latency(live, "sleeping"), _latency(live["spin_touch"], "with `--spin`"),
                     _latency(live["spin_tail"], "with `--spin 0.5`")]),
@@ -363,6 +371,6 @@ SECTIONS: tuple[Section, ...] = (
     Section("independent_plant_trains_field", ("independent_plant_trains_field",), render_independent_plant_field),
     Section("effects_table", ("effects_table",), render_effects_table),
     Section("realdata", ("realdata",), render_realdata),
-    Section("speed", ("step_latency", "observer_loop_spin", "observer_loop_load", "identify_speed", "soak",
-                      "soak_can"), render_speed),
+    Section("speed", ("step_latency", "observer_loop_spin", "observer_loop_load", "machine_tail", "identify_speed",
+                      "soak", "soak_can"), render_speed),
 )
