@@ -12,7 +12,8 @@ concave and saturating. :class:`LiftController` implements
 
 with ``ē`` the tracking error ``r − ΔĈL`` averaged over one burst period (the ripple's
 period, so the average removes it), ``ē_f`` it through the lead–lag ``g (Z − a)/(Z − b)``
-at the burst rate (none when a = b = 0), ``r`` the reference and ``I`` the integral of
+at the burst rate (none when a = b = 0) and, in the ``pi2`` structure, a second one
+``g₂ (Z − c)/(Z − d)``, g₂ = (1 − d)/(1 − c) (none when c = d = 0), ``r`` the reference and ``I`` the integral of
 ``(T / T_i) ē_f``. The ``K_x`` term acts on the latest estimate's departure from the period's
 mean: half a period fresher than the mean, it buys phase; the burst ripple's part of it is a
 constant at the fixed burst phase of the decisions, which the integral (on the mean only)
@@ -95,6 +96,8 @@ class ControlConfig:
     ``kx`` the gain on the latest estimate's departure from the period's mean (0: none),
     ``schedule`` rows ``(Cμ, kp, ti_s, a, b, kx)`` in increasing Cμ that replace the five by
     their interpolation at the feedforward's Cμ (:mod:`rtlift.app.control_design` designs them),
+    or ``(Cμ, kp, ti_s, a, b, kx, c, d)`` with a second lead–lag g₂ (Z − c)/(Z − d) after the first
+    (the ``pi2`` structure; a 6-column row has c = d = 0, no second lead–lag),
     ``feedback``, ``cmu_max`` the top of the identified static map (Cμ: the feedforward's and the
     design's range), ``cmu_reach`` how far the feedback may drive the envelope (Cμ, the actuator's
     own limit :data:`ACTUATOR_CMU_LIMIT`; beyond ``cmu_max`` through the model's map extrapolated),
@@ -125,12 +128,15 @@ class ControlConfig:
             raise ValueError(f"control period must be a positive integer, got {self.period!r}")
         rows = [(0.0, self.kp, self.ti_s, self.lead_zero, self.lead_pole, self.kx), *self.schedule]
         for row in rows:
-            if len(row) != 6:
-                raise ValueError(f"control schedule rows are (cmu, kp, ti_s, a, b, kx); got {row!r}")
-            cmu, kp, ti, a, b, kx = row
-            if not (kp >= 0 and ti > 0 and abs(a) < 1 and abs(b) < 1 and math.isfinite(kp + ti + cmu + kx)):
-                raise ValueError(f"control gains must have kp >= 0, ti_s > 0, |a| < 1, |b| < 1; got "
-                                 f"{(kp, ti, a, b, kx)!r}")
+            if len(row) not in (6, 8):
+                raise ValueError(f"control schedule rows are (cmu, kp, ti_s, a, b, kx[, c, d]); got {row!r}")
+            cmu, kp, ti, a, b, kx, c, d = (*row, 0.0, 0.0)[:8]
+            if not (kp >= 0 and ti > 0 and max(abs(a), abs(b), abs(c), abs(d)) < 1
+                    and math.isfinite(kp + ti + cmu + kx)):
+                raise ValueError(f"control gains must have kp >= 0, ti_s > 0, |a|, |b|, |c|, |d| < 1; got "
+                                 f"{row[1:]!r}")
+        if len({len(row) for row in self.schedule}) > 1:
+            raise ValueError("control schedule: every row must have the same number of columns")
         if any(r1[0] >= r2[0] for r1, r2 in zip(self.schedule, self.schedule[1:], strict=False)):
             raise ValueError("control schedule: Cμ must increase from row to row")
         shapes = {tuple(len(t) for t in row[1:]) for row in self.youla if len(row) == 5}
@@ -238,14 +244,16 @@ class LiftController:
         self.dcl_reach = self._map_dcl[-1]
         """S(cmu_reach): the top the feedback may drive ``v`` to (the actuator's limit; with the
         feedback off, S(cmu_max))."""
-        self._rows = [tuple(float(v) for v in row) for row in cfg.schedule]
+        self._rows = [(*(float(v) for v in row), 0.0, 0.0)[:8] for row in cfg.schedule]
+        """The schedule's rows, each ``(Cμ, kp, ti_s, a, b, kx, c, d)`` (c = d = 0: no second lead–lag)."""
         self._set_gains(cfg.kp, cfg.ti_s, cfg.lead_zero, cfg.lead_pole, cfg.kx)
         self._youla = youla_rows(cfg.youla)
         self._taps = [[0.0] * len(t) for t in self._youla[0][1:]] if self._youla else []
         """Q_A, Q_X, P_A, P_X in force (:func:`youla_at`), filled in place at each decision."""
         self.reset()
 
-    def _set_gains(self, kp: float, ti_s: float, a: float, b: float, kx: float) -> None:
+    def _set_gains(self, kp: float, ti_s: float, a: float, b: float, kx: float, c: float = 0.0,
+                   d: float = 0.0) -> None:
         cfg = self.config
         self.kp = kp
         self.kx = kx
@@ -253,13 +261,16 @@ class LiftController:
         self._a = a
         self._b = b
         self._g = (1.0 - b) / (1.0 - a)
+        self._c = c
+        self._d = d
+        self._g2 = (1.0 - d) / (1.0 - c)
 
     def _schedule_at(self, cmu: float) -> None:
         """Gains of the schedule at ``cmu`` (linear between rows, held beyond them)."""
         rows = self._rows
         if cmu <= rows[0][0]:
             r0 = rows[0]
-            self._set_gains(r0[1], r0[2], r0[3], r0[4], r0[5])
+            self._set_gains(r0[1], r0[2], r0[3], r0[4], r0[5], r0[6], r0[7])
             return
         for j in range(1, len(rows)):
             hi = rows[j]
@@ -268,10 +279,11 @@ class LiftController:
                 w = (cmu - lo[0]) / (hi[0] - lo[0])
                 self._set_gains(lo[1] + w * (hi[1] - lo[1]), lo[2] + w * (hi[2] - lo[2]),
                                 lo[3] + w * (hi[3] - lo[3]), lo[4] + w * (hi[4] - lo[4]),
-                                lo[5] + w * (hi[5] - lo[5]))
+                                lo[5] + w * (hi[5] - lo[5]), lo[6] + w * (hi[6] - lo[6]),
+                                lo[7] + w * (hi[7] - lo[7]))
                 return
         last = rows[-1]
-        self._set_gains(last[1], last[2], last[3], last[4], last[5])
+        self._set_gains(last[1], last[2], last[3], last[4], last[5], last[6], last[7])
 
     def reset(self) -> None:
         self.feedforward = 0.0
@@ -285,7 +297,9 @@ class LiftController:
         self.feedback_dcl = 0.0
         """The last decision's feedback v − r (ΔCL, after the limits)."""
         self._filtered = 0.0
-        """The lead–lag's output (ΔCL), what the PI acts on."""
+        """The lead–lags' output (ΔCL), what the PI acts on."""
+        self._lead1 = 0.0
+        """The first lead–lag's output (ΔCL), the second's input (equal to ``_filtered`` without one)."""
         self._last_err = 0.0
         self._point = 0.0
         self._start_period()
@@ -360,8 +374,10 @@ class LiftController:
             if self._rows:
                 self._schedule_at(self.feedforward)
             e = self._err_sum / self._n
-            err = self._b * self._filtered + self._g * (e - self._a * self._last_err)
+            lead1 = self._b * self._lead1 + self._g * (e - self._a * self._last_err)
+            err = self._d * self._filtered + self._g2 * (lead1 - self._c * self._lead1)
             self._filtered = err
+            self._lead1 = lead1
             self._last_err = e
             fast = self.kx * (self._est_sum / self._n - self._point)
             v = ref + self.kp * err + fast + self.integral

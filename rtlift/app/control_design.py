@@ -134,6 +134,9 @@ on plant draws 101 and 110 (reporting draws: the value is kept because the calib
 it) (the peak sits at 4 Hz, where the interpolated lead-lag and K_x do not add up to
 either neighbour's); a half-way point still over is designed and joins the schedule. 0.3 dB
 cost the bench model's predicted band 0.05 Hz (0.27–0.33 Hz)."""
+BOUNDS_LEAD2 = ((-0.9, 0.95), (0.0, 0.95))
+"""Search box of the ``pi2`` structure's second lead–lag (c, d): the same as the first's (a, b), for
+the same reason (the pole d on the positive axis)."""
 HAND_START = (0.5, 0.5, 0.0, 0.0, 0.0)
 """Where the search starts at the first operating point: the hand-set PI (K_p 0.5, T_i 0.25 s)."""
 NYQUIST_GAIN_MAX = 2.0
@@ -229,25 +232,37 @@ def uncertainty_from_model(model: Any) -> Uncertainty:
 
 @dataclass(frozen=True)
 class Gains:
-    """C(Z) = (kp + ki Z/(Z − 1)) · g (Z − a)/(Z − b) and K_x (module docstring), ΔCL per ΔCL."""
+    """C(Z) = (kp + ki Z/(Z − 1)) · g (Z − a)/(Z − b) · g₂ (Z − c)/(Z − d) and K_x (module docstring),
+    ΔCL per ΔCL; g = (1 − b)/(1 − a), g₂ = (1 − d)/(1 − c) (unit gain at Z = 1). c = d = 0: no second
+    lead–lag (the ``pi`` structure); the ``pi2`` structure searches them too."""
 
     kp: float
     ki: float
     a: float = 0.0
     b: float = 0.0
     kx: float = 0.0
+    c: float = 0.0
+    d: float = 0.0
+
+    def lead_lag(self) -> tuple[np.ndarray, np.ndarray]:
+        """(numerator, denominator) of g (Z − a)/(Z − b) · g₂ (Z − c)/(Z − d), descending powers of Z."""
+        g = (1.0 - self.b) / (1.0 - self.a) * (1.0 - self.d) / (1.0 - self.c)
+        return g * np.convolve([1.0, -self.a], [1.0, -self.c]), np.convolve([1.0, -self.b], [1.0, -self.d])
 
     def tf(self, dt: float) -> Any:
         """C(Z) as a python-control transfer function with sample time ``dt``."""
         import control as ct
 
-        g = (1.0 - self.b) / (1.0 - self.a)
-        return (self.kp + self.ki * ct.tf([1.0, 0.0], [1.0, -1.0], dt)) * ct.tf([g, -g * self.a], [1.0, -self.b], dt)
+        num, den = self.lead_lag()
+        return (self.kp + self.ki * ct.tf([1.0, 0.0], [1.0, -1.0], dt)) * ct.tf(num, den, dt)
 
     def response(self, z: np.ndarray) -> np.ndarray:
         """C(z) at the points ``z``."""
         g = (1.0 - self.b) / (1.0 - self.a)
-        return (self.kp + self.ki * z / (z - 1.0)) * g * (z - self.a) / (z - self.b)
+        out = (self.kp + self.ki * z / (z - 1.0)) * g * (z - self.a) / (z - self.b)
+        if self.c or self.d:                 # the second lead–lag (none: the PI's numbers exactly)
+            out = out * (1.0 - self.d) / (1.0 - self.c) * (z - self.c) / (z - self.d)
+        return out
 
     def parts(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(K_A, K_X) at the points ``z``: v − r = K_A e_A + K_X e_X with K_A = C − K_x, K_X = K_x."""
@@ -546,13 +561,19 @@ class Design:
 
     @property
     def structure(self) -> str:
-        """"youla" (the internal-model controller, :class:`YoulaGains`) or "pi" (:class:`Gains`)."""
-        return "youla" if any(isinstance(p.gains, YoulaGains) for p in self.points) else "pi"
+        """"youla" (the internal-model controller, :class:`YoulaGains`), "pi2" (:class:`Gains` with a
+        second lead–lag somewhere) or "pi" (:class:`Gains`)."""
+        if any(isinstance(p.gains, YoulaGains) for p in self.points):
+            return "youla"
+        return "pi2" if any(p.gains.c or p.gains.d for p in self.points) else "pi"
 
-    def schedule(self) -> tuple[tuple[float, float, float, float, float, float], ...]:
-        """``(Cμ, K_p, T_i s, a, b, K_x)`` rows for :class:`~rtlift.app.control.ControlConfig` (none
-        for the internal-model controller: :meth:`youla_schedule`)."""
+    def schedule(self) -> tuple[tuple[float, ...], ...]:
+        """``(Cμ, K_p, T_i s, a, b, K_x)`` rows (``pi2``: ``(…, c, d)``) for
+        :class:`~rtlift.app.control.ControlConfig` (none for the internal-model controller:
+        :meth:`youla_schedule`)."""
+        two = self.structure == "pi2"
         return tuple((p.cmu, p.gains.kp, self.dt / p.gains.ki, p.gains.a, p.gains.b, p.gains.kx)
+                     + ((p.gains.c, p.gains.d) if two else ())
                      for p in self.scheduled if isinstance(p.gains, Gains))
 
     def youla_schedule(self) -> tuple[tuple[Any, ...], ...]:
@@ -772,14 +793,17 @@ def _first_crossing(f: np.ndarray, s: np.ndarray, level: float) -> float:
 def _stable(g: Gains, p: np.ndarray, q: np.ndarray) -> bool:
     """Closed-loop poles inside the unit circle: the roots of
     D_C Z^{n−1} + N_C Σ p_j Z^{n−1−j} + K_x D_C Σ (q_j − p_j) Z^{n−1−j},  C = N_C / D_C
-    (coefficients in descending powers; ``np.convolve`` is polynomial multiplication)."""
+    (coefficients in descending powers; ``np.convolve`` is polynomial multiplication; D_C of degree
+    2 or, with the second lead–lag, 3)."""
     n = len(p)
-    gain = (1.0 - g.b) / (1.0 - g.a)
-    c_num = gain * np.convolve([g.kp + g.ki, -g.kp], [1.0, -g.a])
-    c_den = np.convolve([1.0, -1.0], [1.0, -g.b])
-    char = np.zeros(n + 2)
-    char[:3] += c_den                                    # D_C Z^{n−1}
-    char += np.convolve(c_num, p) + np.convolve(c_den, g.kx * (q - p))   # both of degree n + 1
+    ll_num, ll_den = g.lead_lag()
+    if not (g.c or g.d):                                 # no second lead–lag: D_C of degree 2
+        ll_num, ll_den = ll_num[:2], ll_den[:2]
+    c_num = np.convolve([g.kp + g.ki, -g.kp], ll_num)
+    c_den = np.convolve([1.0, -1.0], ll_den)
+    char = np.zeros(n + c_den.size - 1)
+    char[:c_den.size] += c_den                           # D_C Z^{n−1}
+    char += np.convolve(c_num, p) + np.convolve(c_den, g.kx * (q - p))   # every term of degree n + deg D_C − 1
     return bool(np.all(np.abs(np.roots(char)) < 1.0 - 1e-9))
 
 
@@ -795,14 +819,17 @@ def _shortfall(m: Margins, targets: Targets, nyquist_gain: float) -> float:
 def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed: int = 1,
                  start: Gains | None = None, f_o: np.ndarray | None = None,
                  weight: np.ndarray | None = None, f: np.ndarray | None = None,
-                 g_y: np.ndarray | None = None) -> Gains:
+                 g_y: np.ndarray | None = None, structure: str = "pi", guess: Gains | None = None) -> Gains:
     """The gains that maximise f₆ under the targets (module docstring); ``start`` (the neighbouring
     operating point's gains) is first continued locally (Nelder–Mead from it), and that is the design
     when it meets every target: the global search from scratch put neighbours in the search's two
     basins, whose gains interpolated half-way missed the targets by up to 6 dB of |S| (calibration
     draws 1 and 2); else the global search, seeded with ``start``. ``f_o``, ``weight`` and ``g_y``
     the observer's response, the uncertainty weight and :func:`gust_gain` on the search grid ``f``
-    (``g_y`` None: the lifted gust map 1 − F_o T)."""
+    (``g_y`` None: the lifted gust map 1 − F_o T). ``structure`` "pi2": the second lead–lag (c, d) is
+    searched too (:data:`BOUNDS_LEAD2`), the same cost; ``guess`` (without ``start``): where the global
+    search starts instead of :data:`HAND_START` (``design_loop`` gives the PI's own design at the point,
+    so the search begins where the PI ends, c = d = 0)."""
     from scipy.optimize import differential_evolution, minimize
 
     f = analysis_grid(dt, 800) if f is None else f
@@ -828,14 +855,17 @@ def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed
         band, short = parts(x)
         return -band + short
 
-    lo, hi = np.array(BOUNDS).T
-    x0 = np.array([start.kp, start.ki, start.a, start.b, start.kx] if start is not None else HAND_START)
+    bounds = BOUNDS + BOUNDS_LEAD2 if structure == "pi2" else BOUNDS
+    lo, hi = np.array(bounds).T
+    from_ = start if start is not None else guess
+    x0 = (np.array([from_.kp, from_.ki, from_.a, from_.b, from_.kx, from_.c, from_.d]) if from_ is not None
+          else np.r_[HAND_START, 0.0, 0.0])[:len(bounds)]
     if start is not None:            # continuation from the neighbour's gains: one basin along the schedule
         near = minimize(lambda x: cost(np.clip(x, lo, hi)), x0, method="Nelder-Mead",
                         options={"maxiter": 600, "xatol": 1e-4, "fatol": 1e-6})
         if parts(np.clip(near.x, lo, hi))[1] == 0.0:
             return Gains(*map(float, np.clip(near.x, lo, hi)))
-    res = differential_evolution(cost, BOUNDS, seed=seed, maxiter=60, popsize=10, tol=1e-10, polish=False, x0=x0)
+    res = differential_evolution(cost, bounds, seed=seed, maxiter=60, popsize=10, tol=1e-10, polish=False, x0=x0)
     best = min((minimize(lambda x: cost(np.clip(x, lo, hi)), x, method="Nelder-Mead",
                          options={"maxiter": 600, "xatol": 1e-4, "fatol": 1e-6}) for x in (res.x, x0)),
                key=lambda r: r.fun)
@@ -1091,7 +1121,7 @@ YOULA_STEP = 0.05
 """Where a Youla point misses a target (the phase margin, not in the programme; a half-way check),
 the fraction is lowered by this much and the point designed again, down to :data:`YOULA_FLOOR`."""
 YOULA_FLOOR = 0.5
-STRUCTURES = ("auto", "pi", "youla")
+STRUCTURES = ("auto", "pi", "pi2", "youla")
 DEFAULT_STRUCTURE = "pi"
 """What ``rtlift design`` and ``rtlift control`` build unless told: the PI + lead–lag + K_x (calibration
 draws 1–3, design version 7: 0.19–0.22 Hz measured, within 0.01 Hz of its prediction). The
@@ -1112,6 +1142,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     half-way check misses a target the controller is designed there too and the point joins the
     schedule (at most ``max_inserted`` times); the limit of the band computed at each scheduled
     point (``limit``). ``structure``: "pi" (PI + lead–lag + K_x searched, :func:`design_point`),
+    "pi2" (the same with a second lead–lag, its global search at each first point begun at the PI's
+    design there),
     "youla" (the internal-model controller from :class:`YoulaProgram` at ``backoff`` of its band,
     lowered by :data:`YOULA_STEP` where a target is missed) or "auto": both, and the one with the
     wider predicted band (the smallest f₆ over every checked point) among those that miss no target
@@ -1174,10 +1206,10 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
             out = [[0.0] * len(t) for t in rows[0][1:]]
             youla_at(rows, cmu, out)
             return YoulaGains(*(tuple(o) for o in out))
-        sched = LiftController(model, ControlConfig(fs_hz=fs, period=cfg.period, schedule=tuple(
-            (pt.cmu, pt.gains.kp, dt / pt.gains.ki, pt.gains.a, pt.gains.b, pt.gains.kx) for pt in designed)))
+        rows = Design(designed, dt, cfg.period, MARGIN_SAMPLES).schedule()
+        sched = LiftController(model, ControlConfig(fs_hz=fs, period=cfg.period, schedule=rows))
         sched._schedule_at(cmu)
-        return Gains(sched.kp, sched._gain_i, sched._a, sched._b, sched.kx)
+        return Gains(sched.kp, sched._gain_i, sched._a, sched._b, sched.kx, sched._c, sched._d)
 
     def between(designed: list[PointDesign]) -> list[PointDesign]:
         """The scheduled points with a check half-way (in Cμ) between each neighbouring pair."""
@@ -1188,10 +1220,14 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
             out += [check(cmu, dcl0, interpolated(designed, cmu), designed=False), hi]
         return out
 
-    def pi_at(dcl0: float, start: Gains | YoulaGains | None) -> PointDesign:
+    def pi_at(dcl0: float, start: Gains | YoulaGains | None, kind: str = "pi") -> PointDesign:
         p, q, h, r, _ = plant_at(dcl0)
-        g = design_point(p, q, dt, targets, start=start if isinstance(start, Gains) else None,
-                         f_o=observer_response(h, fs, f, r, per), weight=unc.weight(f), f=f, g_y=gy_at(dcl0)(f))
+        args = {"f_o": observer_response(h, fs, f, r, per), "weight": unc.weight(f), "f": f, "g_y": gy_at(dcl0)(f)}
+        start = start if isinstance(start, Gains) else None
+        guess = None
+        if kind == "pi2" and start is None:    # the global search begins at the PI's own design there
+            guess = design_point(p, q, dt, targets, **args)
+        g = design_point(p, q, dt, targets, start=start, structure=kind, guess=guess, **args)
         return check(ctl.inverse(dcl0), dcl0, g)
 
     def youla_build() -> Design:
@@ -1260,6 +1296,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 raise
     if structure == "youla":
         return youla
+    if structure == "pi2":
+        return build(lambda dcl0, start: pi_at(dcl0, start, "pi2"))
     pi = build(pi_at)
     if youla is not None and not youla.violations() and (
             pi.violations() or youla.summary()["f6_hz_min"] > pi.summary()["f6_hz_min"]):

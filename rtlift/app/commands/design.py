@@ -32,8 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
     p.add_argument("--gm-db", type=float, default=6.0, help="gain margin at least (dB, default 6)")
     p.add_argument("--pm-deg", type=float, default=45.0, help="phase margin at least (degrees, default 45)")
-    p.add_argument("--structure", default="pi", choices=("auto", "pi", "youla"),
-                   help="the controller: pi (default: PI + lead-lag + K_x), youla (the internal-model controller from "
+    p.add_argument("--structure", default="pi", choices=("auto", "pi", "pi2", "youla"),
+                   help="the controller: pi (default: PI + lead-lag + K_x), pi2 (the same with a second lead-lag), "
+                        "youla (the internal-model controller from "
                         "the Youla parameter) or auto (the one with the wider predicted band that meets every target)")
     p.add_argument("--peak-db", type=float,
                    help="largest predicted |S| at any frequency (dB; default: the target set on the plant "
@@ -91,26 +92,29 @@ def _markdown(design, doc: dict, model: str) -> str:
              f"targets: gain margin >= {t.gm_db:g} dB (up and down), phase margin >= {t.pm_deg:g} deg, "
              f"|S| <= {t.peak_db:g} dB (the loop's and the gust's with the observer), robust stability "
              f"max |W T| < 1 with W = {u.gain:.2f} + {1 + u.gain:.2f} |1 - exp(-j w {u.delay_s:g} s)| ({u.source}). "
-             + ("v - r = C(Z) e_mean + Kx (e_last - e_mean), C(Z) = (Kp + Ki Z/(Z-1)) g (Z-a)/(Z-b), "
-                if design.structure == "pi" else
+             + ("v - r = C(Z) e_mean + Kx (e_last - e_mean), C(Z) = (Kp + Ki Z/(Z-1)) g (Z-a)/(Z-b)"
+                + (" g2 (Z-c)/(Z-d), " if design.structure == "pi2" else ", ")
+                if design.structure != "youla" else
                 "the internal-model controller v - r = w = Q_A ê_mean + Q_X ê_last, ê = e + P w (Q: FIR taps in "
                 "report.json; K = Q/(1 - Q P)); ")
              + "in ΔCL per ΔCL. Margins from every crossover of L up to Nyquist (4 Hz) on a 2000-point grid; "
              "rows marked 'check' are half-way between scheduled points, at the interpolated gains.", "",
              "**Targets missed:** " + ("none" if not s["violations"] else ""), ""]
     lines += [f"- {v}" for v in s["violations"]]
-    head = ("Kp | Ti (s) | a | b | Kx" if design.structure == "pi" else
+    two = design.structure == "pi2"
+    head = ("Kp | Ti (s) | a | b | Kx" + (" | c | d" if two else "") if design.structure != "youla" else
             "Q_A(1) | sum abs Q_A | Q_X(-1) | gain at 4 Hz | -")
     lines += ["", f"| Cμ | ΔCL | {head} | GM up/down (dB) | PM (deg) | gain crossovers (Hz) "
               "| max abs S (dB) at (Hz) | max abs W T | f6 (Hz) | limit f6 (Hz) |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if two else "")]
     for p in design.points:
         m = p.margins
         gm = "/".join("inf" if not math.isfinite(v) else f"{v:.1f}" for v in (m.gm_db, m.gm_low_db))
         xs = ", ".join(f"{fc:.2f}" for fc, _ in m.gain_crossovers)
         lim = "check" if not p.designed else ("n/a" if p.limit_f6_hz is None else f"{p.limit_f6_hz:.3f}")
         g = p.gains
-        cols = ((g.kp, design.dt / g.ki, g.a, g.b, g.kx) if design.structure == "pi" else
+        cols = ((g.kp, design.dt / g.ki, g.a, g.b, g.kx) + ((g.c, g.d) if two else ())
+                if design.structure != "youla" else
                 (sum(g.qa), sum(map(abs, g.qa)), sum(v * (-1) ** k for k, v in enumerate(g.qx)), g.nyquist_gain(), 0.0))
         lines.append(f"| {p.cmu:.4f} | {p.dcl:.3f} | " + " | ".join(f"{v:.3f}" for v in cols) + f" | {gm} | "
                      f"{p.pm_deg:.1f} | {xs} | "
