@@ -69,7 +69,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import linalg, optimize, signal
+from scipy import linalg, signal
 
 from rtlift.blocks.highpass import HighPassFilter
 from rtlift.blocks.wiener import OutputNonlinearity
@@ -79,6 +79,7 @@ from rtlift.identify.poles import denominator_from_theta, theta_from_poles
 from rtlift.model.siso import INTEGRATOR, LIMITED, STRUCTURES, SaturatedModel, SisoModel, listed
 from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions, _limited, _pooled_rmse, _rmse
 from rtlift.sysid.feedback import identify_feedback
+from rtlift.sysid.parallel import least_squares
 from rtlift.sysid.store_chain import identify_store_chain
 
 
@@ -271,7 +272,7 @@ def fit_bla(runs: _Runs, n: int, max_nfev: int = 300, offset: bool = False
         r = (runs.lfilter(p[n:2 * n + 1], a, u) + (p[-1] if offset else 0.0) - y)[runs.rows]
         return r if np.all(np.isfinite(r)) else bad
 
-    sol = optimize.least_squares(res, p0, x_scale="jac", max_nfev=max_nfev)
+    sol = least_squares(res, p0, x_scale="jac", max_nfev=max_nfev)
     return (sol.x[n:2 * n + 1], np.concatenate([[1.0], denominator_from_theta(sol.x[:n], n)]),
             float(sol.x[-1]) if offset else 0.0)
 
@@ -316,7 +317,7 @@ def _refine(dims: _Dims, th0: np.ndarray, runs: _Runs, max_nfev: int, knots: int
         r = _residual(phi, runs, limits)
         return r if np.all(np.isfinite(r)) else bad
 
-    return optimize.least_squares(res, th0, x_scale="jac", max_nfev=max_nfev, ftol=1e-10, xtol=1e-10).x
+    return least_squares(res, th0, x_scale="jac", max_nfev=max_nfev, ftol=1e-10, xtol=1e-10).x
 
 
 def _model(dims: _Dims, th: np.ndarray, runs: _Runs, fs: float, count: int,

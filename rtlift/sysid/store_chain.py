@@ -21,10 +21,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize
 
 from rtlift.model.siso import StoreChainModel
 from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions
+from rtlift.sysid.parallel import least_squares
 
 
 def identify_store_chain(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all: np.ndarray, n_est: int,
@@ -95,7 +95,7 @@ def identify_store_chain(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all:
         th0 = np.array([math.log(b), math.log(a1), 0.5, math.log(r), math.log(a2), 0.5, c, brim, 0.3][:npar]
                        + [math.log(x1), math.log(x2)])
         th0 = np.clip(th0, lo + 1e-9, hi - 1e-9)
-        sol = optimize.least_squares(res, th0, bounds=(lo, hi), x_scale="jac", max_nfev=opt.max_nfev)
+        sol = least_squares(res, th0, bounds=(lo, hi), x_scale="jac", max_nfev=opt.max_nfev)
         model = StoreChainModel(unpack(sol.x), fs)
         held = held_out(model, start(sol.x))
         if np.isfinite(held) and (best is None or held < best[0]):

@@ -1,0 +1,136 @@
+"""Both cores for a finite-difference Jacobian, the same numbers as one core.
+
+The refinements of :mod:`.identify` spend most of their time in scipy's finite-difference
+Jacobian (``least_squares(jac="2-point")``): one simulation of the whole cost record per
+parameter, J[:, i] = (r(θ + hᵢeᵢ) − r(θ)) / hᵢ, each independent of the others. scipy (≥ 1.16)
+evaluates them through a map-like ``workers(fun, points)``; :class:`Halves` is one: a child
+process forked once per refinement evaluates the first half of the points while this process
+evaluates the rest. The child is a copy of this process made when the refinement starts, so it
+runs the residual function it was given, on the same data with the same code and BLAS settings:
+every entry of the Jacobian is the number one process computes (bit for bit), so the refinement
+takes the same path and ends at the same θ, in about half the wall time of its Jacobians where
+the two cores are free. Where no child can be started (no ``fork`` on the platform, a refusal of
+the system) or the child fails, the points are evaluated here: never an error, never a different
+number.
+
+The child gets only points (a few parameters each) and returns residual vectors over a pipe; it
+ends with the refinement (:meth:`Halves.close`, or the context manager) and never touches this
+process's files or streams (``os._exit``).
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+from collections.abc import Callable, Iterable
+from multiprocessing.connection import Connection, Pipe
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+WORKERS = "workers" in inspect.signature(optimize.least_squares).parameters
+"""Whether this scipy's ``least_squares`` takes ``workers`` (scipy >= 1.16); older ones run on one core."""
+MIN_POINTS = 2
+"""The fewest points a map shares with the child: one point is evaluated here."""
+
+
+def _serve(conn: Connection, residual: Callable[[np.ndarray], np.ndarray]) -> None:   # pragma: no cover (child)
+    """The child's loop: a list of points in, their residuals out (``None`` for one that raised),
+    until the pipe closes."""
+    while True:
+        try:
+            points = conn.recv()
+        except (EOFError, OSError):
+            return
+        out = []
+        for x in points:
+            try:
+                out.append(np.atleast_1d(residual(x)))
+            except BaseException:       # the parent evaluates this one itself
+                out.append(None)
+        conn.send(out)
+
+
+class Halves:
+    """A map-like callable for ``scipy.optimize.least_squares(workers=...)`` (module docstring):
+    ``residual`` is the function given to ``least_squares`` (scipy hands the map a thin wrapper
+    of it, which this process calls; the child calls ``residual`` itself, the same numbers for a
+    float64 θ). Use as a context manager around the one ``least_squares`` call."""
+
+    def __init__(self, residual: Callable[[np.ndarray], np.ndarray]) -> None:
+        self.residual = residual
+        self.pid: int | None = None
+        self.conn: Connection | None = None
+
+    def __enter__(self) -> Halves:
+        self._start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def _start(self) -> None:
+        if not hasattr(os, "fork"):
+            return
+        try:
+            mine, theirs = Pipe()
+            pid = os.fork()
+        except OSError:
+            return
+        if pid == 0:                                        # pragma: no cover (child)
+            code = 0
+            try:
+                mine.close()
+                _serve(theirs, self.residual)
+            except BaseException:
+                code = 1
+            finally:
+                os._exit(code)
+        theirs.close()
+        self.pid, self.conn = pid, mine
+
+    def close(self) -> None:
+        """End the child (if any) and wait for it."""
+        if self.conn is not None:
+            self.conn.close()
+            self.conn = None
+        if self.pid is not None:
+            try:
+                os.waitpid(self.pid, 0)
+            except ChildProcessError:
+                pass
+            self.pid = None
+
+    def __call__(self, fun: Callable[[np.ndarray], np.ndarray], points: Iterable[np.ndarray]) -> list[np.ndarray]:
+        """[fun(x) for x in points], the first half evaluated by the child."""
+        points = list(points)
+        k = len(points) // 2 if len(points) >= MIN_POINTS else 0
+        sent = False
+        if k and self.conn is not None:
+            try:
+                self.conn.send(points[:k])
+                sent = True
+            except (OSError, ValueError):
+                self.close()
+        own = [fun(x) for x in points[k:]] if sent else []
+        theirs: list = [None] * k
+        if sent:
+            try:
+                theirs = self.conn.recv()
+            except (EOFError, OSError):
+                self.close()
+        if not sent:
+            return [fun(x) for x in points]
+        return [fun(x) if r is None else r for x, r in zip(points[:k], theirs, strict=True)] + own
+
+
+def least_squares(residual: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
+                  **options: Any) -> optimize.OptimizeResult:
+    """``scipy.optimize.least_squares(residual, x0, **options)`` (method ``trf``, a finite-difference
+    Jacobian) with its Jacobian's evaluations shared with a child process (:class:`Halves`): the
+    same result, bit for bit."""
+    if not WORKERS:
+        return optimize.least_squares(residual, x0, **options)
+    with Halves(residual) as workers:
+        return optimize.least_squares(residual, x0, workers=workers, **options)
