@@ -36,7 +36,7 @@ from numba import carray, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from rtlift.blocks.compiled_stages import _delayed, _direction_factor, _faded, _output_chain, _staged_inputs
+from rtlift.blocks.compiled_stages import _direction_factor, _output_chain, _staged, _staged_inputs, has_staged_inputs
 from rtlift.core.jit import njit_cached
 
 _COUNT_MAX = 128
@@ -177,8 +177,7 @@ def hybrid_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, buf, pos, z,
     """:func:`hybrid_step` that also returns the inputs after the input stages and the flagged
     output stages' corrections, (ΔCL, ΔCL_H, ΔCL_L, Cμ′, Cμ_env′, known): what the observer's
     step needs besides the output."""
-    cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
-    cmu, env = _faded(cmu, env, fpar, sstate)
+    cmu, env = _staged(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate)
     p = _push(buf, pos, cmu)
     n_taps = buf.shape[0] // 2
     v = 0.0
@@ -273,8 +272,8 @@ def hybrid_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, fpar, 
     o_wiener = o_hp + 5 * (n_z // 2)
     grid, values, slopes, _ = _wiener_table(par, n_taps + o_wiener, n_x)
     _scatter_past(buf, pos[0], taps, high, n)
-    if d_cmu.shape[0] > 0 or fpar[0] != 0.0:  # the staged inputs, in place of the outputs
-        _staged_inputs(cmu, env, total, low, d_cmu, d_env, d_pos, fpar, sstate)
+    if has_staged_inputs(par, d_cmu, fpar):   # the staged inputs, in place of the outputs
+        _staged_inputs(cmu, env, total, low, par, d_cmu, d_env, d_pos, fpar, sstate)
         cmu, env = total, low
     last = n - n_taps
     for k in range(n):

@@ -31,7 +31,7 @@ from rtlift.blocks.compiled import (
     _wiener,
     _wiener_table,
 )
-from rtlift.blocks.compiled_stages import _delayed, _direction_factor, _faded, _output_chain, _staged_inputs
+from rtlift.blocks.compiled_stages import _direction_factor, _output_chain, _staged, _staged_inputs, has_staged_inputs
 from rtlift.core.jit import njit_cached
 
 
@@ -144,8 +144,7 @@ def interaction_sample(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, m_in, b
     """:func:`interaction_step` that also returns what the filter of an observer sees, (ΔCL,
     ΔCL_H, ΔCL_L, Cμ′, u, known): Cμ after the delay and the fade, the delivered envelope u, and
     the flagged output stages' corrections (:func:`~rtlift.blocks.compiled_stages._output_chain`)."""
-    cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
-    cmu, env = _faded(cmu, env, fpar, sstate)
+    cmu, env = _staged(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate)
     n_taps = buf.shape[0] // 2
     n_sec = z.shape[0] // 2
     n = x.shape[0]
@@ -205,8 +204,8 @@ def interaction_simulate(cmu, env, total, high, low, par, d_cmu, d_env, d_pos, f
     power, inv_chord, lgrid, lgain, lslopes = _lift_table(ipar, 6)
     mi, mc = m_in[0], m_conv[0]
     _scatter_past(buf, pos[0], taps, high, n)
-    if d_cmu.shape[0] > 0 or fpar[0] != 0.0:  # the staged inputs, in place of the outputs
-        _staged_inputs(cmu, env, total, low, d_cmu, d_env, d_pos, fpar, sstate)
+    if has_staged_inputs(par, d_cmu, fpar):   # the staged inputs, in place of the outputs
+        _staged_inputs(cmu, env, total, low, par, d_cmu, d_env, d_pos, fpar, sstate)
         cmu = total
         env = low                             # each read before its slot is written
     last = n - n_taps

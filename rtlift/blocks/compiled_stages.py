@@ -5,7 +5,11 @@ Input stages, each on its own arrays (the stage's ``kernel_arrays()``, not copie
 
     delay            Cμ′(k) = Cμ(k − D), Cμ_env′(k) = Cμ_env(k − D)                 (:func:`_delayed`)
     actuator_fade    g(k) = f + (1 − f) exp(−E(k)/τ),  (Cμ′, Cμ_env′) = g (Cμ, Cμ_env)   (:func:`_faded`)
-    onset_hold       Cμ_env′(k) = Cμ_env at the last burst onset, 0 while Cμ_env ≤ 0  (in the fade's slot)
+    onset_hold       Cμ_env′(k) = Cμ_env at the last burst onset, 0 while Cμ_env ≤ 0    (:func:`_held`)
+
+in the model's order (:func:`_staged`): the delay before the fade, the hold before, between or
+after them (its place a flag in the packed parameters, :data:`HOLD`; its state [u, Cμ(k−1)]
+the last two floats of the stages' state array, :func:`bind_stage_states`).
 
 Output stages, any number in any order, each in the state-space form every output stage states
 (:meth:`rtlift.blocks.stage_base.OutputStage.statespace`, the paper's timing), on the stage's own state:
@@ -27,7 +31,12 @@ import math
 
 import numpy as np
 
+from rtlift.blocks.onset_hold import onset_value
 from rtlift.core.jit import njit_cached
+
+_onset_value = njit_cached(inline="always")(onset_value)
+"""The hold's recurrence (:func:`rtlift.blocks.onset_hold.onset_value`), the Python step's own
+code compiled: one statement of it for both steps."""
 
 
 @njit_cached(inline="always")
@@ -49,42 +58,80 @@ def _delayed(cmu, env, d_cmu, d_env, d_pos):
 def _faded(cmu, env, fpar, fstate):
     """The ``actuator_fade`` stage (:class:`rtlift.blocks.actuator_fade.ActuatorFade`):
     (g Cμ, g Cμ_env), E advanced by 1/fs when Cμ > 0 (or always, clock "time"). ``fpar`` =
-    [on, f, τ, 1/fs, clock is "time"] (on = 0: no stage), ``fstate`` = [E]. The same slot
-    runs the ``onset_hold`` stage (:class:`rtlift.blocks.onset_hold.OnsetHold`) when ``fpar`` is
-    its array [1, 1, 1, 1/fs, 0, 1, u, Cμ(k−1)] (a fade of g = 1 exactly, then the hold, its
-    state in ``fpar[6:8]``)."""
+    [on, f, τ, 1/fs, clock is "time"] (on = 0: no stage), ``fstate`` = [E]."""
     if fpar[0] == 0.0:
         return cmu, env
     f = fpar[1]
     g = f + (1.0 - f) * math.exp(-fstate[0] / fpar[2])
     if cmu > 0.0 or fpar[4] != 0.0:
         fstate[0] = fstate[0] + fpar[3]
-    cmu, env = cmu * g, env * g
-    if fpar.shape[0] > 5 and fpar[5] != 0.0:
-        if not env > 0.0:
-            u = 0.0
-        elif cmu > 0.0 and not fpar[7] > 0.0:
-            u = env
-        else:
-            u = fpar[6]
-        fpar[6] = u
-        fpar[7] = cmu
-        env = u
+    return cmu * g, env * g
+
+
+HYSTERESIS = 9
+"""The hysteresis factor's parameters [on, m, g, w, λ, driver is "lift"] end this many floats
+before the end of the packed array (then n_max, the stage count, the tail's length)."""
+HOLD = HYSTERESIS + 1
+"""The ``onset_hold`` stage's place sits this many floats before the end of the packed array
+(:func:`with_outputs`, just before the hysteresis factor's parameters): 0 no hold, else one of
+:data:`HOLD_FIRST`, :data:`HOLD_AFTER_DELAY`, :data:`HOLD_AFTER_FADE`."""
+HOLD_FIRST, HOLD_AFTER_DELAY, HOLD_AFTER_FADE = 1.0, 2.0, 3.0
+"""The hold before the delay, between the delay and the fade, after the fade."""
+
+
+@njit_cached(inline="always")
+def _held(cmu, env, sstate):
+    """The ``onset_hold`` stage (:class:`rtlift.blocks.onset_hold.OnsetHold`): (Cμ, u), u the
+    envelope at the last burst onset, 0 while Cμ_env ≤ 0; its state [u, Cμ(k−1)] the last two
+    floats of ``sstate`` (:func:`bind_stage_states`)."""
+    n = sstate.shape[0]
+    u = _onset_value(sstate[n - 2], sstate[n - 1], cmu, env)
+    sstate[n - 2] = u
+    sstate[n - 1] = cmu
+    return cmu, u
+
+
+@njit_cached(inline="always")
+def _staged(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate):
+    """One sample through the model's input stages in its order: :func:`_delayed`, :func:`_faded`,
+    and :func:`_held` where the flag ``par[−HOLD]`` puts it (0: no hold)."""
+    where = par[par.shape[0] - HOLD]
+    if where == HOLD_FIRST:
+        cmu, env = _held(cmu, env, sstate)
+    cmu, env = _delayed(cmu, env, d_cmu, d_env, d_pos)
+    if where == HOLD_AFTER_DELAY:
+        cmu, env = _held(cmu, env, sstate)
+    cmu, env = _faded(cmu, env, fpar, sstate)
+    if where == HOLD_AFTER_FADE:
+        cmu, env = _held(cmu, env, sstate)
     return cmu, env
 
 
 @njit_cached(inline="always")
-def _staged_inputs(cmu, env, out_cmu, out_env, d_cmu, d_env, d_pos, fpar, fstate):
-    """:func:`_delayed` then :func:`_faded` over whole arrays, into ``out_cmu``/``out_env``
-    (the batch's input stages; ``out_*`` not the inputs), leaving the rings, their position and
-    the fade's clock as the same samples streamed would. The delay is copies, not a loop
+def has_staged_inputs(par, d_cmu, fpar):
+    """Whether the model has an input stage (a delay, a fade or the hold): the batches then run
+    :func:`_staged_inputs` first."""
+    return d_cmu.shape[0] > 0 or fpar[0] != 0.0 or par[par.shape[0] - HOLD] != 0.0
+
+
+@njit_cached(inline="always")
+def _staged_inputs(cmu, env, out_cmu, out_env, par, d_cmu, d_env, d_pos, fpar, fstate):
+    """:func:`_staged` over whole arrays, into ``out_cmu``/``out_env`` (the batch's input
+    stages; ``out_*`` not the inputs), leaving the rings, their position, the fade's clock and
+    the hold's state as the same samples streamed would. A hold before the delay goes sample by
+    sample through both; otherwise the delay is copies, not a loop
     through the ring: out(k) = ring((p + k) mod D) for k < D, in(k − D) after; the last D
     inputs go to their slots (p + k) mod D (through the ring sample by sample, each store made
     the next sample's position and ring be loaded again: ≈ 25 ns a sample on the benchmark
     record, more than the rest of the paper's structure)."""
     n = cmu.shape[0]
     n_delay = d_cmu.shape[0]
-    if n_delay == 0:
+    where = par[par.shape[0] - HOLD]
+    if where == HOLD_FIRST:
+        for k in range(n):
+            c, e = _held(cmu[k], env[k], fstate)
+            out_cmu[k], out_env[k] = _delayed(c, e, d_cmu, d_env, d_pos)
+    elif n_delay == 0:
         out_cmu[:] = cmu
         out_env[:] = env
     else:
@@ -101,24 +148,28 @@ def _staged_inputs(cmu, env, out_cmu, out_env, d_cmu, d_env, d_pos, fpar, fstate
             d_cmu[i] = cmu[k]
             d_env[i] = env[k]
         d_pos[0] = (p + n) % n_delay
+    if where == HOLD_AFTER_DELAY:
+        for k in range(n):
+            out_cmu[k], out_env[k] = _held(out_cmu[k], out_env[k], fstate)
     if fpar[0] != 0.0:
         for k in range(n):
             out_cmu[k], out_env[k] = _faded(out_cmu[k], out_env[k], fpar, fstate)
+    if where == HOLD_AFTER_FADE:
+        for k in range(n):
+            out_cmu[k], out_env[k] = _held(out_cmu[k], out_env[k], fstate)
 
 
-HYSTERESIS = 9
-"""The hysteresis factor's parameters [on, m, g, w, λ, driver is "lift"] end this many floats
-before the end of the packed array (then n_max, the stage count, the tail's length)."""
 STATE_OUTPUTS = 4
 """Where the output stages' states start in the stages' state array (after E and [h, s, p])."""
 
 
-def with_outputs(par: np.ndarray, stages, memory: np.ndarray | None = None) -> np.ndarray:
+def with_outputs(par: np.ndarray, stages, memory: np.ndarray | None = None, hold: float = 0.0) -> np.ndarray:
     """The model's packed parameters ``par`` followed by the output stages': per stage n, counts
     toward the observer's known part (1.0; see :func:`_output_chain`), D, A (row-major), B, C;
-    then n_max scratch floats, the hysteresis factor's parameters (:func:`_direction_factor`;
-    ``memory`` = [m, g, w, λ, driver is "lift"], None: no factor), n_max, the stage count, and
-    last this tail's length (so the step finds it from the end, whatever ``par`` holds before it)."""
+    then n_max scratch floats, the ``onset_hold`` stage's place ``hold`` (:data:`HOLD`; 0: none),
+    the hysteresis factor's parameters (:func:`_direction_factor`; ``memory`` = [m, g, w, λ,
+    driver is "lift"], None: no factor), n_max, the stage count, and last this tail's length (so
+    the step finds it from the end, whatever ``par`` holds before it)."""
     parts = []
     n_max = 0
     for st in stages:
@@ -128,7 +179,7 @@ def with_outputs(par: np.ndarray, stages, memory: np.ndarray | None = None) -> n
         parts.append(np.concatenate([[float(n), 1.0, float(D)], A.reshape(n * n), B, C]))
     n_max = max(n_max, 1)
     hyst = np.zeros(6) if memory is None else np.concatenate([[1.0], memory])
-    tail = np.concatenate(parts + [np.zeros(n_max), hyst, [float(n_max), float(len(stages))]])
+    tail = np.concatenate(parts + [np.zeros(n_max), [float(hold)], hyst, [float(n_max), float(len(stages))]])
     return np.concatenate([par, tail, [float(tail.size + 1)]])
 
 
@@ -147,12 +198,16 @@ def output_flags(par: np.ndarray, known: list[bool]) -> np.ndarray:
     return out
 
 
-def bind_stage_states(fade, memory, stages) -> np.ndarray:
+def bind_stage_states(fade, memory, stages, hold=None) -> np.ndarray:
     """One array of the stages' states, [E of the ``actuator_fade``, [h, s, p] of the hysteresis
-    factor (zeros without them), then each output stage's], each one's own state array made a view
-    into it (its current state copied in first), for the compiled step to advance in place."""
+    factor (zeros without them), then each output stage's, then [u, Cμ(k−1)] of the ``onset_hold``
+    stage ``hold`` (not there without it)], each one's own state array made a view into it (its
+    current state copied in first), for the compiled step to advance in place."""
     sizes = [int(st.state_size) for st in stages]
-    state = np.zeros(STATE_OUTPUTS + sum(sizes))
+    state = np.zeros(STATE_OUTPUTS + sum(sizes) + (2 if hold is not None else 0))
+    if hold is not None:
+        state[-2:] = hold.get_state()
+        hold.adopt_state(state[-2:])
     if fade is not None:
         state[0] = fade.on_time
         fade.adopt_state(state[0:1])
@@ -219,7 +274,7 @@ def _output_chain(u, par, sstate):
     if count == 0:
         return u, known
     o = end - int(par[end - 1])
-    scr = end - HYSTERESIS - int(par[end - 3])      # the scratch after the last stage
+    scr = end - HOLD - int(par[end - 3])            # the scratch after the last stage
     xo = STATE_OUTPUTS
     for _ in range(count):
         n = int(par[o])

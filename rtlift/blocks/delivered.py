@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.blocks.stage_base import InputStage, _positive
+from rtlift.blocks.stage_base import InputStage, _positive, _state_shaped
 from rtlift.blocks.wiener import _check_table, _Table
 
 STRUCTURE_STAGES = ("delivered_momentum", "delivered_envelope")
@@ -82,10 +82,7 @@ class DeliveredMomentum(InputStage):
         return self._m.copy()
 
     def set_state(self, state: np.ndarray) -> None:
-        s = np.asarray(state, dtype=float)
-        if s.shape != (1,):
-            raise ValueError(f"delivered_momentum state must have shape (1,), got {s.shape}")
-        self._m[0] = s[0]
+        self._m[0] = _state_shaped(state, self.name, 1)[0]
 
 
 class DeliveredEnvelope(InputStage):
@@ -197,10 +194,7 @@ class DeliveredEnvelope(InputStage):
         return self._q.copy()
 
     def set_state(self, state: np.ndarray) -> None:
-        s = np.asarray(state, dtype=float)
-        if s.shape != (1,):
-            raise ValueError(f"delivered_envelope state must have shape (1,), got {s.shape}")
-        self._q[0] = s[0]
+        self._q[0] = _state_shaped(state, self.name, 1)[0]
 
 
 def gate_power(gate, power: float):

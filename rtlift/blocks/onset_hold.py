@@ -20,9 +20,12 @@ Cμ_env from the first onset on, so the stage changes nothing on single bursts a
 at a held amplitude; it removes the half burst period (on average) by which a smooth envelope
 leads what the bursts deliver. State: [u(k−1), Cμ(k−1)].
 
-Compiled step: :func:`rtlift.blocks.compiled_stages._faded` runs it after the ``actuator_fade``
-slot when the model has no fade (its parameter array then carries the hold's flag and state,
-:meth:`kernel_arrays`); a model with both a fade and this stage takes the reference step.
+Compiled step: a slot of its own among the input stages
+(:func:`rtlift.blocks.compiled_stages._held`, the same :func:`onset_value` compiled): its place
+among the ``delay`` and the ``actuator_fade`` a flag in the model's packed parameters, its state
+the last two floats of the stages' state array (:meth:`adopt_state`), so a model with a delay,
+a fade and this stage in any of the orders the identification and the diagnosis make runs
+compiled.
 """
 
 from __future__ import annotations
@@ -31,11 +34,20 @@ from typing import Any
 
 import numpy as np
 
-from rtlift.blocks.stage_base import InputStage, _positive
+from rtlift.blocks.stage_base import InputStage, _positive, _state_shaped
 
-HOLD_FLAG = 5
-"""Index of the hold's flag in the compiled step's fade-slot parameter array (after the fade's
-five); the hold's state [u, Cμ(k−1)] follows it."""
+
+def onset_value(u: float, previous: float, cmu: float, env: float) -> float:
+    """u(k) of the module docstring's recurrence from u(k−1), Cμ(k−1), Cμ(k) and Cμ_env(k) (Cμ
+    units): 0 while Cμ_env ≤ 0, Cμ_env at an onset (Cμ > 0 after Cμ ≤ 0), else u(k−1). The one
+    statement of the recurrence: :meth:`OnsetHold.step` runs it, and the compiled step runs it
+    compiled (:func:`rtlift.blocks.compiled_stages._held`, through ``njit_cached``: this file's
+    name of it puts the file in the compiled code's cache stamp, :mod:`rtlift.core.jit`)."""
+    if not env > 0.0:
+        return 0.0
+    if cmu > 0.0 and not previous > 0.0:
+        return env
+    return u
 
 
 class OnsetHold(InputStage):
@@ -47,19 +59,7 @@ class OnsetHold(InputStage):
 
     def __init__(self, fs_hz: float) -> None:
         self.fs_hz = _positive(fs_hz, "fs_hz")
-        # the compiled step's fade slot without a fade: [on, f = 1, τ = 1, 1/fs, clock, hold on,
-        # u, Cμ(k−1)] (g = f + (1 − f) e^(−E/τ) = 1 exactly); the state is a view into it
-        self._slot = np.array([1.0, 1.0, 1.0, 1.0 / self.fs_hz, 0.0, 1.0, 0.0, 0.0])
-        self._s = self._slot[HOLD_FLAG + 1:HOLD_FLAG + 3]
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        del state["_s"]                   # a view into _slot: made again on unpickling / copying
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._s = self._slot[HOLD_FLAG + 1:HOLD_FLAG + 3]
+        self._s = np.zeros(2)             # numpy, so the compiled step advances it too
 
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> OnsetHold:
@@ -68,19 +68,14 @@ class OnsetHold(InputStage):
     def params(self) -> dict[str, float]:
         return {}
 
-    def kernel_arrays(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
-        """For the compiled step: the fade slot's parameter array with the hold's flag and state
-        (the state a view into it, not a copy), and the state."""
-        return (self._slot,), (self._s,)
+    def adopt_state(self, view: np.ndarray) -> None:
+        """Hold the state [u, Cμ(k−1)] in ``view`` (two float64, already holding it) from now on:
+        the compiled step advances that array (:func:`rtlift.blocks.compiled_stages.bind_stage_states`)."""
+        self._s = view
 
     def step(self, cmu: float, env: float) -> tuple[float, float]:
         s = self._s
-        if not env > 0.0:
-            u = 0.0
-        elif cmu > 0.0 and not s[1] > 0.0:
-            u = env
-        else:
-            u = s[0]
+        u = onset_value(s[0], s[1], cmu, env)
         s[0] = u
         s[1] = cmu
         return cmu, u
@@ -106,7 +101,4 @@ class OnsetHold(InputStage):
         return self._s.copy()
 
     def set_state(self, state: np.ndarray) -> None:
-        s = np.asarray(state, dtype=float)
-        if s.shape != (2,):
-            raise ValueError(f"onset_hold state must have shape (2,), got {s.shape}")
-        self._s[:] = s
+        self._s[:] = _state_shaped(state, self.name, 2)

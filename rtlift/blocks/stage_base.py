@@ -146,3 +146,12 @@ def _finite(value: float, what: str) -> float:
     if not math.isfinite(v):
         raise ValueError(f"{what} must be a finite number, got {value}")
     return v
+
+
+def _state_shaped(state: np.ndarray, name: str, size: int) -> np.ndarray:
+    """``state`` as float64 when it has shape (``size``,), else a ValueError naming stage ``name``
+    (each stage's ``set_state`` check)."""
+    s = np.asarray(state, dtype=float)
+    if s.shape != (size,):
+        raise ValueError(f"{name} state must have shape ({size},), got {s.shape}")
+    return s

@@ -11,7 +11,8 @@ its batch twin; both carry one explicit state.
 
 The hot path is compiled (:mod:`rtlift.blocks.compiled`, numba) for every model whose
 nonlinearity has a compiled form (``input_gain``, ``output``) and whose input stages are at most
-one ``delay`` followed by at most one ``actuator_fade``, with any output stages
+one ``delay`` followed by at most one ``actuator_fade`` (and at most one ``onset_hold`` before,
+between or after them), with any output stages
 (``sensor_resonance``, ``zero_drift``, ``periodic_disturbance``, in their state-space form,
 :mod:`rtlift.blocks.compiled_stages`): the paper's model, a model as ``rtlift identify`` writes
 it, and what ``rtlift diagnose`` (or ``--adapt``) makes of it by adding those effects; and for
@@ -120,35 +121,55 @@ class HybridModel(BlockChain):
 
     def _input_state(self, stages: tuple[InputStage, ...]) -> tuple[np.ndarray, ...] | None:
         """The compiled step's input-stage arrays when ``stages`` is at most one ``delay`` followed
-        by at most one ``actuator_fade`` or one ``onset_hold``: the delay's rings and position, then
-        the fade's (or the hold's) parameters and state (zeros, "no stage", without one); else None."""
-        rest = list(stages)
-        delay: tuple[np.ndarray, ...] = (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
-        if rest and type(rest[0]) is Delay:
-            delay = rest.pop(0).kernel_arrays()[1]
-        faded: tuple[np.ndarray, ...] = (np.zeros(5), np.zeros(1))
-        if rest and type(rest[0]) is ActuatorFade:
-            (fpar,), (fstate,) = rest.pop(0).kernel_arrays()
-            faded = (fpar, fstate)
-        elif rest and type(rest[0]) is OnsetHold:       # in the fade's slot (rtlift.blocks.onset_hold)
-            (fpar,), (fstate,) = rest.pop(0).kernel_arrays()
-            faded = (fpar, fstate)
-        if rest:
+        by at most one ``actuator_fade``, with at most one ``onset_hold`` before, between or after
+        them: the delay's rings and position, then the fade's parameters and state (zeros, "no
+        stage", without one); else None. The hold's place: :meth:`_hold_place`."""
+        if self._hold_place(stages) is None:
             return None
+        delay: tuple[np.ndarray, ...] = (np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64))
+        faded: tuple[np.ndarray, ...] = (np.zeros(5), np.zeros(1))
+        for st in stages:
+            if type(st) is Delay:
+                delay = st.kernel_arrays()[1]
+            elif type(st) is ActuatorFade:
+                (fpar,), (fstate,) = st.kernel_arrays()
+                faded = (fpar, fstate)
         return (*delay, *faded)
+
+    @staticmethod
+    def _hold_place(stages: tuple[InputStage, ...]) -> float | None:
+        """Where the compiled step runs the ``onset_hold`` stage among ``stages`` (at most one
+        ``delay`` followed by at most one ``actuator_fade``, at most one hold anywhere among
+        them): 0 without one, else :data:`~rtlift.blocks.compiled_stages.HOLD_FIRST`,
+        ``HOLD_AFTER_DELAY`` or ``HOLD_AFTER_FADE``; None for any other list (not compiled)."""
+        from rtlift.blocks.compiled_stages import HOLD_AFTER_DELAY, HOLD_AFTER_FADE, HOLD_FIRST
+
+        rest = list(stages)
+        place = 0.0
+        for kind, after in ((None, HOLD_FIRST), (Delay, HOLD_AFTER_DELAY), (ActuatorFade, HOLD_AFTER_FADE)):
+            if kind is not None and rest and type(rest[0]) is kind:
+                rest.pop(0)
+            if not place and rest and type(rest[0]) is OnsetHold:
+                rest.pop(0)
+                place = after
+        return None if rest else place
 
     def _with_stages(self, par: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``par`` followed by the output stages' and the hysteresis factor's parameters
         (:func:`~rtlift.blocks.compiled_stages.with_outputs`), and the stages' one state array
         (:func:`~rtlift.blocks.compiled_stages.bind_stage_states`: the fade's clock, the factor's
-        [h, s, p], the output stages' states), each stage's own state a view into it."""
+        [h, s, p], the output stages' states, the ``onset_hold`` stage's), each stage's own state
+        a view into it; the hold's place in the packed array (:meth:`_hold_place`)."""
         from rtlift.blocks.compiled_stages import bind_stage_states, with_outputs
 
         nl = self.wiener.nonlinearity
         memory = nl if hasattr(nl, "memory_arrays") else None        # the hysteresis factor
         fade = next((st for st in self.input_stages if type(st) is ActuatorFade), None)
-        return (with_outputs(par, self.output_stages, None if memory is None else memory.memory_arrays()[0]),
-                bind_stage_states(fade, memory, self.output_stages))
+        hold = next((st for st in self.input_stages if type(st) is OnsetHold), None)
+        place = self._hold_place(tuple(st for st in self.input_stages if type(st) is not DeliveredEnvelope))
+        return (with_outputs(par, self.output_stages, None if memory is None else memory.memory_arrays()[0],
+                             place or 0.0),
+                bind_stage_states(fade, memory, self.output_stages, hold))
 
     def _bind_hybrid(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
         """The paper's structure: at most one input ``delay``, then at most one ``actuator_fade``;
