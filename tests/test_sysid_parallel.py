@@ -86,3 +86,17 @@ def test_identify_output_dynamics_is_bit_for_bit_the_one_core_model(monkeypatch)
     one = identify_siso(rec, "wiener_hammerstein", options=opt).to_dict()
     assert both == one
     assert both["provenance"]["splits_refined"] >= 1
+
+
+def test_two_lanes_gives_the_serial_results_and_exceptions_in_order():
+    parent = os.getpid()
+    tasks = [lambda: (os.getpid() != parent, _residual(_points()[0])),      # the child's lane
+             lambda: _residual(_points()[1]),
+             lambda: np.linalg.cholesky(-np.eye(2))]                          # a LinAlgError (a ValueError)
+    first, second, third = parallel.two_lanes(tasks)
+    assert first[0] is True and np.array_equal(first[1], _residual(_points()[0]))
+    assert np.array_equal(second, _residual(_points()[1]))
+    assert isinstance(third, np.linalg.LinAlgError)
+    # a result the child cannot send back (a lambda does not pickle): the task is run here instead
+    lone = parallel.two_lanes([lambda: (os.getpid(), lambda: 0), lambda: 1])
+    assert lone[0][0] == parent and lone[1] == 1

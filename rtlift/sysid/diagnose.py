@@ -61,6 +61,7 @@ from rtlift.residual.stats import TestResult, higher_order, input_crosscorr, whi
 from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions
 from rtlift.sysid.identify import identify_siso
 from rtlift.sysid.initial import initial_state
+from rtlift.sysid.parallel import two_lanes
 
 HOW = {e.name: e.how for e in STRUCTURES}
 """How each structure (:mod:`rtlift.effects`) is fitted, for the report."""
@@ -213,6 +214,7 @@ class GenericCandidates:
                 self._fits[SATURATION.name] = lambda: _best_saturated(train, validate, self.vskip, options,
                                                                       self.limits, init_state)
         self.order = tuple(self._fits)
+        self._fitted: dict[str, Any] | None = None
         self.not_built: list[str] = []   # none today: a limit on the input is the Wiener map's own saturation
         self.scoring = (f"free run over whole records from the state estimated on the first {skip} samples, "
                         "which are unscored (rtlift validate --skip --init-state)" if init_state else
@@ -230,10 +232,13 @@ class GenericCandidates:
     def fit(self, name: str, parent: Node, search: Search) -> tuple[SisoModel, SisoModel] | str:
         """The structure re-identified whole (``parent`` is the model: one member each); a
         structure the data cannot be fitted in says why, not fatal."""
-        try:
-            model = self._fits[name]()
-        except ValueError as exc:
-            return str(exc)
+        if self._fitted is None:            # every structure is fitted alone (step 1): all at once, both cores
+            self._fitted = dict(zip(self._fits, two_lanes(list(self._fits.values())), strict=True))
+        model = self._fitted[name]
+        if isinstance(model, ValueError):
+            return str(model)
+        if isinstance(model, Exception):
+            raise model
         return model, model
 
     def excludes(self, name: str) -> tuple[str, ...]:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import inspect
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from multiprocessing.connection import Connection, Pipe
 from typing import Any
 
@@ -134,3 +134,46 @@ def least_squares(residual: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
         return optimize.least_squares(residual, x0, **options)
     with Halves(residual) as workers:
         return optimize.least_squares(residual, x0, workers=workers, **options)
+
+
+def _attempt(task: Callable[[], Any]) -> Any:
+    """``task()``, or the exception it raised (an Exception instance) as its result."""
+    try:
+        return task()
+    except Exception as exc:          # noqa: BLE001 - handed back to the caller, who decides
+        return exc
+
+
+def two_lanes(tasks: Sequence[Callable[[], Any]]) -> list[Any]:
+    """[task() for task in tasks] on both cores: the first task in a forked child, the others here
+    in turn (the diagnosis's candidate structures, each fitted whole and independent of the
+    others; the first is the longest). A task's exception is its result (the caller raises it or
+    not). The child computes what this process would (a copy of it, the same data and code), so
+    every result is the serial one; where no child can be started, or it fails or its result
+    cannot be sent back, the first task is run here after the others."""
+    if len(tasks) < 2 or not hasattr(os, "fork"):
+        return [_attempt(t) for t in tasks]
+    try:
+        mine, theirs = Pipe(duplex=False)
+        pid = os.fork()
+    except OSError:
+        return [_attempt(t) for t in tasks]
+    if pid == 0:                                            # pragma: no cover (child)
+        try:
+            mine.close()
+            theirs.send(_attempt(tasks[0]))
+        finally:
+            os._exit(0)
+    theirs.close()
+    rest = [_attempt(t) for t in tasks[1:]]
+    try:
+        first = mine.recv()
+    except (EOFError, OSError):
+        first = None
+    finally:
+        mine.close()
+        try:
+            os.waitpid(pid, 0)
+        except ChildProcessError:
+            pass
+    return [_attempt(tasks[0]) if first is None else first, *rest]
