@@ -75,9 +75,10 @@ def test_a_second_lead_lag_s_margins_are_the_loop_s_and_agree_with_its_sensitivi
             assert peak >= -20 * math.log10(abs(1 - 10 ** (db / 20))) - 0.01
         poles = ct.feedback(L, 1).poles()
         assert pt.stable == bool(np.all(np.abs(poles) < 1.0))
-        # C(Z) from its own frequency response and python-control's transfer function alike
+        # C(Z) and L(Z) from their own frequency responses and python-control's transfer functions alike
         z = np.exp(2j * np.pi * np.array([0.1, 0.7, 3.0]) * design.dt)
         np.testing.assert_allclose(pt.gains.response(z), pt.gains.tf(design.dt)(z), rtol=1e-9)
+        np.testing.assert_allclose(pt.loop_response(np.array([0.1, 0.7, 3.0]), design.dt), L(z), rtol=1e-9)
 
 
 def test_an_unstable_second_lead_lag_is_found_unstable_by_both_pole_computations(cached):
@@ -90,26 +91,35 @@ def test_an_unstable_second_lead_lag_is_found_unstable_by_both_pole_computations
     assert any(v.startswith("closed loop unstable") for v in design.violations())
 
 
-def test_the_controller_streams_the_two_lead_lags_and_the_integral_the_design_analyses(model):
-    """One schedule row with a second lead–lag (K_x = 0), an estimate constant over each period: the
-    feedback v − r decided at each period is C(Z) applied to the periods' mean errors,
-    C(Z) = (K_p + K_i Z/(Z − 1)) g (Z − a)/(Z − b) g₂ (Z − c)/(Z − d), to 1e-12 (nothing saturates)."""
-    g = Gains(0.8, 50 / (400 * 0.2), 0.3, 0.55, 0.0, 0.45, 0.7)
-    row = (0.01, g.kp, 0.2, g.a, g.b, g.kx, g.c, g.d)
-    ctl = LiftController(model, ControlConfig(schedule=(row,)))
+def test_the_controller_streams_the_feedback_the_design_analyses(model):
+    """One schedule row with a second lead–lag F on the whole feedback, the estimate one value for 49
+    samples of each period and another on its last: the feedback v − r decided at each period is
+    K_A e_A + K_X e_X with e_A the period's mean error, e_X the latest one, K_A = C − K_x F, K_X = K_x F,
+    C = (K_p + K_i Z/(Z − 1)) g (Z − a)/(Z − b) F, F = g₂ (Z − c)/(Z − d), to 1e-12 (nothing saturates)."""
+    g = Gains(0.8, 50 / (400 * 0.2), 0.3, 0.55, 0.6, -0.5, 0.4)
+    ctl = LiftController(model, ControlConfig(schedule=((0.01, g.kp, 0.2, g.a, g.b, g.kx, g.c, g.d),)))
     rng = np.random.default_rng(3)
-    errs = 0.004 * rng.standard_normal(60)
+    e_body, e_last = 0.004 * rng.standard_normal((2, 60))
     ref, out = 0.08, []
-    for e in errs:
-        for _ in range(50):
-            ctl.step(ref - e, ref)
+    for eb, el in zip(e_body, e_last, strict=True):
+        for k in range(50):
+            ctl.step(ref - (eb if k < 49 else el), ref)
         assert ctl.updated and not ctl.saturated
         out.append(ctl.feedback_dcl)
-    ll_num, ll_den = g.lead_lag()          # equal degrees: the same coefficients in Z⁻¹
-    num = np.convolve([g.kp + g.ki, -g.kp], ll_num)
-    den = np.convolve([1.0, -1.0], ll_den)
-    want = lfilter(num, den, errs)
+    e_a, e_x = (49 * e_body + e_last) / 50, e_last
+    cv = np.convolve
+    g1, g2 = (1 - g.b) / (1 - g.a), (1 - g.d) / (1 - g.c)
+    f_num, f_den = g2 * np.array([1.0, -g.c]), np.array([1.0, -g.d])
+    c_num = cv(g1 * cv([g.kp + g.ki, -g.kp], [1.0, -g.a]), f_num)     # equal degrees: the same in Z⁻¹
+    den = cv(cv([1.0, -1.0], [1.0, -g.b]), f_den)
+    x_num = g.kx * cv(cv([1.0, -1.0], [1.0, -g.b]), f_num)
+    want = lfilter(c_num - x_num, den, e_a) + lfilter(x_num, den, e_x)
+    assert np.max(np.abs(want)) > 0.003
     np.testing.assert_allclose(out, want, rtol=0, atol=1e-12)
+    z = np.exp(2j * np.pi * np.array([0.1, 1.0, 4.0]) * 0.125)
+    ka, kx = g.parts(z)                 # the design's K_A, K_X are the same filters
+    np.testing.assert_allclose(ka, np.polyval(c_num - x_num, z) / np.polyval(den, z), rtol=1e-12)
+    np.testing.assert_allclose(kx, np.polyval(x_num, z) / np.polyval(den, z), rtol=1e-12)
 
 
 def test_six_column_rows_and_eight_with_no_second_lead_lag_decide_the_same_envelopes(model):

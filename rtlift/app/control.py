@@ -12,12 +12,14 @@ concave and saturating. :class:`LiftController` implements
 
 with ``ē`` the tracking error ``r − ΔĈL`` averaged over one burst period (the ripple's
 period, so the average removes it), ``ē_f`` it through the lead–lag ``g (Z − a)/(Z − b)``
-at the burst rate (none when a = b = 0) and, in the ``pi2`` structure, a second one
-``g₂ (Z − c)/(Z − d)``, g₂ = (1 − d)/(1 − c) (none when c = d = 0), ``r`` the reference and ``I`` the integral of
+at the burst rate (none when a = b = 0), ``r`` the reference and ``I`` the integral of
 ``(T / T_i) ē_f``. The ``K_x`` term acts on the latest estimate's departure from the period's
 mean: half a period fresher than the mean, it buys phase; the burst ripple's part of it is a
 constant at the fixed burst phase of the decisions, which the integral (on the mean only)
-absorbs, so the mean still tracks ``r`` exactly. ``rtlift control`` takes (K_p, T_i, a, b) from the design made with
+absorbs, so the mean still tracks ``r`` exactly. In the ``pi2`` structure a second lead–lag
+``g₂ (Z − c)/(Z − d)``, g₂ = (1 − d)/(1 − c), filters the whole feedback: both its inputs, ``ē``
+before the first lead–lag and ``ΔĈL_mean − ΔĈL_last`` before ``K_x`` (none when c = d = 0).
+``rtlift control`` takes (K_p, T_i, a, b) from the design made with
 python-control on the identified model (:mod:`rtlift.app.control_design`), scheduled over
 Cμ; the hand-set PI below (K_p 0.5, T_i 0.25 s, no lead) is what ``--kp``/``--ti`` replace.
 With the feedback off, ``u = S⁻¹(r)``: pure feedforward through the
@@ -96,8 +98,8 @@ class ControlConfig:
     ``kx`` the gain on the latest estimate's departure from the period's mean (0: none),
     ``schedule`` rows ``(Cμ, kp, ti_s, a, b, kx)`` in increasing Cμ that replace the five by
     their interpolation at the feedforward's Cμ (:mod:`rtlift.app.control_design` designs them),
-    or ``(Cμ, kp, ti_s, a, b, kx, c, d)`` with a second lead–lag g₂ (Z − c)/(Z − d) after the first
-    (the ``pi2`` structure; a 6-column row has c = d = 0, no second lead–lag),
+    or ``(Cμ, kp, ti_s, a, b, kx, c, d)`` with a second lead–lag g₂ (Z − c)/(Z − d) on the whole
+    feedback (the ``pi2`` structure; a 6-column row has c = d = 0, no second lead–lag),
     ``feedback``, ``cmu_max`` the top of the identified static map (Cμ: the feedforward's and the
     design's range), ``cmu_reach`` how far the feedback may drive the envelope (Cμ, the actuator's
     own limit :data:`ACTUATOR_CMU_LIMIT`; beyond ``cmu_max`` through the model's map extrapolated),
@@ -298,9 +300,14 @@ class LiftController:
         """The last decision's feedback v − r (ΔCL, after the limits)."""
         self._filtered = 0.0
         """The lead–lags' output (ΔCL), what the PI acts on."""
-        self._lead1 = 0.0
-        """The first lead–lag's output (ΔCL), the second's input (equal to ``_filtered`` without one)."""
         self._last_err = 0.0
+        """The first lead–lag's last input (ΔCL)."""
+        self._e2 = 0.0
+        """The second lead–lag's output on the mean error (ΔCL; the mean error itself without one)."""
+        self._last_e = 0.0
+        self._x2 = 0.0
+        """The second lead–lag's output on ΔĈL_mean − ΔĈL_last (ΔCL; that difference without one)."""
+        self._last_x = 0.0
         self._point = 0.0
         self._start_period()
         nq, npl = (len(self._taps[0]), len(self._taps[2])) if getattr(self, "_taps", None) else (0, 0)
@@ -374,12 +381,17 @@ class LiftController:
             if self._rows:
                 self._schedule_at(self.feedforward)
             e = self._err_sum / self._n
-            lead1 = self._b * self._lead1 + self._g * (e - self._a * self._last_err)
-            err = self._d * self._filtered + self._g2 * (lead1 - self._c * self._lead1)
+            e2 = self._d * self._e2 + self._g2 * (e - self._c * self._last_e)     # e itself when c = d = 0
+            self._e2 = e2
+            self._last_e = e
+            err = self._b * self._filtered + self._g * (e2 - self._a * self._last_err)
             self._filtered = err
-            self._lead1 = lead1
-            self._last_err = e
-            fast = self.kx * (self._est_sum / self._n - self._point)
+            self._last_err = e2
+            x = self._est_sum / self._n - self._point
+            x2 = self._d * self._x2 + self._g2 * (x - self._c * self._last_x)
+            self._x2 = x2
+            self._last_x = x
+            fast = self.kx * x2
             v = ref + self.kp * err + fast + self.integral
             lo, hi = self.dcl_min, self.dcl_reach
             pushing_high = v >= hi and err > 0.0

@@ -134,9 +134,10 @@ on plant draws 101 and 110 (reporting draws: the value is kept because the calib
 it) (the peak sits at 4 Hz, where the interpolated lead-lag and K_x do not add up to
 either neighbour's); a half-way point still over is designed and joins the schedule. 0.3 dB
 cost the bench model's predicted band 0.05 Hz (0.27–0.33 Hz)."""
-BOUNDS_LEAD2 = ((-0.9, 0.95), (0.0, 0.95))
-"""Search box of the ``pi2`` structure's second lead–lag (c, d): the same as the first's (a, b), for
-the same reason (the pole d on the positive axis)."""
+BOUNDS_LEAD2 = ((-0.95, 0.95), (0.0, 0.95))
+"""Search box of the ``pi2`` structure's second lead–lag F (c, d): as the first's (a, b), the pole d
+on the positive axis for the same reason; the zero c may reach −0.95 (towards Z = −1: F rolls the
+whole feedback off at 4 Hz, where the PI's |S| peak sits on calibration draws 1–3)."""
 HAND_START = (0.5, 0.5, 0.0, 0.0, 0.0)
 """Where the search starts at the first operating point: the hand-set PI (K_p 0.5, T_i 0.25 s)."""
 NYQUIST_GAIN_MAX = 2.0
@@ -232,9 +233,11 @@ def uncertainty_from_model(model: Any) -> Uncertainty:
 
 @dataclass(frozen=True)
 class Gains:
-    """C(Z) = (kp + ki Z/(Z − 1)) · g (Z − a)/(Z − b) · g₂ (Z − c)/(Z − d) and K_x (module docstring),
-    ΔCL per ΔCL; g = (1 − b)/(1 − a), g₂ = (1 − d)/(1 − c) (unit gain at Z = 1). c = d = 0: no second
-    lead–lag (the ``pi`` structure); the ``pi2`` structure searches them too."""
+    """C(Z) = (kp + ki Z/(Z − 1)) · g (Z − a)/(Z − b) · F(Z) and K_x (module docstring), ΔCL per ΔCL,
+    with F(Z) = g₂ (Z − c)/(Z − d) a second lead–lag on the whole feedback (the ``pi2`` structure):
+    v − r = C e_A + K_x F (e_X − e_A), so K_A = C − K_x F, K_X = K_x F and L = F · (C₁ P_A + K_x (P_X − P_A)),
+    C₁ = C/F; g = (1 − b)/(1 − a), g₂ = (1 − d)/(1 − c) (unit gain at Z = 1). c = d = 0: F = 1 (the
+    ``pi`` structure)."""
 
     kp: float
     ki: float
@@ -244,38 +247,46 @@ class Gains:
     c: float = 0.0
     d: float = 0.0
 
-    def lead_lag(self) -> tuple[np.ndarray, np.ndarray]:
-        """(numerator, denominator) of g (Z − a)/(Z − b) · g₂ (Z − c)/(Z − d), descending powers of Z."""
-        g = (1.0 - self.b) / (1.0 - self.a) * (1.0 - self.d) / (1.0 - self.c)
-        return g * np.convolve([1.0, -self.a], [1.0, -self.c]), np.convolve([1.0, -self.b], [1.0, -self.d])
+    def lead2(self, z: np.ndarray) -> np.ndarray | float:
+        """F(z) = g₂ (z − c)/(z − d) (1.0 without the second lead–lag: the PI's numbers exactly)."""
+        if not (self.c or self.d):
+            return 1.0
+        return (1.0 - self.d) / (1.0 - self.c) * (z - self.c) / (z - self.d)
+
+    def lead2_tf(self, dt: float) -> Any:
+        """F(Z) as a python-control transfer function (1 without the second lead–lag)."""
+        import control as ct
+
+        g2 = (1.0 - self.d) / (1.0 - self.c)
+        return ct.tf([g2, -g2 * self.c], [1.0, -self.d], dt) if (self.c or self.d) else 1.0
 
     def tf(self, dt: float) -> Any:
         """C(Z) as a python-control transfer function with sample time ``dt``."""
         import control as ct
 
-        num, den = self.lead_lag()
-        return (self.kp + self.ki * ct.tf([1.0, 0.0], [1.0, -1.0], dt)) * ct.tf(num, den, dt)
+        g = (1.0 - self.b) / (1.0 - self.a)
+        return ((self.kp + self.ki * ct.tf([1.0, 0.0], [1.0, -1.0], dt)) * ct.tf([g, -g * self.a], [1.0, -self.b], dt)
+                * self.lead2_tf(dt))
 
     def response(self, z: np.ndarray) -> np.ndarray:
         """C(z) at the points ``z``."""
         g = (1.0 - self.b) / (1.0 - self.a)
-        out = (self.kp + self.ki * z / (z - 1.0)) * g * (z - self.a) / (z - self.b)
-        if self.c or self.d:                 # the second lead–lag (none: the PI's numbers exactly)
-            out = out * (1.0 - self.d) / (1.0 - self.c) * (z - self.c) / (z - self.d)
-        return out
+        return (self.kp + self.ki * z / (z - 1.0)) * g * (z - self.a) / (z - self.b) * self.lead2(z)
 
     def parts(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(K_A, K_X) at the points ``z``: v − r = K_A e_A + K_X e_X with K_A = C − K_x, K_X = K_x."""
-        return self.response(z) - self.kx, np.full(np.shape(z), self.kx, dtype=complex)
+        """(K_A, K_X) at the points ``z``: v − r = K_A e_A + K_X e_X with K_A = C − K_x F, K_X = K_x F."""
+        kx = self.kx * self.lead2(z) * np.ones(np.shape(z), dtype=complex)
+        return self.response(z) - kx, kx
 
     def loop_response(self, z: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """L(z) = C P_A + K_x (P_X − P_A) at the points ``z``."""
+        """L(z) = C P_A + K_x F (P_X − P_A) at the points ``z``."""
         pa, px = plant_response(p, z), plant_response(q, z)
-        return self.response(z) * pa + self.kx * (px - pa)
+        return self.response(z) * pa + self.kx * self.lead2(z) * (px - pa)
 
     def nyquist_gain(self) -> float:
-        """|C(−1) − K_x| + |K_x|: the gain from the estimate to ``v`` at 4 Hz, bounded."""
-        return float(abs(self.response(np.array([-1.0 + 0j]))[0] - self.kx) + abs(self.kx))
+        """|K_A(−1)| + |K_X(−1)|: the gain from the estimate to ``v`` at 4 Hz, bounded."""
+        ka, kx = self.parts(np.array([-1.0 + 0j]))
+        return float(abs(ka[0]) + abs(kx[0]))
 
     def stable(self, p: np.ndarray, q: np.ndarray) -> bool:
         """Closed-loop poles inside the unit circle (:func:`_stable`)."""
@@ -685,9 +696,9 @@ def plant_tf(p: list[float] | np.ndarray, dt: float) -> Any:
 
 
 def loop_tf(g: Gains, p: list[float] | np.ndarray, q: list[float] | np.ndarray, dt: float) -> Any:
-    """L(Z) = C P_A + K_x (P_X − P_A) as a python-control transfer function."""
+    """L(Z) = C P_A + K_x F (P_X − P_A) as a python-control transfer function (:class:`Gains`)."""
     pa, px = plant_tf(p, dt), plant_tf(q, dt)
-    return g.tf(dt) * pa + g.kx * (px - pa)
+    return g.tf(dt) * pa + g.kx * g.lead2_tf(dt) * (px - pa)
 
 
 def plant_response(p: list[float] | np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -792,18 +803,19 @@ def _first_crossing(f: np.ndarray, s: np.ndarray, level: float) -> float:
 
 def _stable(g: Gains, p: np.ndarray, q: np.ndarray) -> bool:
     """Closed-loop poles inside the unit circle: the roots of
-    D_C Z^{n−1} + N_C Σ p_j Z^{n−1−j} + K_x D_C Σ (q_j − p_j) Z^{n−1−j},  C = N_C / D_C
-    (coefficients in descending powers; ``np.convolve`` is polynomial multiplication; D_C of degree
-    2 or, with the second lead–lag, 3)."""
+    D Z^{n−1} + N_C Σ p_j Z^{n−1−j} + K_x N_F D_1 Σ (q_j − p_j) Z^{n−1−j},
+    C = N_C / D = (N_1/D_1)(N_F/D_F), D = D_1 D_F, F = N_F/D_F (1/1 without the second lead–lag)
+    (coefficients in descending powers; ``np.convolve`` is polynomial multiplication)."""
     n = len(p)
-    ll_num, ll_den = g.lead_lag()
-    if not (g.c or g.d):                                 # no second lead–lag: D_C of degree 2
-        ll_num, ll_den = ll_num[:2], ll_den[:2]
-    c_num = np.convolve([g.kp + g.ki, -g.kp], ll_num)
-    c_den = np.convolve([1.0, -1.0], ll_den)
+    gain = (1.0 - g.b) / (1.0 - g.a)
+    c_num = gain * np.convolve([g.kp + g.ki, -g.kp], [1.0, -g.a])
+    d_1 = np.convolve([1.0, -1.0], [1.0, -g.b])
+    f_num, f_den = ((1.0 - g.d) / (1.0 - g.c) * np.array([1.0, -g.c]), np.array([1.0, -g.d])) if (g.c or g.d) \
+        else (np.ones(1), np.ones(1))
+    c_num, c_den = np.convolve(c_num, f_num), np.convolve(d_1, f_den)
     char = np.zeros(n + c_den.size - 1)
-    char[:c_den.size] += c_den                           # D_C Z^{n−1}
-    char += np.convolve(c_num, p) + np.convolve(c_den, g.kx * (q - p))   # every term of degree n + deg D_C − 1
+    char[:c_den.size] += c_den                           # D Z^{n−1}
+    char += np.convolve(c_num, p) + np.convolve(np.convolve(d_1, f_num), g.kx * (q - p))   # all of degree n + deg D − 1
     return bool(np.all(np.abs(np.roots(char)) < 1.0 - 1e-9))
 
 
@@ -844,10 +856,10 @@ def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed
         g = Gains(*map(float, x))
         if not _stable(g, p, q):
             return 0.0, 100.0
-        c = g.response(z)
-        L = c * pa + g.kx * dx                       # L = C P_A + K_x (P_X − P_A)
+        c, kx = g.response(z), g.kx * g.lead2(z)    # K_X = K_x F (F = 1 but in the pi2 structure)
+        L = c * pa + kx * dx                         # L = C P_A + K_x F (P_X − P_A)
         s_o = (1.0 - fo * L / (1.0 + L) if gust is None
-               else 1.0 - gust * ((c - g.kx) * mean + g.kx) / (1.0 + L))
+               else 1.0 - gust * ((c - kx) * mean + kx) / (1.0 + L))
         m = loop_margins(f, L, s_o, weight)
         return m.f6_hz, _shortfall(m, targets, g.nyquist_gain())
 
