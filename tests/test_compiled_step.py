@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.blocks.delay import Delay
+from rtlift.blocks.onset_hold import OnsetHold
 from rtlift.blocks.periodic_disturbance import PeriodicDisturbance
 from rtlift.blocks.sensor_resonance import SensorResonance
 from rtlift.blocks.wiener import HysteresisGain, OutputHysteresis
@@ -31,12 +32,16 @@ from testkit.synthetic import (
 TOL = 1e-12
 
 
-def _stages(delay: int, fade: int) -> tuple:
+def _stages(delay: int, fade: int, hold: int = 0) -> tuple:
     """At most one ``delay`` of ``delay`` samples, then (``fade`` 1: on-time clock, 2: wall clock)
-    an ``actuator_fade`` whose time constant the test inputs reach: the compiled step's stages."""
+    an ``actuator_fade`` whose time constant the test inputs reach, and (``hold`` 1: first, 2:
+    after the delay, 3: after the fade) an ``onset_hold``: the compiled step's stages."""
     stages = (Delay(delay / FS, FS),) if delay else ()
     if fade:
         stages += (ActuatorFade(0.6, 0.05, FS, "on_time" if fade == 1 else "time"),)
+    if hold:
+        at = (0, len(stages) - (1 if fade else 0), len(stages))[hold - 1]
+        stages = (*stages[:at], OnsetHold(FS), *stages[at:])
     return stages
 
 
@@ -78,13 +83,13 @@ hysteresis_kinds = st.integers(0, 2)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), kernel_len=st.integers(1, 60),
        order=st.integers(1, 3), hp_order=st.integers(1, 4), output_form=st.booleans(),
        delay=st.integers(0, 5), fade=st.integers(0, 2), warm=st.integers(0, 50), outputs=output_picks,
-       hysteresis=hysteresis_kinds)
+       hysteresis=hysteresis_kinds, hold=st.integers(0, 3))
 def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_order, output_form, delay, fade, warm,
-                                             outputs, hysteresis):
+                                             outputs, hysteresis, hold):
     """(ΔCL, ΔCL_H, ΔCL_L) and the state after the steps agree to 1e-12, from any starting state."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
-    m.input_stages = _stages(delay, fade)
+    m.input_stages = _stages(delay, fade, hold)
     m.output_stages = _outputs(outputs)
     _hysteresis(m, hysteresis)
     assert m.compiled
@@ -94,12 +99,12 @@ def test_compiled_step_equals_reference_step(seed, n, kernel_len, order, hp_orde
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), cut=st.integers(0, 200), delay=st.integers(0, 3), fade=st.integers(0, 2),
-       outputs=output_picks, hysteresis=hysteresis_kinds)
-def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay, fade, outputs, hysteresis):
+       outputs=output_picks, hysteresis=hysteresis_kinds, hold=st.integers(0, 3))
+def test_compiled_state_round_trips_through_get_and_set_state(seed, cut, delay, fade, outputs, hysteresis, hold):
     """Stop anywhere, checkpoint, restore into a fresh model: the rest of the record is identical."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=25, order=2)
-    m.input_stages = _stages(delay, fade)
+    m.input_stages = _stages(delay, fade, hold)
     m.output_stages = _outputs(outputs)
     _hysteresis(m, hysteresis)
     cmu, env = burst_input(rng, 200)
@@ -204,16 +209,17 @@ def test_integer_and_numpy_scalar_inputs_give_the_float_result():
 @given(seed=st.integers(0, 2**32 - 1), cuts=st.lists(st.integers(0, 400), min_size=2, max_size=2),
        kernel_len=st.integers(1, 60), order=st.integers(1, 3), hp_order=st.integers(1, 4),
        output_form=st.booleans(), delay=st.integers(0, 5), fade=st.integers(0, 2), outputs=output_picks,
-       hysteresis=hysteresis_kinds)
+       hysteresis=hysteresis_kinds, hold=st.integers(0, 3))
 def test_compiled_batch_continues_the_steps_seamlessly(seed, cuts, kernel_len, order, hp_order, output_form, delay,
-                                                       fade, outputs, hysteresis):
+                                                       fade, outputs, hysteresis, hold):
     """Stream, batch (the fused compiled loop), stream again: (ΔCL, ΔCL_H, ΔCL_L) and the state
     after each part equal the steps alone to 1e-12, batches shorter and longer than the kernel."""
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=kernel_len, order=order, hp_order=hp_order, output_form=output_form)
-    m.input_stages = _stages(delay, fade)
+    m.input_stages = _stages(delay, fade, hold)
     m.output_stages = _outputs(outputs)
     _hysteresis(m, hysteresis)
+    assert m.compiled
     cmu, env = burst_input(rng, 450)
     a, b = sorted(cuts)
     expect = step_rows(m.step, cmu, env)

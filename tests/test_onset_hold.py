@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import pickle
+from importlib.resources import files
 
 import numpy as np
 import pytest
@@ -193,3 +194,36 @@ def test_the_bench_model_with_the_hold_is_compiled_and_refused_by_the_c_export()
     assert m.compiled and Observer.from_model(m).compiled
     with pytest.raises(ExportError, match="onset_hold"):
         bound_observer(m)
+
+
+@pytest.mark.parametrize("path", [*sorted(str(p) for p in (files("tests") / "data").iterdir()
+                                          if p.name.endswith(".json") and ".design-" not in p.name),
+                                  str(files("rtlift") / "data" / "paper_model.json")])
+def test_model_files_load_and_their_compiled_step_and_batch_equal_the_reference(path):
+    """The model files (tests/data and the package's paper model, written before the hold had a
+    slot of its own) load as they were: compiled, no hold in their packed parameters (place 0, no
+    hold state), and step and batch equal to the reference step (which no packing touches) to
+    1e-12; with the hold after their stages the same holds, and the hold's state is the model's."""
+    from rtlift.blocks.compiled_stages import HOLD
+    from rtlift.model.modelfile import load_model
+
+    base = load_model(path, allow_unstable=True)
+    cmu, env = _bursts(np.random.default_rng(2), 1170, offset=5, off_runs=False)     # its envelope > 0 after 1000
+    for m in (base, base.with_stages(input_stages=(OnsetHold(base.fs_hz),))):
+        assert m.compiled
+        par, sstate = m._kernel[1][0], m._kernel[1][5]        # (par, d_cmu, d_env, d_pos, fpar, sstate, ...)
+        hold = any(type(st) is OnsetHold for st in m.input_stages)
+        assert par[par.size - HOLD] == (0.0 if m is base else 2.0 if base.input_stages else 1.0)
+        assert sstate.size == 4 + sum(st.state_size for st in m.output_stages) + 2 * hold
+        assert_step_equals_reference(m, cmu, env, 200, TOL)
+        if hold:
+            np.testing.assert_array_equal(m.input_stages[-1].get_state(), sstate[-2:])
+            assert m.input_stages[-1].get_state()[0] > 0.0        # an envelope held since the last onset
+        m.reset()                       # the batch against the reference step (the paper model integrates
+        step_rows(m.reference_step, cmu[:200], env[:200])   # without bound: its numpy chain's rounding grows)
+        start = m.get_state()
+        fused = np.array(m.simulate(cmu[200:], env[200:]))
+        after = m.get_state()
+        m.set_state(start)
+        np.testing.assert_allclose(fused, step_rows(m.reference_step, cmu[200:], env[200:]), atol=TOL, rtol=0)
+        np.testing.assert_allclose(after, m.get_state(), atol=TOL, rtol=1e-12)
