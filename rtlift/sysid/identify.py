@@ -177,19 +177,29 @@ class _Dims:
         return np.concatenate(parts)
 
 
-def _simulate_basis(dims: _Dims, th: np.ndarray, runs: _Runs, count: int):
+def _simulate_basis(dims: _Dims, th: np.ndarray, runs: _Runs, count: int, memo: dict | None = None):
     """Φ of ``count`` knots at x's quantiles, filtered by G₂ (if any), and the knots; every run
-    from rest. ValueError where x = G₁u is not finite or takes a single value (no map on it)."""
+    from rest. ValueError where x = G₁u is not finite or takes a single value (no map on it).
+    ``memo``: the last G₁'s unfiltered Φ and knots, kept there (x depends on G₁'s parameters
+    alone: the Jacobian's columns of G₂'s parameters share them; the same arrays, not a new
+    computation of them)."""
     b1, a1, b2, a2 = dims.build(th)
-    x = runs.lfilter(b1, a1, runs.u)
-    if not np.all(np.isfinite(x)):
-        raise ValueError("the linear block's output is not finite")
-    knots = np.unique(np.quantile(x, np.linspace(0.002, 0.998, count)))
-    if knots.size < 2:
-        knots = np.unique([x.min(), x.max()])
+    key = (th[:dims.n1 + dims.m1].tobytes(), count)
+    if memo is not None and key in memo:
+        phi, knots = memo[key]
+    else:
+        x = runs.lfilter(b1, a1, runs.u)
+        if not np.all(np.isfinite(x)):
+            raise ValueError("the linear block's output is not finite")
+        knots = np.unique(np.quantile(x, np.linspace(0.002, 0.998, count)))
         if knots.size < 2:
-            raise ValueError("the linear block's output is constant: no static map can be fitted on it")
-    phi = _extrapolated_hat_basis(x, knots)
+            knots = np.unique([x.min(), x.max()])
+            if knots.size < 2:
+                raise ValueError("the linear block's output is constant: no static map can be fitted on it")
+        phi = _extrapolated_hat_basis(x, knots)
+        if memo is not None:
+            memo.clear()
+            memo[key] = (phi, knots)
     if b2 is not None:
         # column by column in Fortran order: the same numbers as on the row-major array, in half the time
         phi = runs.lfilter(b2, a2, np.asfortranarray(phi))
@@ -308,10 +318,11 @@ def _splits(b: np.ndarray, a: np.ndarray):
 def _refine(dims: _Dims, th0: np.ndarray, runs: _Runs, max_nfev: int, knots: int,
             limits: Limits = NO_LIMITS) -> np.ndarray:
     bad = _penalty(runs)
+    memo: dict | None = {} if dims.n2 + dims.m2 else None      # G₂'s columns of the Jacobian share G₁'s basis
 
     def res(th: np.ndarray) -> np.ndarray:
         try:
-            phi, _ = _simulate_basis(dims, th, runs, knots)
+            phi, _ = _simulate_basis(dims, th, runs, knots, memo)
         except ValueError:
             return bad
         r = _residual(phi, runs, limits)
