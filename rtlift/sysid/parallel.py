@@ -1,4 +1,10 @@
-"""Both cores for a finite-difference Jacobian, the same numbers as one core.
+"""Both cores for the identification and the diagnosis, the same numbers as one core.
+
+Two uses, each bit for bit the serial computation (a forked copy of this process runs the
+same code on the same data with the same BLAS settings): :func:`least_squares`, a refinement
+whose finite-difference Jacobian's evaluations are shared with a child (:class:`Halves`, below),
+and :func:`two_lanes`, independent whole fits (the diagnosis's candidate structures) run two at
+a time.
 
 The refinements of :mod:`.identify` spend most of their time in scipy's finite-difference
 Jacobian (``least_squares(jac="2-point")``): one simulation of the whole cost record per
