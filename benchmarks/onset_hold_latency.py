@@ -13,21 +13,17 @@ that takes the reference step gets only the reference step's median and p99 (µs
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
-
-import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit  # noqa: E402
-from benchmarks.step_latency import _latency, measure  # noqa: E402
+from benchmarks.step_latency import _latency, arguments, benchmark_case, measure  # noqa: E402
 from rtlift.blocks.actuator_fade import ActuatorFade  # noqa: E402
 from rtlift.blocks.delay import Delay  # noqa: E402
 from rtlift.blocks.onset_hold import OnsetHold  # noqa: E402
 from rtlift.core.rate import FS_HZ  # noqa: E402
-from testkit.synthetic import burst_input, make_model  # noqa: E402
 
 ORDERS = {"delay_hold": "DH", "delay_hold_fade": "DHF", "delay_fade": "DF"}
 
@@ -40,16 +36,9 @@ def _stages(order: str) -> tuple:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--minutes", type=float, default=2.0, help="record length for the throughput test")
-    ap.add_argument("--steps", type=int, default=20_000, help="timed single steps (each path)")
-    args = ap.parse_args()
-
-    rng = np.random.default_rng(0)
-    base = make_model(rng, kernel_len=300, order=2, hp_order=2)
-    n = int(args.minutes * 60 * FS_HZ)
-    cmu, env = burst_input(rng, n)
-    out: dict = {"samples": n, "kernel_len": 300}
+    args = arguments(__doc__.splitlines()[0], minutes=2.0, steps=20_000)
+    _, base, cmu, env = benchmark_case(args.minutes)
+    out: dict = {"samples": cmu.size, "kernel_len": 300}
     for name, order in ORDERS.items():
         model = base.copy()
         model.input_stages = _stages(order)

@@ -29,6 +29,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit, percentiles_us  # noqa: E402
 from rtlift.core.rate import FS_HZ  # noqa: E402
+from rtlift.model.hybrid import HybridModel  # noqa: E402
 from testkit.synthetic import burst_input, interaction_model, make_model, with_effects  # noqa: E402
 
 
@@ -88,16 +89,28 @@ def measure(model, cmu: np.ndarray, env: np.ndarray, steps: int) -> dict[str, fl
     }
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--minutes", type=float, default=10.0, help="record length for the throughput test")
-    ap.add_argument("--steps", type=int, default=50_000, help="timed single steps (each path)")
-    args = ap.parse_args()
-
+def benchmark_case(minutes: float) -> tuple[np.random.Generator, HybridModel, np.ndarray, np.ndarray]:
+    """The benchmark's random stream (seed 0), model (300-sample kernel, order-2 Wiener part and
+    high-pass) and ``minutes`` of burst input at 400 Hz (Cμ, Cμ_env), in that order of draws."""
     rng = np.random.default_rng(0)
     model = make_model(rng, kernel_len=300, order=2, hp_order=2)
-    n = int(args.minutes * 60 * FS_HZ)
-    cmu, env = burst_input(rng, n)
+    cmu, env = burst_input(rng, int(minutes * 60 * FS_HZ))
+    return rng, model, cmu, env
+
+
+def arguments(description: str, minutes: float = 10.0, steps: int = 50_000) -> argparse.Namespace:
+    """The command line of a latency benchmark: ``--minutes`` (record length for the throughput
+    test) and ``--steps`` (timed single steps, each path), with these defaults."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--minutes", type=float, default=minutes, help="record length for the throughput test")
+    ap.add_argument("--steps", type=int, default=steps, help="timed single steps (each path)")
+    return ap.parse_args()
+
+
+def main() -> None:
+    args = arguments(__doc__.splitlines()[0])
+    rng, model, cmu, env = benchmark_case(args.minutes)
+    n = cmu.size
     hybrid = measure(model, cmu, env, args.steps)
     inter = measure(interaction_model(rng, kernel_len=300, order=3, delay=2), cmu, env, args.steps)
     augmented = with_effects(interaction_model(np.random.default_rng(1), kernel_len=300, order=3, delay=2),
