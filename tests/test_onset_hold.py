@@ -17,7 +17,13 @@ from rtlift.blocks.delay import Delay
 from rtlift.blocks.onset_hold import OnsetHold
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.model.modelfile import model_from_dict, model_to_dict
-from testkit.synthetic import assert_batch_equals_reference, assert_step_equals_reference, make_model, step_rows
+from testkit.synthetic import (
+    assert_batch_equals_reference,
+    assert_step_equals_reference,
+    interaction_model,
+    make_model,
+    step_rows,
+)
 
 TOL = 1e-12
 PERIOD, WIDTH = 50, 4
@@ -132,6 +138,23 @@ def test_the_hold_changes_the_model_and_copies_keep_their_own_state():
     for t in twins:
         assert t.compiled
         np.testing.assert_allclose(step_rows(t.step, cmu[700:], env[700:]), rest, atol=TOL, rtol=0)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 300), warm=st.integers(0, 100), delay=st.integers(0, 3),
+       order=st.sampled_from(ORDERS))
+def test_the_interaction_structure_with_the_hold_equals_its_reference(seed, n, warm, delay, order):
+    """The ``interaction`` structure with the hold among a delay and a fade before its own
+    ``delivered_envelope``: compiled; step and batch equal the reference to 1e-12."""
+    rng = np.random.default_rng(seed)
+    m = interaction_model(rng, kernel_len=30, order=2)
+    own = m.input_stages[-1]
+    m.input_stages = (*_model(seed, delay, False, order)[0].input_stages, own)
+    assert m.compiled
+    cmu, env = _bursts(rng, n + warm, offset=int(rng.integers(0, PERIOD)))
+    assert_step_equals_reference(m, cmu, env, warm, TOL)
+    m.reset()
+    assert_batch_equals_reference(m, cmu, env, warm, TOL)
 
 
 def test_the_hold_runs_in_its_own_place_and_other_orders_take_the_reference_step():
