@@ -162,8 +162,9 @@ def hybrid_step(cmu, env, par, d_cmu, d_env, d_pos, fpar, sstate, buf, pos, z, x
     states in place (``par``: :func:`pack_parameters`, then the output stages',
     :func:`~rtlift.blocks.compiled_stages.with_outputs`). ``d_cmu``/``d_env`` are the ``delay``
     stage's rings (length D; empty: no delay), ``fpar`` the ``actuator_fade`` stage's parameters
-    after it and ``sstate`` its clock, then the output stages' states
-    (:func:`~rtlift.blocks.compiled_stages.bind_stage_states`).
+    after it and ``sstate`` its clock, then the output stages' states, then the ``onset_hold``
+    stage's (:func:`~rtlift.blocks.compiled_stages.bind_stage_states`; its place in ``par``'s tail,
+    :func:`~rtlift.blocks.compiled_stages._staged`).
     Form 0: ΔCL_L = N(Cμ_env) · y (paper, table held at its ends); 1: ΔCL_L = f(y) (textbook,
     table continued along its end segments). ΔCL is after the output stages, ΔCL_H and ΔCL_L
     before them.

@@ -7,7 +7,7 @@ hybrid's (:mod:`rtlift.blocks.compiled`):
     u(k) = Cμ_env′(k) · min(1, q(k)/q₀)   or, with a static map,   f(Cμ_env′(k))/s · min(1, q(k)/q₀)^p
 
 with the diagnosis's stages as in the paper's structure (:mod:`rtlift.blocks.compiled_stages`):
-a ``delay`` and an ``actuator_fade`` before the structure's own stage (Cμ′, Cμ_env′), the
+a ``delay``, an ``actuator_fade`` and an ``onset_hold`` before the structure's own stage (Cμ′, Cμ_env′), the
 ``hysteresis`` factor on ΔCL_L and the output stages after the sum.
 
 :func:`interaction_step` is one sample, :func:`interaction_simulate` the batch, both on one

@@ -172,8 +172,9 @@ class HybridModel(BlockChain):
                 bind_stage_states(fade, memory, self.output_stages, hold))
 
     def _bind_hybrid(self, wiener: tuple[Any, ...]) -> tuple[Any, ...]:
-        """The paper's structure: at most one input ``delay``, then at most one ``actuator_fade``;
-        any output stages (each in its state-space form, :mod:`rtlift.blocks.compiled_stages`)."""
+        """The paper's structure: at most one input ``delay``, then at most one ``actuator_fade``,
+        at most one ``onset_hold`` before, between or after them (:meth:`_hold_place`); any output
+        stages (each in its state-space form, :mod:`rtlift.blocks.compiled_stages`)."""
         delay = self._input_state(self.input_stages)
         if delay is None or not all(type(st).compiled_form for st in self.output_stages):
             return ()
