@@ -96,13 +96,29 @@ ORDERS = ("H", "DH", "HD", "HF", "FH", "DHF", "HDF", "DFH")
 to it (a delay, a fade), and the hold after a fade or between the two."""
 
 
+def _stages(delay: int, order: str = "DH", clock: str = "on_time") -> tuple:
+    """The input stages in ``order`` (:data:`ORDERS`): a delay of ``delay`` samples (none for 0),
+    a fade on ``clock``, the hold."""
+    made = {"D": (Delay(delay / FS, FS),) if delay else (), "F": (ActuatorFade(0.6, 0.05, FS, clock),),
+            "H": (OnsetHold(FS),)}
+    return tuple(st for c in order for st in made[c])
+
+
 def _model(seed: int, delay: int, output_form: bool, order: str = "DH", clock: str = "on_time"):
     rng = np.random.default_rng(seed)
     m = make_model(rng, kernel_len=40, output_form=output_form)
-    made = {"D": (Delay(delay / FS, FS),) if delay else (), "F": (ActuatorFade(0.6, 0.05, FS, clock),),
-            "H": (OnsetHold(FS),)}
-    m.input_stages = tuple(st for c in order for st in made[c])
+    m.input_stages = _stages(delay, order, clock)
     return m, rng
+
+
+def _compiled_and_right(m, rng: np.random.Generator, n: int, warm: int) -> None:
+    """``m`` takes the compiled step, and its step and fused batch equal the reference step and
+    the numpy chain to 1e-12 (and leave the same states) from ``warm`` samples into bursts."""
+    assert m.compiled
+    cmu, env = _bursts(rng, n + warm, offset=int(rng.integers(0, PERIOD)))
+    assert_step_equals_reference(m, cmu, env, warm, TOL)
+    m.reset()
+    assert_batch_equals_reference(m, cmu, env, warm, TOL)
 
 
 @settings(max_examples=40, deadline=None)
@@ -113,11 +129,7 @@ def test_compiled_step_and_batch_with_the_hold_equal_the_reference(seed, n, warm
     step and fused batch equal the reference step and the numpy chain to 1e-12 from a
     mid-record state (the states too: the fade's clock, the rings, the hold's [u, Cμ(k−1)])."""
     m, rng = _model(seed, delay, output_form, order, clock)
-    assert m.compiled
-    cmu, env = _bursts(rng, n + warm, offset=int(rng.integers(0, PERIOD)))
-    assert_step_equals_reference(m, cmu, env, warm, TOL)
-    m.reset()
-    assert_batch_equals_reference(m, cmu, env, warm, TOL)
+    _compiled_and_right(m, rng, n, warm)
 
 
 def test_the_hold_changes_the_model_and_copies_keep_their_own_state():
@@ -148,13 +160,8 @@ def test_the_interaction_structure_with_the_hold_equals_its_reference(seed, n, w
     ``delivered_envelope``: compiled; step and batch equal the reference to 1e-12."""
     rng = np.random.default_rng(seed)
     m = interaction_model(rng, kernel_len=30, order=2)
-    own = m.input_stages[-1]
-    m.input_stages = (*_model(seed, delay, False, order)[0].input_stages, own)
-    assert m.compiled
-    cmu, env = _bursts(rng, n + warm, offset=int(rng.integers(0, PERIOD)))
-    assert_step_equals_reference(m, cmu, env, warm, TOL)
-    m.reset()
-    assert_batch_equals_reference(m, cmu, env, warm, TOL)
+    m.input_stages = (*_stages(delay, order), m.input_stages[-1])      # before its delivered_envelope
+    _compiled_and_right(m, rng, n, warm)
 
 
 def test_the_hold_runs_in_its_own_place_and_other_orders_take_the_reference_step():
