@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rtlift.blocks.delay import Delay
+from rtlift.blocks.onset_hold import OnsetHold
 from rtlift.core.rate import FS_HZ as FS
 from rtlift.observer import FLAG_BAD_INPUT, FLAG_MISSING, Observer, ObserverConfig
 from testkit.synthetic import OUTPUT_STAGES, burst_input, interaction_model, make_model, with_effects
@@ -44,14 +45,16 @@ def _run(step, cmu, env, z):
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 500), order=st.integers(1, 3),
        output_form=st.booleans(), delay=st.integers(0, 4), fade=st.booleans(),
        config=st.sampled_from(sorted(CONFIGS)), warm=st.integers(0, 100),
-       outputs=st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3), hysteresis=st.integers(0, 2))
+       outputs=st.lists(st.integers(0, len(OUTPUT_STAGES) - 1), max_size=3), hysteresis=st.integers(0, 2),
+       hold=st.booleans())
 def test_compiled_step_equals_reference_step(seed, n, order, output_form, delay, fade, config, warm, outputs,
-                                             hysteresis):
+                                             hysteresis, hold):
     """Estimates (ΔĈL, open loop, ν, NIS, flags), counters and the whole state agree to 1e-12,
-    from a state that is not the rest state."""
+    from a state that is not the rest state; with or without the ``onset_hold`` input stage
+    (``identify --envelope delivered``: after the delay, its own compiled slot)."""
     rng = np.random.default_rng(seed)
     model = make_model(rng, kernel_len=40, order=order, output_form=output_form)
-    model.input_stages = (Delay(delay / FS, FS),) if delay else ()
+    model.input_stages = ((Delay(delay / FS, FS),) if delay else ()) + ((OnsetHold(FS),) if hold else ())
     # what diagnose and --adapt add: a fade after the delay, output stages, a hysteresis factor
     _agree(Observer(with_effects(model, fade, tuple(outputs), hysteresis), CONFIGS[config]), rng, n, warm)
 
