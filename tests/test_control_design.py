@@ -509,12 +509,15 @@ def test_the_internal_model_controller_rejects_a_0_35_hz_gust_by_6_db_on_our_ben
 def test_the_internal_model_controller_streams_k_equals_q_over_1_minus_qp(model, seed):
     """LiftController's internal-model step (ê = e + P̂ w, w = Q ê) against its batch twin, K = Q/(1 − Q P̂)
     filtered over the same errors (scipy.signal.lfilter): equal to 1e-12 of the output's scale at every
-    decision (the two forms round differently)."""
+    decision (the two forms round differently). Draws whose K is unstable are left out: their output
+    grows to the map's limits, where the step clamps w (seed 16356: |pole| 1.27, w pinned at −0.1)."""
+    from hypothesis import assume
     from scipy.signal import lfilter
 
     rng = np.random.default_rng(seed)
     qa, qx = 0.3 * rng.standard_normal(5), 0.3 * rng.standard_normal(5)
     pa, px = np.r_[0.0, 0.3 * rng.standard_normal(3)], np.r_[0.0, 0.3 * rng.standard_normal(3)]
+    assume(np.all(np.abs(np.roots(np.r_[1.0, np.zeros(7)] - np.convolve(qa, pa) - np.convolve(qx, px))) < 1.0))
     ctl = LiftController(model, ControlConfig(youla=((0.001, tuple(qa), tuple(qx), tuple(pa), tuple(px)),)))
     r, n = 0.1, 40
     a, b = 1e-3 * rng.standard_normal(n), 1e-3 * rng.standard_normal(n)
