@@ -57,6 +57,15 @@ def test_a_point_the_child_cannot_evaluate_is_evaluated_here():
     assert all(np.array_equal(g, _residual(x)) for g, x in zip(workers(fragile, _points()), _points(), strict=True))
 
 
+def test_a_short_residual_is_refined_on_one_core(monkeypatch):
+    started = []
+    monkeypatch.setattr(Halves, "_start", lambda self: started.append(self))
+    parallel.least_squares(_residual, np.ones(4), parallel.MIN_SAMPLES - 1, max_nfev=3)
+    assert not started
+    parallel.least_squares(_residual, np.ones(4), parallel.MIN_SAMPLES, max_nfev=3)
+    assert len(started) == 1
+
+
 def test_least_squares_on_both_cores_ends_where_one_core_does():
     rng = np.random.default_rng(0)
     truth = np.array([7.0, 0.3, 1.5, -0.4])
@@ -67,7 +76,7 @@ def test_least_squares_on_both_cores_ends_where_one_core_does():
 
     x0 = np.array([6.0, 0.0, 1.0, 0.0])
     one = optimize.least_squares(res, x0, x_scale="jac", ftol=1e-12, xtol=1e-12)
-    both = parallel.least_squares(res, x0, x_scale="jac", ftol=1e-12, xtol=1e-12)
+    both = parallel.least_squares(res, x0, parallel.MIN_SAMPLES, x_scale="jac", ftol=1e-12, xtol=1e-12)
     assert one.nfev == both.nfev and np.array_equal(one.x, both.x)
     assert np.max(np.abs(both.x - truth)) < 0.05
 
@@ -81,6 +90,7 @@ def test_identify_output_dynamics_is_bit_for_bit_the_one_core_model(monkeypatch)
     y = signal.lfilter([0.3], [1.0, -0.7], np.tanh(x)) + 0.01 * rng.normal(size=u.size)
     rec = SisoRecord(np.arange(u.size) / 100.0, u, y, {"fs_hz": "100"}, "wh")
     opt = SisoOptions(orders=(3,), knots=8, more_knots=(), max_nfev=25)
+    monkeypatch.setattr(parallel, "MIN_SAMPLES", 100)         # a short record shares its Jacobians too
     both = identify_siso(rec, "wiener_hammerstein", options=opt).to_dict()
     monkeypatch.setattr(parallel, "WORKERS", False)
     one = identify_siso(rec, "wiener_hammerstein", options=opt).to_dict()

@@ -282,7 +282,7 @@ def fit_bla(runs: _Runs, n: int, max_nfev: int = 300, offset: bool = False
         r = (runs.lfilter(p[n:2 * n + 1], a, u) + (p[-1] if offset else 0.0) - y)[runs.rows]
         return r if np.all(np.isfinite(r)) else bad
 
-    sol = least_squares(res, p0, x_scale="jac", max_nfev=max_nfev)
+    sol = least_squares(res, p0, bad.size, x_scale="jac", max_nfev=max_nfev)
     return (sol.x[n:2 * n + 1], np.concatenate([[1.0], denominator_from_theta(sol.x[:n], n)]),
             float(sol.x[-1]) if offset else 0.0)
 
@@ -328,7 +328,7 @@ def _refine(dims: _Dims, th0: np.ndarray, runs: _Runs, max_nfev: int, knots: int
         r = _residual(phi, runs, limits)
         return r if np.all(np.isfinite(r)) else bad
 
-    return least_squares(res, th0, x_scale="jac", max_nfev=max_nfev, ftol=1e-10, xtol=1e-10).x
+    return least_squares(res, th0, bad.size, x_scale="jac", max_nfev=max_nfev, ftol=1e-10, xtol=1e-10).x
 
 
 def _model(dims: _Dims, th: np.ndarray, runs: _Runs, fs: float, count: int,

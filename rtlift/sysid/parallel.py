@@ -37,6 +37,12 @@ from scipy import optimize
 
 WORKERS = "workers" in inspect.signature(optimize.least_squares).parameters
 """Whether this scipy's ``least_squares`` takes ``workers`` (scipy >= 1.16); older ones run on one core."""
+MIN_SAMPLES = 2000
+"""The fewest residual samples a refinement shares its Jacobian for: below, one evaluation costs
+less than a child's start (10–30 ms on the project's 2-core machine, loaded) saves over a short
+refinement. Set from the sizes, not tuned on a benchmark: the property test's records of 50–150
+samples took 13.7 min with a child per refinement (load 6–9) where they took about 4 min
+before; every measured benchmark's cost record has 800 (Cascaded Tanks) to 30 000 samples."""
 MIN_POINTS = 2
 """The fewest points a map shares with the child: one point is evaluated here."""
 
@@ -131,12 +137,12 @@ class Halves:
         return [fun(x) if r is None else r for x, r in zip(points[:k], theirs, strict=True)] + own
 
 
-def least_squares(residual: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
+def least_squares(residual: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, samples: int,
                   **options: Any) -> optimize.OptimizeResult:
     """``scipy.optimize.least_squares(residual, x0, **options)`` (method ``trf``, a finite-difference
-    Jacobian) with its Jacobian's evaluations shared with a child process (:class:`Halves`): the
-    same result, bit for bit."""
-    if not WORKERS:
+    Jacobian) with its Jacobian's evaluations shared with a child process (:class:`Halves`) where
+    the residual has at least :data:`MIN_SAMPLES` ``samples``: the same result, bit for bit."""
+    if not WORKERS or samples < MIN_SAMPLES:
         return optimize.least_squares(residual, x0, **options)
     with Halves(residual) as workers:
         return optimize.least_squares(residual, x0, workers=workers, **options)

@@ -95,7 +95,7 @@ def identify_store_chain(u: np.ndarray, y: np.ndarray, u_all: np.ndarray, y_all:
         th0 = np.array([math.log(b), math.log(a1), 0.5, math.log(r), math.log(a2), 0.5, c, brim, 0.3][:npar]
                        + [math.log(x1), math.log(x2)])
         th0 = np.clip(th0, lo + 1e-9, hi - 1e-9)
-        sol = least_squares(res, th0, bounds=(lo, hi), x_scale="jac", max_nfev=opt.max_nfev)
+        sol = least_squares(res, th0, n - skip, bounds=(lo, hi), x_scale="jac", max_nfev=opt.max_nfev)
         model = StoreChainModel(unpack(sol.x), fs)
         held = held_out(model, start(sol.x))
         if np.isfinite(held) and (best is None or held < best[0]):
