@@ -118,7 +118,7 @@ def main() -> None:
                     "reuse one found there instead of recording and identifying again")
     ap.add_argument("--peak-db", type=float, help="the design's |S| target (dB; default: the design's own)")
     ap.add_argument("--frequencies", default=",".join(f"{f:g}" for f in FREQUENCIES))
-    ap.add_argument("--structure", default="pi", choices=("auto", "pi", "pi2", "youla"),
+    ap.add_argument("--structure", default="pi", choices=("auto", "pi", "pi2", "pi2j", "youla"),
                     help="the controller the design builds (default pi; auto: the wider predicted band)")
     ap.add_argument("--backoff", type=float, help="the internal-model controller's fraction of its band "
                     "(default: the design's own)")

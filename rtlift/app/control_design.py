@@ -828,6 +828,32 @@ def _shortfall(m: Margins, targets: Targets, nyquist_gain: float) -> float:
             + 20.0 * max(0.0, m.robust - 0.97) + max(0.0, nyquist_gain - NYQUIST_GAIN_MAX))
 
 
+def point_cost(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, f: np.ndarray,
+               f_o: np.ndarray | None = None, weight: np.ndarray | None = None,
+               g_y: np.ndarray | None = None) -> Any:
+    """The search's measure of gains at one operating point: a function ``Gains → (f₆ Hz, shortfall)``
+    on the grid ``f`` (Hz) with L = C P_A + K_x F (P_X − P_A) and the gust map
+    S_o = 1 − F_o G_y ((C − K_x F) M + K_x F)/(1 + L) (``g_y`` None: 1 − F_o T), scored by
+    :func:`loop_margins` and :func:`_shortfall`; an unstable loop: (0, 100)."""
+    z = np.exp(2j * np.pi * f * dt)
+    fo = np.ones(f.shape) if f_o is None else f_o
+    pa, dx = plant_response(p, z), plant_response(q, z) - plant_response(p, z)
+    gust = None if g_y is None else fo * g_y        # S_o = 1 − F_o G_y ((C − K_x) M + K_x)/(1 + L)
+    mean = window_mean(f, dt)
+
+    def parts(g: Gains) -> tuple[float, float]:
+        if not _stable(g, p, q):
+            return 0.0, 100.0
+        c, kx = g.response(z), g.kx * g.lead2(z)    # K_X = K_x F (F = 1 but in the pi2 structure)
+        L = c * pa + kx * dx                         # L = C P_A + K_x F (P_X − P_A)
+        s_o = (1.0 - fo * L / (1.0 + L) if gust is None
+               else 1.0 - gust * ((c - kx) * mean + kx) / (1.0 + L))
+        m = loop_margins(f, L, s_o, weight)
+        return m.f6_hz, _shortfall(m, targets, g.nyquist_gain())
+
+    return parts
+
+
 def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed: int = 1,
                  start: Gains | None = None, f_o: np.ndarray | None = None,
                  weight: np.ndarray | None = None, f: np.ndarray | None = None,
@@ -845,23 +871,11 @@ def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed
     from scipy.optimize import differential_evolution, minimize
 
     f = analysis_grid(dt, 800) if f is None else f
-    z = np.exp(2j * np.pi * f * dt)
-    fo = np.ones(f.shape) if f_o is None else f_o
-    pa, dx = plant_response(p, z), plant_response(q, z) - plant_response(p, z)
-    gust = None if g_y is None else fo * g_y        # S_o = 1 − F_o G_y ((C − K_x) M + K_x)/(1 + L)
-    mean = window_mean(f, dt)
+    measure = point_cost(p, q, dt, targets, f, f_o, weight, g_y)
 
     def parts(x: np.ndarray) -> tuple[float, float]:
-        """(f₆, shortfall) of the gains ``x``; an unstable loop: (0, 100)."""
-        g = Gains(*map(float, x))
-        if not _stable(g, p, q):
-            return 0.0, 100.0
-        c, kx = g.response(z), g.kx * g.lead2(z)    # K_X = K_x F (F = 1 but in the pi2 structure)
-        L = c * pa + kx * dx                         # L = C P_A + K_x F (P_X − P_A)
-        s_o = (1.0 - fo * L / (1.0 + L) if gust is None
-               else 1.0 - gust * ((c - kx) * mean + kx) / (1.0 + L))
-        m = loop_margins(f, L, s_o, weight)
-        return m.f6_hz, _shortfall(m, targets, g.nyquist_gain())
+        """(f₆, shortfall) of the gains ``x``."""
+        return measure(Gains(*map(float, x)))
 
     def cost(x: np.ndarray) -> float:
         band, short = parts(x)
@@ -882,6 +896,51 @@ def design_point(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, seed
                          options={"maxiter": 600, "xatol": 1e-4, "fatol": 1e-6}) for x in (res.x, x0)),
                key=lambda r: r.fun)
     return Gains(*map(float, np.clip(best.x, lo, hi)))
+
+
+def schedule_mix(lo: Gains, hi: Gains, w: float) -> Gains:
+    """The gains :class:`~rtlift.app.control.LiftController` runs a fraction ``w`` of the way (in Cμ)
+    from the row ``lo`` to ``hi``: every column linear in w, T_i among them, so
+    1/k_i = (1 − w)/k_i,lo + w/k_i,hi (k_i = Δt/T_i)."""
+    ki = 1.0 / ((1.0 - w) / lo.ki + w / hi.ki)
+    return Gains(lo.kp + w * (hi.kp - lo.kp), ki, lo.a + w * (hi.a - lo.a), lo.b + w * (hi.b - lo.b),
+                 lo.kx + w * (hi.kx - lo.kx), lo.c + w * (hi.c - lo.c), lo.d + w * (hi.d - lo.d))
+
+
+JOINT_EVALS = 12000
+"""Most cost evaluations of the joint search (:func:`design_joint`); each scores every scheduled and
+half-way point."""
+
+
+def design_joint(start: list[Gains], measures: list[Any], *, max_evals: int = JOINT_EVALS) -> list[Gains]:
+    """Every scheduled point's gains searched together (the ``pi2j`` structure): ``measures`` are
+    :func:`point_cost` at the scheduled points and half-way between each neighbouring pair, in Cμ order
+    (2n − 1 of them for n points), the half-way gains :func:`schedule_mix` of their neighbours at w = ½
+    as the controller runs them. Cost = −min f₆ over all 2n − 1 points + Σ shortfalls (the search's
+    own units, :func:`_shortfall`); Nelder–Mead from ``start`` (the continued schedule), each point's
+    parameters clipped to :data:`BOUNDS` + :data:`BOUNDS_LEAD2`. The start is returned unless the
+    search found a lower cost (it cannot widen the smallest band by giving up a target)."""
+    from scipy.optimize import minimize
+
+    lo, hi = np.array(BOUNDS + BOUNDS_LEAD2).T
+    n, k = len(start), len(lo)
+
+    def gains(x: np.ndarray) -> list[Gains]:
+        xs = np.clip(np.reshape(x, (n, k)), lo, hi)
+        return [Gains(*map(float, row)) for row in xs]
+
+    def cost(x: np.ndarray) -> float:
+        gs = gains(x)
+        every = [gs[0]]
+        for a, b in zip(gs, gs[1:], strict=False):
+            every += [schedule_mix(a, b, 0.5), b]
+        scored = [m(g) for m, g in zip(measures, every, strict=True)]
+        return -min(band for band, _ in scored) + sum(short for _, short in scored)
+
+    x0 = np.concatenate([[g.kp, g.ki, g.a, g.b, g.kx, g.c, g.d] for g in start])
+    res = minimize(cost, x0, method="Nelder-Mead",
+                   options={"maxfev": max_evals, "xatol": 1e-5, "fatol": 1e-7, "adaptive": True})
+    return gains(res.x) if res.fun < cost(x0) else list(start)
 
 
 def check_point(cmu: float, dcl: float, p: np.ndarray, q: np.ndarray, g: Gains | YoulaGains, dt: float,
@@ -1133,7 +1192,7 @@ YOULA_STEP = 0.05
 """Where a Youla point misses a target (the phase margin, not in the programme; a half-way check),
 the fraction is lowered by this much and the point designed again, down to :data:`YOULA_FLOOR`."""
 YOULA_FLOOR = 0.5
-STRUCTURES = ("auto", "pi", "pi2", "youla")
+STRUCTURES = ("auto", "pi", "pi2", "pi2j", "youla")
 DEFAULT_STRUCTURE = "pi"
 """What ``rtlift design`` and ``rtlift control`` build unless told: the PI + lead–lag + K_x (calibration
 draws 1–3, design version 7: 0.19–0.22 Hz measured, within 0.01 Hz of its prediction). The
@@ -1155,7 +1214,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     schedule (at most ``max_inserted`` times); the limit of the band computed at each scheduled
     point (``limit``). ``structure``: "pi" (PI + lead–lag + K_x searched, :func:`design_point`),
     "pi2" (the same with a second lead–lag, its global search at each first point begun at the PI's
-    design there),
+    design there), "pi2j" (the ``pi2`` schedule, then all its scheduled points' gains searched together
+    with the half-way points in the cost, :func:`design_joint`; kept where it checks out),
     "youla" (the internal-model controller from :class:`YoulaProgram` at ``backoff`` of its band,
     lowered by :data:`YOULA_STEP` where a target is missed) or "auto": both, and the one with the
     wider predicted band (the smallest f₆ over every checked point) among those that miss no target
@@ -1299,6 +1359,27 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
             points, inserted = between(designed), inserted + 1
         return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
 
+    def joint(cont: Design) -> Design:
+        """The continued ``pi2`` schedule searched jointly (:func:`design_joint`) over its scheduled and
+        half-way points, then checked as every design is; kept only if it misses no target there and
+        its smallest f₆ over every checked point is wider than the continued one's, or the continued
+        one misses a target (else ``cont``)."""
+        sched = cont.scheduled
+        dcls = [sched[0].dcl]
+        for a, b in zip(sched, sched[1:], strict=False):
+            dcls += [float(np.interp(0.5 * (a.cmu + b.cmu), ctl._map_cmu, ctl._map_dcl)), b.dcl]
+        measures = []
+        for dcl0 in dcls:
+            p, q, h, r, _ = plant_at(dcl0)
+            measures.append(point_cost(p, q, dt, targets, f, observer_response(h, fs, f, r, per), unc.weight(f),
+                                       gy_at(dcl0)(f)))
+        gs = design_joint([pt.gains for pt in sched if isinstance(pt.gains, Gains)], measures)
+        out = Design(between([check(pt.cmu, pt.dcl, g) for pt, g in zip(sched, gs, strict=True)]),
+                     dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
+        if out.violations() or (not cont.violations() and out.summary()["f6_hz_min"] <= cont.summary()["f6_hz_min"]):
+            return cont
+        return out
+
     youla = None
     if structure in ("auto", "youla"):
         try:
@@ -1308,8 +1389,9 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 raise
     if structure == "youla":
         return youla
-    if structure == "pi2":
-        return build(lambda dcl0, start: pi_at(dcl0, start, "pi2"))
+    if structure in ("pi2", "pi2j"):
+        cont = build(lambda dcl0, start: pi_at(dcl0, start, "pi2"))
+        return cont if structure == "pi2" else joint(cont)
     pi = build(pi_at)
     if youla is not None and not youla.violations() and (
             pi.violations() or youla.summary()["f6_hz_min"] > pi.summary()["f6_hz_min"]):

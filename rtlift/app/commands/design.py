@@ -32,8 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
     p.add_argument("--gm-db", type=float, default=6.0, help="gain margin at least (dB, default 6)")
     p.add_argument("--pm-deg", type=float, default=45.0, help="phase margin at least (degrees, default 45)")
-    p.add_argument("--structure", default="pi", choices=("auto", "pi", "pi2", "youla"),
+    p.add_argument("--structure", default="pi", choices=("auto", "pi", "pi2", "pi2j", "youla"),
                    help="the controller: pi (default: PI + lead-lag + K_x), pi2 (the same with a second lead-lag), "
+                        "pi2j (pi2, then its scheduled points searched together with the half-way checks), "
                         "youla (the internal-model controller from "
                         "the Youla parameter) or auto (the one with the wider predicted band that meets every target)")
     p.add_argument("--peak-db", type=float,
