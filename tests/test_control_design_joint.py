@@ -84,3 +84,8 @@ def test_the_joint_search_clears_the_half_way_shortfall_without_narrowing_the_ba
     design = Design(checked, dt, cached.period, cached.margin, cached.targets, cached.uncertainty)
     assert design.violations() == []
     assert design.summary()["f6_hz_min"] == pytest.approx(min(b for b, _ in after), abs=0.01)
+
+
+def test_an_unknown_joint_objective_is_refused(cached):
+    with pytest.raises(ValueError, match="objective"):
+        design_joint([p.gains for p in cached.scheduled], [], objective="max")

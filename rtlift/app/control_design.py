@@ -912,16 +912,26 @@ JOINT_EVALS = 12000
 half-way point."""
 
 
-def design_joint(start: list[Gains], measures: list[Any], *, max_evals: int = JOINT_EVALS) -> list[Gains]:
+JOINT_OBJECTIVE = "min"
+"""What :func:`design_joint` widens: "min" (the smallest f₆ over the scheduled and half-way points) or
+"mean" (their mean)."""
+
+
+def design_joint(start: list[Gains], measures: list[Any], *, max_evals: int = JOINT_EVALS,
+                 objective: str | None = None) -> list[Gains]:
     """Every scheduled point's gains searched together (the ``pi2j`` structure): ``measures`` are
     :func:`point_cost` at the scheduled points and half-way between each neighbouring pair, in Cμ order
     (2n − 1 of them for n points), the half-way gains :func:`schedule_mix` of their neighbours at w = ½
-    as the controller runs them. Cost = −min f₆ over all 2n − 1 points + Σ shortfalls (the search's
-    own units, :func:`_shortfall`); Nelder–Mead from ``start`` (the continued schedule), each point's
-    parameters clipped to :data:`BOUNDS` + :data:`BOUNDS_LEAD2`. The start is returned unless the
-    search found a lower cost (it cannot widen the smallest band by giving up a target)."""
+    as the controller runs them. Cost = −min f₆ (``objective`` "mean": −mean f₆; default
+    :data:`JOINT_OBJECTIVE`) over all 2n − 1 points + Σ shortfalls (the search's own units,
+    :func:`_shortfall`); Nelder–Mead from ``start`` (the continued schedule), each point's parameters
+    clipped to :data:`BOUNDS` + :data:`BOUNDS_LEAD2`. The start is returned unless the search found a
+    lower cost (it cannot widen the band by giving up a target)."""
     from scipy.optimize import minimize
 
+    how = objective or JOINT_OBJECTIVE
+    if how not in ("min", "mean"):
+        raise ValueError(f"objective must be 'min' or 'mean', got {how!r}")
     lo, hi = np.array(BOUNDS + BOUNDS_LEAD2).T
     n, k = len(start), len(lo)
 
@@ -935,7 +945,8 @@ def design_joint(start: list[Gains], measures: list[Any], *, max_evals: int = JO
         for a, b in zip(gs, gs[1:], strict=False):
             every += [schedule_mix(a, b, 0.5), b]
         scored = [m(g) for m, g in zip(measures, every, strict=True)]
-        return -min(band for band, _ in scored) + sum(short for _, short in scored)
+        bands = [band for band, _ in scored]
+        return -(min(bands) if how == "min" else sum(bands) / len(bands)) + sum(short for _, short in scored)
 
     x0 = np.concatenate([[g.kp, g.ki, g.a, g.b, g.kx, g.c, g.d] for g in start])
     res = minimize(cost, x0, method="Nelder-Mead",
@@ -1362,8 +1373,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     def joint(cont: Design) -> Design:
         """The continued ``pi2`` schedule searched jointly (:func:`design_joint`) over its scheduled and
         half-way points, then checked as every design is; kept only if it misses no target there and
-        its smallest f₆ over every checked point is wider than the continued one's, or the continued
-        one misses a target (else ``cont``)."""
+        its smallest (:data:`JOINT_OBJECTIVE` "mean": mean) f₆ over every checked point is wider than the
+        continued one's, or the continued one misses a target (else ``cont``)."""
         sched = cont.scheduled
         dcls = [sched[0].dcl]
         for a, b in zip(sched, sched[1:], strict=False):
@@ -1376,7 +1387,11 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         gs = design_joint([pt.gains for pt in sched if isinstance(pt.gains, Gains)], measures)
         out = Design(between([check(pt.cmu, pt.dcl, g) for pt, g in zip(sched, gs, strict=True)]),
                      dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
-        if out.violations() or (not cont.violations() and out.summary()["f6_hz_min"] <= cont.summary()["f6_hz_min"]):
+        def score(d: Design) -> float:
+            bands = [p.f6_hz for p in d.points]
+            return min(bands) if JOINT_OBJECTIVE == "min" else float(np.mean(bands))
+
+        if out.violations() or (not cont.violations() and score(out) <= score(cont)):
             return cont
         return out
 
