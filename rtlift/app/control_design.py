@@ -819,22 +819,24 @@ def _stable(g: Gains, p: np.ndarray, q: np.ndarray) -> bool:
     return bool(np.all(np.abs(np.roots(char)) < 1.0 - 1e-9))
 
 
-def _shortfall(m: Margins, targets: Targets, nyquist_gain: float) -> float:
+def _shortfall(m: Margins, targets: Targets, nyquist_gain: float, slack: float = 1.0) -> float:
     """How far a point misses its targets (0: meets them), in units that never trade for band:
-    1° of phase margin weighs as 0.5 Hz of f₆, 1 dB of gain margin or |S| as 5 and 20 Hz."""
-    return (5.0 * max(0.0, targets.gm_db + 0.2 - min(m.gm_db, m.gm_low_db))
-            + 0.5 * max(0.0, targets.pm_deg + 0.5 - m.pm_deg)
-            + 20.0 * max(0.0, max(m.peak_s_db, m.peak_gust_db) - targets.peak_db + PEAK_MARGIN_DB)
+    1° of phase margin weighs as 0.5 Hz of f₆, 1 dB of gain margin or |S| as 5 and 20 Hz. The search
+    keeps ``slack`` × (0.2 dB, 0.5°, :data:`PEAK_MARGIN_DB`) inside the targets (0: the targets themselves,
+    for a point scored on the dense grid the check uses)."""
+    return (5.0 * max(0.0, targets.gm_db + 0.2 * slack - min(m.gm_db, m.gm_low_db))
+            + 0.5 * max(0.0, targets.pm_deg + 0.5 * slack - m.pm_deg)
+            + 20.0 * max(0.0, max(m.peak_s_db, m.peak_gust_db) - targets.peak_db + PEAK_MARGIN_DB * slack)
             + 20.0 * max(0.0, m.robust - 0.97) + max(0.0, nyquist_gain - NYQUIST_GAIN_MAX))
 
 
 def point_cost(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, f: np.ndarray,
                f_o: np.ndarray | None = None, weight: np.ndarray | None = None,
-               g_y: np.ndarray | None = None) -> Any:
+               g_y: np.ndarray | None = None, slack: float = 1.0) -> Any:
     """The search's measure of gains at one operating point: a function ``Gains → (f₆ Hz, shortfall)``
     on the grid ``f`` (Hz) with L = C P_A + K_x F (P_X − P_A) and the gust map
     S_o = 1 − F_o G_y ((C − K_x F) M + K_x F)/(1 + L) (``g_y`` None: 1 − F_o T), scored by
-    :func:`loop_margins` and :func:`_shortfall`; an unstable loop: (0, 100)."""
+    :func:`loop_margins` and :func:`_shortfall` (its ``slack``); an unstable loop: (0, 100)."""
     z = np.exp(2j * np.pi * f * dt)
     fo = np.ones(f.shape) if f_o is None else f_o
     pa, dx = plant_response(p, z), plant_response(q, z) - plant_response(p, z)
@@ -849,7 +851,7 @@ def point_cost(p: np.ndarray, q: np.ndarray, dt: float, targets: Targets, f: np.
         s_o = (1.0 - fo * L / (1.0 + L) if gust is None
                else 1.0 - gust * ((c - kx) * mean + kx) / (1.0 + L))
         m = loop_margins(f, L, s_o, weight)
-        return m.f6_hz, _shortfall(m, targets, g.nyquist_gain())
+        return m.f6_hz, _shortfall(m, targets, g.nyquist_gain(), slack)
 
     return parts
 
@@ -912,6 +914,9 @@ JOINT_EVALS = 12000
 half-way point."""
 
 
+JOINT_HALF_WAY_DENSE = False
+"""True: :func:`design_loop`'s ``pi2j`` scores the half-way points on the dense grid :func:`check_point`
+uses, against the targets themselves (no search slack); False: as the scheduled points."""
 JOINT_OBJECTIVE = "min"
 """What :func:`design_joint` widens: "min" (the smallest f₆ over the scheduled and half-way points) or
 "mean" (their mean)."""
@@ -1380,10 +1385,11 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         for a, b in zip(sched, sched[1:], strict=False):
             dcls += [float(np.interp(0.5 * (a.cmu + b.cmu), ctl._map_cmu, ctl._map_dcl)), b.dcl]
         measures = []
-        for dcl0 in dcls:
+        for i, dcl0 in enumerate(dcls):
             p, q, h, r, _ = plant_at(dcl0)
-            measures.append(point_cost(p, q, dt, targets, f, observer_response(h, fs, f, r, per), unc.weight(f),
-                                       gy_at(dcl0)(f)))
+            fi = f if JOINT_HALF_WAY_DENSE is False or i % 2 == 0 else analysis_grid(dt)
+            measures.append(point_cost(p, q, dt, targets, fi, observer_response(h, fs, fi, r, per), unc.weight(fi),
+                                       gy_at(dcl0)(fi), slack=1.0 if fi is f else 0.0))
         gs = design_joint([pt.gains for pt in sched if isinstance(pt.gains, Gains)], measures)
         out = Design(between([check(pt.cmu, pt.dcl, g) for pt, g in zip(sched, gs, strict=True)]),
                      dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
