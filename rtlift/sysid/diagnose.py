@@ -170,7 +170,9 @@ class GenericCandidates:
     (module docstring): each a whole model re-identified on the training record
     (:func:`rtlift.sysid.identify.identify_siso`), so one member per combination, every one
     fitted compared (no pool to screen), the lowest pooled validation RMSE among the admissible
-    (no fingerprint: no level-free score, no confirmation bar, no evidence to rank by).
+    (no fingerprint: no level-free score, no confirmation bar, no evidence to rank by). The
+    structures are independent fits, all made at the first :meth:`fit` on both cores
+    (:func:`rtlift.sysid.parallel.two_lanes`: the serial results, bit for bit).
     ``validate_skip``: per validation record, the samples left unscored (default ``skip``; one
     long run's validation part is the whole run scored after its training part). ``init_state``:
     every model runs over a record from the state estimated on its unscored samples

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import inspect
 import os
+import signal
 from collections.abc import Callable, Iterable, Sequence
 from multiprocessing.connection import Connection, Pipe
 from typing import Any
@@ -177,7 +178,13 @@ def two_lanes(tasks: Sequence[Callable[[], Any]]) -> list[Any]:
         finally:
             os._exit(0)
     theirs.close()
-    rest = [_attempt(t) for t in tasks[1:]]
+    try:
+        rest = [_attempt(t) for t in tasks[1:]]
+    except BaseException:             # interrupted here: the child's work is not wanted
+        os.kill(pid, signal.SIGTERM)
+        os.waitpid(pid, 0)
+        mine.close()
+        raise
     try:
         first = mine.recv()
     except (EOFError, OSError):
