@@ -9,8 +9,15 @@ import signal
 import numpy as np
 import pytest
 
+from rtlift.sysid.parallel import CORES_ENV
+
 CPU_NICE = 19
 """The niceness of a worker while it runs a computing test (every test not marked ``pty``)."""
+
+# The identification on one core in the suite (the same numbers: rtlift/sysid/parallel.py): its
+# workers already fill both cores beside the real-time loops; tests/test_sysid_parallel.py turns
+# the second core on for itself.
+os.environ.setdefault(CORES_ENV, "1")
 
 
 def _favour_realtime() -> bool:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+import pytest
 from scipy import optimize, signal
 
 from rtlift.core.records import SisoRecord
@@ -13,6 +14,24 @@ from rtlift.sysid import parallel
 from rtlift.sysid.common import SisoOptions
 from rtlift.sysid.identify import identify_siso
 from rtlift.sysid.parallel import Halves
+
+
+@pytest.fixture(autouse=True)
+def both_cores(monkeypatch):
+    """This file's tests on both cores (tests/conftest.py keeps the rest of the suite on one)."""
+    monkeypatch.delenv(parallel.CORES_ENV, raising=False)
+
+
+def test_one_core_when_told_starts_no_child(monkeypatch):
+    """``RTLIFT_SYSID_CORES=1``: no child, the serial map; the two lanes run here, in order."""
+    monkeypatch.setenv(parallel.CORES_ENV, "1")
+    with Halves(_residual) as workers:
+        assert workers.pid is None
+        got = workers(_residual, _points())
+    for g, x in zip(got, _points(), strict=True):
+        np.testing.assert_array_equal(g, _residual(x))
+    me = os.getpid()
+    assert parallel.two_lanes([os.getpid, os.getpid]) == [me, me]
 
 
 def _points(n: int = 7) -> list[np.ndarray]:

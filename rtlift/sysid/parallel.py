@@ -22,6 +22,10 @@ number.
 The child gets only points (a few parameters each) and returns residual vectors over a pipe; it
 ends with the refinement (:meth:`Halves.close`, or the context manager) and never touches this
 process's files or streams (``os._exit``).
+
+``RTLIFT_SYSID_CORES=1`` in the environment keeps both on one core (the same numbers): for a
+machine whose other core is taken, e.g. the test suite, whose two workers already fill both
+cores beside its real-time loops (tests/conftest.py sets it).
 """
 
 from __future__ import annotations
@@ -44,6 +48,8 @@ less than a child's start (10–30 ms on the project's 2-core machine, loaded) s
 refinement. Set from the sizes, not tuned on a benchmark: the property test's records of 50–150
 samples took 13.7 min with a child per refinement (load 6–9) where they took about 4 min
 before; every measured benchmark's cost record has 800 (Cascaded Tanks) to 30 000 samples."""
+CORES_ENV = "RTLIFT_SYSID_CORES"
+"""The environment variable that, set to 1, keeps the identification on one core."""
 MIN_POINTS = 2
 """The fewest points a map shares with the child: one point is evaluated here."""
 
@@ -84,7 +90,7 @@ class Halves:
         self.close()
 
     def _start(self) -> None:
-        if not hasattr(os, "fork"):
+        if not forking():
             return
         try:
             mine, theirs = Pipe()
@@ -149,6 +155,11 @@ def least_squares(residual: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, 
         return optimize.least_squares(residual, x0, workers=workers, **options)
 
 
+def forking() -> bool:
+    """Whether a child may be forked: the platform has ``fork`` and :data:`CORES_ENV` is not 1."""
+    return hasattr(os, "fork") and os.environ.get(CORES_ENV, "").strip() != "1"
+
+
 def _attempt(task: Callable[[], Any]) -> Any:
     """``task()``, or the exception it raised (an Exception instance) as its result."""
     try:
@@ -164,7 +175,7 @@ def two_lanes(tasks: Sequence[Callable[[], Any]]) -> list[Any]:
     not). The child computes what this process would (a copy of it, the same data and code), so
     every result is the serial one; where no child can be started, or it fails or its result
     cannot be sent back, the first task is run here after the others."""
-    if len(tasks) < 2 or not hasattr(os, "fork"):
+    if len(tasks) < 2 or not forking():
         return [_attempt(t) for t in tasks]
     try:
         mine, theirs = Pipe(duplex=False)
