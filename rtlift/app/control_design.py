@@ -917,6 +917,9 @@ half-way point."""
 JOINT_HALF_WAY_DENSE = False
 """True: :func:`design_loop`'s ``pi2j`` scores the half-way points on the dense grid :func:`check_point`
 uses, against the targets themselves (no search slack); False: as the scheduled points."""
+JOINT_START = "continued"
+"""Where ``pi2j``'s joint search starts: "continued" (the ``pi2`` schedule) or "global" (each scheduled
+point's own global ``pi2`` optimum, :func:`design_point` begun at the PI's design there)."""
 JOINT_OBJECTIVE = "min"
 """What :func:`design_joint` widens: "min" (the smallest f₆ over the scheduled and half-way points) or
 "mean" (their mean)."""
@@ -1390,7 +1393,9 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
             fi = f if JOINT_HALF_WAY_DENSE is False or i % 2 == 0 else analysis_grid(dt)
             measures.append(point_cost(p, q, dt, targets, fi, observer_response(h, fs, fi, r, per), unc.weight(fi),
                                        gy_at(dcl0)(fi), slack=1.0 if fi is f else 0.0))
-        gs = design_joint([pt.gains for pt in sched if isinstance(pt.gains, Gains)], measures)
+        start = ([pi_at(pt.dcl, None, "pi2").gains for pt in sched] if JOINT_START == "global"
+                 else [pt.gains for pt in sched])
+        gs = design_joint([g for g in start if isinstance(g, Gains)], measures)
         out = Design(between([check(pt.cmu, pt.dcl, g) for pt, g in zip(sched, gs, strict=True)]),
                      dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
         def score(d: Design) -> float:
