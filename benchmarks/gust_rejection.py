@@ -42,6 +42,8 @@ from benchmarks.control_loop import REFERENCES  # noqa: E402
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 SETTLE_S = 6.0
+CLAMP_TOL_V = 0.01
+"""An envelope within this of 0 V or 200 V counts as clamped (the wire's resolution is 0.01 V)."""
 FADE_70 = "actuator_fade:final_fraction=0.7,time_constant_s=0.4"
 
 
@@ -66,6 +68,18 @@ def crossing_hz(freqs: list[float], db: list[float], level: float = -6.0) -> flo
     return freqs[-1]
 
 
+def clamped(t: np.ndarray, envelope_v: np.ndarray, period: int = 50) -> dict:
+    """The burst periods after ``SETTLE_S`` whose envelope (V, one value per period of ``period``
+    samples) sits at an actuator limit — 0 V or the firmware's ``ENVELOPE_LIMIT_V`` (200 V), within
+    ``CLAMP_TOL_V`` — as a fraction, with the envelope's range over them (V)."""
+    from rtlift.core.programs import ENVELOPE_LIMIT_V
+
+    per = envelope_v[t >= SETTLE_S][::period]
+    at = (per <= CLAMP_TOL_V) | (per >= ENVELOPE_LIMIT_V - CLAMP_TOL_V)
+    return {"clamped_fraction": float(at.mean()), "envelope_min_v": float(per.min()),
+            "envelope_max_v": float(per.max())}
+
+
 def in_process(model, config, spec: str, seconds: float, *, seed: int, plant_draw: int = 0,
                gust: str | None = None, effects: tuple[str, ...] = ()):
     """One in-process closed-loop run on plant ``plant_draw`` of the bench's family (0: our bench)."""
@@ -82,6 +96,29 @@ def in_process(model, config, spec: str, seconds: float, *, seed: int, plant_dra
     return run.run()
 
 
+def suppression_rows(model, ff_config, fb_config, point, dt: float, *, level: float = 0.08,
+                     amplitude: float = 0.01, seed: int = 11, plant_draw: int = 0,
+                     frequencies: tuple[float, ...] = FREQUENCIES) -> list[dict]:
+    """Per gust frequency f: the true lift's amplitude at f with feedback (``fb_config``) and with
+    feedforward only, their ratio in dB (negative = suppressed), ``point``'s predicted |S_o(f)| and
+    the feedback run's clamped burst periods (:func:`clamped`)."""
+    ref = f"steps:{level}@0"
+    rows = []
+    for f in frequencies:
+        seconds = SETTLE_S + max(12.0, 4.0 / f)
+        gust = f"{f:g}:{amplitude:g}"
+        amp, env = {}, {}
+        for name, cfg in (("ff", ff_config), ("fb", fb_config)):
+            t, y, env[name] = in_process(model, cfg, ref, seconds, seed=seed, plant_draw=plant_draw,
+                                         gust=gust).traces()
+            amp[name] = sine_amplitude(t, y, f, SETTLE_S)
+        s_pred = abs(point.sensitivity(np.array([f]), dt)[0])
+        rows.append({"f_hz": f, "amp_ff": amp["ff"], "amp_fb": amp["fb"],
+                     "suppression_db": 20 * math.log10(amp["fb"] / amp["ff"]),
+                     "predicted_s_db": 20 * math.log10(s_pred), **clamped(t, env["fb"])})
+    return rows
+
+
 def measure(model, fb_config, point, dt: float, *, level: float = 0.08, amplitude: float = 0.01, seed: int = 11,
             plant_draw: int = 0, frequencies: tuple[float, ...] = FREQUENCIES) -> dict:
     """Suppression per gust frequency (feedback over feedforward only, with ``point``'s predicted
@@ -91,18 +128,8 @@ def measure(model, fb_config, point, dt: float, *, level: float = 0.08, amplitud
 
     ff_config = ControlConfig(feedback=False, fs_hz=model.fs_hz)
     ref = f"steps:{level}@0"
-    rows = []
-    for f in frequencies:
-        seconds = SETTLE_S + max(12.0, 4.0 / f)
-        gust = f"{f:g}:{amplitude:g}"
-        amp = {}
-        for name, cfg in (("ff", ff_config), ("fb", fb_config)):
-            t, y, _ = in_process(model, cfg, ref, seconds, seed=seed, plant_draw=plant_draw, gust=gust).traces()
-            amp[name] = sine_amplitude(t, y, f, SETTLE_S)
-        s_pred = abs(point.sensitivity(np.array([f]), dt)[0])
-        rows.append({"f_hz": f, "amp_ff": amp["ff"], "amp_fb": amp["fb"],
-                     "suppression_db": 20 * math.log10(amp["fb"] / amp["ff"]),
-                     "predicted_s_db": 20 * math.log10(s_pred)})
+    rows = suppression_rows(model, ff_config, fb_config, point, dt, level=level, amplitude=amplitude, seed=seed,
+                            plant_draw=plant_draw, frequencies=frequencies)
     freqs = [r["f_hz"] for r in rows]
     measured = [r["suppression_db"] for r in rows]
     tracking = {}
