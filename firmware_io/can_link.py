@@ -99,7 +99,9 @@ class CanLink(Link):
         bus = self._bus
         assembler = self._assembler
         while True:
-            remaining = None if deadline is None else max(0.0, deadline - time.perf_counter())
+            now = time.perf_counter()
+            remaining = None if deadline is None else max(0.0, deadline - now)
+            self._waiting(now)
             try:
                 msg = bus.recv(remaining)
             except (ValueError, IndexError, UnicodeDecodeError):
@@ -116,6 +118,7 @@ class CanLink(Link):
                 if deadline is None:
                     continue
                 return None
+            self._heard(time.perf_counter())
             if self._log is not None:
                 self._log(msg)
             sample = assembler.feed_message(msg)

@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, fields
 from typing import Any
 
-from firmware_io.commands import CommandTracker
+from firmware_io.commands import DEFAULT_WATCHDOG_MS, WATCHDOG_STEP_MS, CommandTracker
 from firmware_io.errors import LinkError
 from firmware_io.logs import CommandLog, LoggedCommand, commands_path, open_link_log
 from firmware_io.samples import Counters, Sample
@@ -118,6 +118,40 @@ class Link(ABC):
     on a link with a ``log``: what a replay needs to rerun the controller."""
     _log_path: str | None = None
     _command_log: Any = None
+    watchdog_ms: int = DEFAULT_WATCHDOG_MS
+    """The device watchdog the link's commands set (PROTOCOL.md: ``watchdog_ms``, 500 ms until a
+    command sets another)."""
+    silence_max_s: float = 0.0
+    """The longest silence of the wire (s): the host waited for the device's next bytes with
+    nothing received (:meth:`_silence`). The host's own pauses between reads are not in it."""
+    stalls: int = 0
+    """Silences that held the commands back for the device's watchdog (:meth:`_heard`): a host
+    that sends on samples has nothing to send while none arrive, so the watchdog trips whatever
+    the host does (on a busy VM the pseudo-terminal carried nothing either way for 0.7–5 s while
+    both ends ran: docs/results/control.md, "Host command timing under load")."""
+    _silent_since: float | None = None
+    _last_sent: float | None = None
+
+    def _waiting(self, now: float) -> None:
+        """The host found nothing to read at ``now`` (host clock, s) and waits for the wire."""
+        if self._silent_since is None:
+            self._silent_since = now
+
+    def _heard(self, now: float) -> None:
+        """Bytes arrived at ``now``: the silence since :meth:`_waiting`, if any, ends
+        (``silence = now − since``). It is a stall when the last command went out at least
+        ``watchdog_ms`` ago (``now − sent ≥ watchdog``: the device heard nothing for as long)
+        and the wire's silence is the larger part of that (``silence > since − sent``, the
+        host's own share)."""
+        since = self._silent_since
+        if since is not None:
+            self._silent_since = None
+            silence = now - since
+            if silence > self.silence_max_s:
+                self.silence_max_s = silence
+            sent = self._last_sent
+            if sent is not None and (now - sent) * 1000.0 >= self.watchdog_ms and silence > since - sent:
+                self.stalls += 1
 
     @property
     def down(self) -> bool:
@@ -157,6 +191,7 @@ class Link(ABC):
 
     def _device_gone(self) -> None:
         """The port or bus failed: reconnect if asked to, else end the link."""
+        self._silent_since = None           # a device gone is a reconnect, not a silence of the wire
         self._close_device()
         policy = self.reconnect
         if policy is None:
@@ -256,6 +291,9 @@ class Link(ABC):
         if not self._write_command(wire):
             return None
         tracker.sent(cmd_seq, now)
+        self._last_sent = now
+        if watchdog_ms_div10:
+            self.watchdog_ms = watchdog_ms_div10 * WATCHDOG_STEP_MS
         if self._log_path is not None:
             self._log_command(now, LoggedCommand(self.delivered, cmd_seq, envelope_cv, burst_period_ms,
                                                  bool(enable), watchdog_ms_div10))

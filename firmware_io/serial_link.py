@@ -116,6 +116,8 @@ class SerialLink(Link):
         while True:
             try:
                 waiting = ser.in_waiting
+                if not waiting:
+                    self._waiting(time.perf_counter())
                 if not waiting and deadline is not None and time.perf_counter() >= deadline:
                     return None
                 if not waiting and self.spin:
@@ -140,6 +142,7 @@ class SerialLink(Link):
                 ser = self._ser
                 continue
             if data:
+                self._heard(time.perf_counter())
                 if self._log is not None:
                     self._log.write(data)
                 self._decoder.feed(data)

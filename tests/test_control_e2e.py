@@ -83,8 +83,13 @@ def test_no_sample_is_lost_and_every_command_is_applied(runs, name):
     st = dev.stats
     assert s["commands_sent"] == st.commands_valid
     assert s["commands_applied"] == st.commands_applied == s["commands_sent"] - st.commands_superseded
-    # the host saw no trip; the device may trip once after the host has left (its watchdog at work)
-    assert s["watchdog_trips"] == 0 and st.watchdog_trips <= 1 and st.cmd_errors == 0
+    # the host saw no trip it could have prevented: each is a stall of the wire (no sample for the
+    # watchdog's time, so nothing to send on: docs/results/control.md, "Host command timing under
+    # load"); the device may trip once more after the host has left (its watchdog at work)
+    stalls = s["link_stalls"]
+    assert s["watchdog_trips"] <= stalls and st.watchdog_trips <= 1 + stalls and st.cmd_errors == 0
+    assert stalls == 0 or s["link_silence_max_ms"] > 250     # over half the 500 ms watchdog: Link.stalls
+    assert 0 < s["link_silence_max_ms"] < 1000 * SECONDS
     assert 0 < s["command_latency_p50_ms"] <= s["command_latency_p99_ms"]  # its size: benchmarks/command_latency.py
     assert not dev.control.enabled and dev.control.envelope_cv == 0  # switched off on the way out
 

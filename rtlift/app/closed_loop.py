@@ -135,10 +135,15 @@ class ControlLoop:
                 "tracking_samples": self.tracked, "feedback": self.controller.config.feedback}
 
     def results(self) -> dict[str, Any]:
-        """The link's command counters and latency, then :meth:`tracking`."""
+        """The link's command counters and latency, its longest silence (ms) and its stalls
+        (silences ≥ the device's watchdog: trips the host could not prevent,
+        :attr:`firmware_io.link_base.Link.stalls`), then :meth:`tracking`."""
         c = self.link.counters
         out: dict[str, Any] = {k: int(c.as_dict()[k]) for k in ("commands_sent", "commands_applied",
                                                                   "watchdog_trips")}
         out.update(c.command_latency_ms())
+        link = self.link
+        out["link_silence_max_ms"] = getattr(link, "silence_max_s", 0.0) * 1000.0
+        out["link_stalls"] = getattr(link, "stalls", 0)
         out.update(self.tracking())
         return out

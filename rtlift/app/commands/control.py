@@ -200,7 +200,9 @@ def _fmt(v: float | None, spec: str) -> str:
 def _print(d: dict) -> None:
     print(f"rtlift control: {d['end']}: received {d['received']} lost {d['lost']} crc_errors {d['crc_errors']}; "
           f"commands sent {d['commands_sent']} applied {d['commands_applied']} watchdog trips "
-          f"{d['watchdog_trips']}; command latency p50 {_fmt(d['command_latency_p50_ms'], '.2f')} ms "
+          f"{d['watchdog_trips']} (link stalls {d.get('link_stalls', 0)}, longest silence "
+          f"{d.get('link_silence_max_ms', 0.0):.0f} ms); command latency p50 "
+          f"{_fmt(d['command_latency_p50_ms'], '.2f')} ms "
           f"p99 {_fmt(d['command_latency_p99_ms'], '.2f')} ms; tracking RMSE "
           f"{_fmt(d['tracking_rmse'], '.4f')} (feedback {'on' if d['feedback'] else 'off'}), "
           f"saturated {d['saturated_fraction']:.1%}", flush=True)
