@@ -57,7 +57,8 @@ def identified_model(n: int, tmp: str, keep: str | None = None) -> str:
 
 
 def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
-             targets: object = None, structure: str = "auto", backoff: float | None = None) -> dict:
+             targets: object = None, structure: str = "auto", backoff: float | None = None,
+             channel_bound: bool = False, save_design: bool = False) -> dict:
     from rtlift.app.control_design import design_loop
     from rtlift.model.modelfile import load_model
 
@@ -65,8 +66,15 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
     path = identified_model(n, tmp, keep)
     t1 = time.perf_counter()
     model = load_model(path)
-    design = design_loop(model, targets, structure=structure, **({} if backoff is None else {"backoff": backoff}))
+    design = design_loop(model, targets, structure=structure, channel_bound=channel_bound,
+                         **({} if backoff is None else {"backoff": backoff}))
     t2 = time.perf_counter()
+    if save_design and keep:
+        from rtlift.app.control_design import report_doc
+        from rtlift.core.jsonfile import write_json_atomic
+
+        name = f"{n}_design_{design.structure}{'_cb' if channel_bound else ''}.json"
+        write_json_atomic(os.path.join(keep, name), report_doc(design, path), stage="design")
     point = min(design.points, key=lambda pt: abs(pt.dcl - 0.08))   # a half-way check too: the gains run there
     config = design.control_config(fs_hz=model.fs_hz)
     res = measure(design.control_model(model), config, point, design.dt, seed=seed, plant_draw=n,
@@ -82,7 +90,7 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             "predicted_point_dcl": point.dcl, "predicted_point_scheduled": point.designed,
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
             "observer": design.observer, "peak_db_target": design.targets.peak_db, "structure": design.structure,
-            "backoff": backoff, **res}
+            "backoff": backoff, "channel_bound": channel_bound, **res}
 
 
 def table(rows: list[dict]) -> str:
@@ -122,6 +130,10 @@ def main() -> None:
                     help="the controller the design builds (default pi; auto: the wider predicted band)")
     ap.add_argument("--backoff", type=float, help="the internal-model controller's fraction of its band "
                     "(default: the design's own)")
+    ap.add_argument("--channel-bound", action="store_true", help="the internal-model design bounds each channel's "
+                    "part of T by 1 + M (control_design.YOULA_CHANNEL_BOUND)")
+    ap.add_argument("--save-designs", action="store_true", help="with --keep: write each draw's design there "
+                    "(N_design_STRUCTURE.json, report.json's form) for benchmarks/youla_gap.py")
     args = ap.parse_args()
     if args.table:
         rows = [json.loads(line) for path in args.table for line in open(path, encoding="utf-8") if line.strip()]
@@ -140,7 +152,7 @@ def main() -> None:
                 continue
             r = one_draw(n, tmp, freqs, args.seed, args.keep,
                          None if args.peak_db is None else Targets(peak_db=args.peak_db), args.structure,
-                         args.backoff)
+                         args.backoff, args.channel_bound, args.save_designs)
             results.append(r)
             with open(args.out, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(r) + "\n")

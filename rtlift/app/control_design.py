@@ -1030,12 +1030,16 @@ class YoulaProgram:
     equalities for the integral action the PI has: T(1) = 1 (S(1) = 0: no
     steady error, a fade is integrated away) and Q_X(1) = 0 (the latest estimate's constant burst
     ripple offset at the decisions' fixed phase cannot bias the mean, as K_x's difference in the PI).
-    ``integral``: those two equalities alone (the limit's, :func:`rejection_limit`)."""
+    ``integral``: those two equalities alone (the limit's, :func:`rejection_limit`). ``channel_bound``
+    B: also each channel's own part of T bounded everywhere, |Q_A P_A| ≤ λ B and |Q_X P_X| ≤ λ B. The
+    sensor's noise reaches the two channels differently (n_A the period's mean, n_X the latest
+    estimate) and the lift as Q_A P_A n_A + Q_X P_X n_X, so parts that cancel in T (large and opposed)
+    do not cancel on the noise (:data:`YOULA_CHANNEL_BOUND`)."""
 
     def __init__(self, p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, f_o: Any = None,
                  unc: Uncertainty | None = None, taps: int = LIMIT_TAPS, gm_db: float | None = None,
                  nyquist_gain: float | None = None, controller: bool = False, g_y: Any = None,
-                 integral: bool = False) -> None:
+                 integral: bool = False, channel_bound: float | None = None) -> None:
         self.taps = taps
         nyq = 0.5 / dt
 
@@ -1065,6 +1069,11 @@ class YoulaProgram:
         scaled = [(self.polygon(-rows_all, ones, 0.0), self.mpk),
                   (self.polygon(-gust_all, ones, 0.0), self.mpk),
                   (self.polygon(w[:, None] * rows_all, 0.0 * ones, 0.0), 1.0)]
+        if channel_bound is not None:        # |Q_A P_A|, |Q_X P_X| ≤ λ B: one channel's columns each
+            for part in (np.s_[:taps], np.s_[taps:]):
+                only = np.zeros_like(rows_all)
+                only[:, part] = rows_all[:, part]
+                scaled.append((self.polygon(only, 0.0 * ones, 0.0), channel_bound))
         self.a_peak = np.vstack([np.c_[a, np.full(a.shape[0], -r * self.shrink)] for (a, _), r in scaled])
         self.b_peak = np.concatenate([b for (_, b), _ in scaled])
         parts = []
@@ -1207,6 +1216,14 @@ leaves the bounds no margin of their own: what holds the measured lift under 3 d
 where the programme's band was ≤ 0.36 Hz (8 of 10 measured 0.347–0.392 Hz) and failed where it
 reached further (8 of 10 measured 0.13–0.19 Hz; limits 0.71–0.90 Hz, wider than draws 1–3's): the
 model's 55–60 ms loop lag is not covered by :class:`Uncertainty`'s δ there (docs/results/control.md)."""
+YOULA_CHANNEL_BOUND = False
+"""Whether the internal-model design bounds each channel's part of T by 1 + M (M the |S| peak
+bound: what |T| = |1 − S| itself may reach; :class:`YoulaProgram`'s ``channel_bound``). Without it,
+on calibration draws 1–3 (delivered-envelope models, back-off 1.0) |Q_A|, |Q_X| reached 5 at
+0.35–0.5 Hz in opposed phases: the gust's own part of the measured lift was as predicted (within
+0.6 dB at 0.2–0.5 Hz) but the sensor's noise, which the two channels see differently, came through
+at −14…−24 dB of a 0.01 gust at 0.25–0.5 Hz (the PI −30…−47 dB) and took the measured band from
+0.55–0.60 to 0.16–0.20 Hz (docs/results/control.md, "Eighth pass")."""
 YOULA_STEP = 0.05
 """Where a Youla point misses a target (the phase margin, not in the programme; a half-way check),
 the fraction is lowered by this much and the point designed again, down to :data:`YOULA_FLOOR`."""
@@ -1225,7 +1242,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 fractions: tuple[float, ...] = SCHEDULE_FRACTIONS, *, observer: bool = True,
                 uncertainty: Uncertainty | None = None, limit: bool = True,
                 max_inserted: int = MAX_INSERTED, structure: str = DEFAULT_STRUCTURE,
-                backoff: float = YOULA_BACKOFF) -> Design:
+                backoff: float = YOULA_BACKOFF, channel_bound: bool = YOULA_CHANNEL_BOUND) -> Design:
     """The gain-scheduled design for ``model`` (module docstring): the controller designed at each
     of ``fractions``, then every target checked there and half-way between neighbours with the
     controller interpolated there as :class:`~rtlift.app.control.LiftController` does; where a
@@ -1236,7 +1253,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     design there), "pi2j" (the ``pi2`` schedule, then all its scheduled points' gains searched together
     with the half-way points in the cost, :func:`design_joint`; kept where it checks out),
     "youla" (the internal-model controller from :class:`YoulaProgram` at ``backoff`` of its band,
-    lowered by :data:`YOULA_STEP` where a target is missed) or "auto": both, and the one with the
+    lowered by :data:`YOULA_STEP` where a target is missed; ``channel_bound``: each channel's part of T
+    bounded by 1 + M, :data:`YOULA_CHANNEL_BOUND`) or "auto": both, and the one with the
     wider predicted band (the smallest f₆ over every checked point) among those that miss no target
     (the PI when neither or both tie)."""
     if structure not in STRUCTURES:
@@ -1339,7 +1357,9 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 gains.append(g0)
                 progs.append(YoulaProgram(p / g0, q / g0, dt, targets.peak_db, f_o=fo_at(dcl0), unc=unc,
                                           g_y=gy_at(dcl0, g0),
-                                          gm_db=targets.gm_db, nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True))
+                                          gm_db=targets.gm_db, nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True,
+                                          channel_bound=1.0 + 10.0 ** (targets.peak_db / 20.0) if channel_bound
+                                          else None))
             band, frac, points = joint_band(progs), backoff, None
             while frac >= YOULA_FLOOR - 1e-9:
                 sol = joint_solve(progs, band * frac)
