@@ -108,9 +108,10 @@ LOADS = {"numpy": "import numpy as np\nwhile True:\n    np.linalg.eigvals(np.ran
          "alloc": "while True:\n    bytearray(1 << 22)", "spin": "while True:\n    pass"}
 
 
-def _load(n: int, disk: int, tmp: str, kind: str = "numpy") -> list[subprocess.Popen]:
+def _load(n: int, disk: int, tmp: str, kind: str = "numpy", idle: bool = False) -> list[subprocess.Popen]:
     spin = LOADS[kind]
-    procs = [subprocess.Popen(["nice", "-n", "19", sys.executable, "-c", spin]) for _ in range(n)]
+    low = ["chrt", "-i", "0"] if idle else ["nice", "-n", "19"]
+    procs = [subprocess.Popen([*low, sys.executable, "-c", spin]) for _ in range(n)]
     write = ("import os,sys\nb=os.urandom(1<<20)\nwhile True:\n"
              " f=open(sys.argv[1],'wb')\n for _ in range(64): f.write(b)\n f.flush(); os.fsync(f.fileno()); f.close()")
     procs += [subprocess.Popen(["nice", "-n", "19", sys.executable, "-c", write, os.path.join(tmp, f"disk{i}")])
@@ -221,19 +222,32 @@ while time.perf_counter() - t0 < float(sys.argv[2]):
         os.read(fd, 4096); now = time.perf_counter(); gap = max(gap, now - last); last = now
 print(json.dumps({"device_to_host_gap_max_ms": gap * 1e3, "host_oversleep_max_ms": late[0] * 1e3}))
 """
+PIPE_CHILD = """
+import os, sys, time, select, json
+fd = int(sys.argv[1]); t0 = last = time.perf_counter(); gap = 0.0
+while time.perf_counter() - t0 < float(sys.argv[2]):
+    if select.select([fd], [], [], 0.5)[0]:
+        os.read(fd, 4096); now = time.perf_counter(); gap = max(gap, now - last); last = now
+print(json.dumps({"pipe_gap_max_ms": gap * 1e3}))
+"""
 
 
 def pty_only(seconds: float) -> dict:
     """The bare pseudo-terminal, no rtlift: a device thread writes a 43-byte packet every 2.5 ms
     to the master and reads the master; a host process reads the slave and writes a byte every
-    10 ms. Longest gap each way, and how late the host's own 10 ms sleeps woke (is it the host
-    that stalls, or the wire?)."""
+    10 ms; beside it the same packets through a pipe to another process. Longest gap each way,
+    the pipe's, and how late the host's own 10 ms sleeps woke (is it the host that stalls, or the
+    wire?)."""
     master, slave = os.openpty()
     for fd in (master, slave):
         tty.setraw(fd)
     os.set_blocking(master, False)
     child = subprocess.Popen([sys.executable, "-c", PTY_CHILD, os.ttyname(slave), str(seconds)],
                              stdout=subprocess.PIPE, text=True)
+    pipe_r, pipe_w = os.pipe()
+    piped = subprocess.Popen([sys.executable, "-c", PIPE_CHILD, str(pipe_r), str(seconds)], pass_fds=(pipe_r,),
+                             stdout=subprocess.PIPE, text=True)
+    os.close(pipe_r)
     back = [0.0]
     refused = [0]
 
@@ -261,7 +275,9 @@ def pty_only(seconds: float) -> dict:
             os.write(master, b"x" * 43)
         except BlockingIOError:
             refused[0] += 1
-    out = json.loads(child.communicate()[0])
+        os.write(pipe_w, b"x" * 43)
+    out = {**json.loads(child.communicate()[0]), **json.loads(piped.communicate()[0])}
+    os.close(pipe_w)
     os.close(master)
     os.close(slave)
     return {**out, "host_to_device_gap_max_ms": back[0] * 1e3, "device_late_max_ms": late * 1e3,
@@ -281,10 +297,11 @@ def main() -> None:
     p.add_argument("--load-kind", choices=("numpy", "alloc", "spin"), default="numpy",
                    help="numpy: eigenvalues of 200x200 (CI's computing tests); alloc: 4 MB allocated and "
                         "freed in a loop; spin: a pure-Python busy loop")
+    p.add_argument("--idle", action="store_true", help="the load at SCHED_IDLE instead of niceness 19")
     a = p.parse_args()
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
-        load = _load(a.load, a.disk, tmp, a.load_kind)
+        load = _load(a.load, a.disk, tmp, a.load_kind, a.idle)
         try:
             time.sleep(1.0)
             for k in range(a.runs):
@@ -295,7 +312,7 @@ def main() -> None:
             for q in load:
                 q.kill()
                 q.wait()
-    head = {"benchmark": "command_timing", "load": a.load, "load_kind": a.load_kind, "disk": a.disk,
+    head = {"benchmark": "command_timing", "load": a.load, "load_kind": a.load_kind, "idle": a.idle, "disk": a.disk,
             "seconds": a.seconds, "loadavg": os.getloadavg()[0], "runs": runs}
     if a.pty_only:
         emit({**head, "mode": "pty_only"})
