@@ -26,7 +26,7 @@ import numpy as np
 from firmware_io.commands import ENVELOPE_LIMIT_CV
 from firmware_io.samples import Sample
 from rtlift.app.control import LiftController
-from rtlift.app.live import ObserverLoop
+from rtlift.app.live import SILENCE_S, ObserverLoop
 from rtlift.app.reference import Reference
 
 SETTLE_S = 1.0
@@ -35,6 +35,10 @@ MARGIN_SAMPLES = 10
 STATUS_BURST_ON = 0x08
 LOWPASS_HZ = 1.0
 OFF_ECHO_S = 0.5
+"""Device time (s, counted in samples received) to wait for the echo of the switch-off command:
+the device applies a command at its next sample. Time the wire carries nothing (a stall of the
+pty: docs/results/control.md, "Host command timing under load") does not use it up; the wait
+ends anyway after :data:`rtlift.app.live.SILENCE_S` of the host clock."""
 
 
 def lowpassed_rmse(reference: np.ndarray, estimate: np.ndarray, fs_hz: float) -> float | None:
@@ -121,11 +125,17 @@ class ControlLoop:
             return
         if cmd_seq is None or not wait_echo:
             return
-        end = time.perf_counter() + OFF_ECHO_S
-        while time.perf_counter() < end:
+        left = int(round(OFF_ECHO_S * self.fs_hz))
+        end = time.perf_counter() + SILENCE_S
+        while left > 0 and time.perf_counter() < end:
             s = link.recv(0.05)
-            if s is not None and s.cmd_seq == cmd_seq:
+            if s is None:
+                if link.closed or link.disconnected:
+                    return
+                continue
+            if s.cmd_seq == cmd_seq:
                 return
+            left -= 1
 
     def tracking(self) -> dict[str, Any]:
         """Tracking RMSE (low-passed at 1 Hz), saturated share of the decisions, samples tracked."""
