@@ -1224,9 +1224,9 @@ reached 4.8–6.4 at 0.35 Hz in opposed phases (|T| 1.3–1.8): the gust's own p
 was as predicted (within 0.8 dB at 0.2–0.5 Hz) but the sensor's noise, which the two channels see
 differently, came through at −10…−24 dB of a 0.01 gust at 0.25–0.35 Hz (the PI −30…−46 dB) and,
 with the design's |S_o| a plateau 0.2–0.5 dB under −6 dB, took the measured band from 0.55–0.60 to
-0.16–0.20 Hz. With the bound the floor fell 4–15 dB; at back-off 0.75 draw 1 measured 0.395 Hz
-(0.215 without the bound), draw 3 0.245 Hz. Off by default: too few draws, and the amplification at
-2 Hz stays over 3 dB (docs/results/control.md, "Eighth pass")."""
+0.16–0.20 Hz. With the bound the floor fell 4–15 dB; at back-off 0.75 draws 1 / 2 / 3 measured
+0.395 / 0.407 / 0.245 Hz (draw 1 0.215 without the bound; the PI 0.249 / 0.248 / 0.272). Off by
+default: too few draws, and the amplification at 2 Hz stays over 3 dB (docs/results/control.md, "Eighth pass")."""
 YOULA_STEP = 0.05
 """Where a Youla point misses a target (the phase margin, not in the programme; a half-way check),
 the fraction is lowered by this much and the point designed again, down to :data:`YOULA_FLOOR`."""
