@@ -1220,7 +1220,7 @@ YOULA_CHANNEL_BOUND = False
 """Whether the internal-model design bounds each channel's part of T by 1 + M (M the |S| peak
 bound: what |T| = |1 − S| itself may reach; :class:`YoulaProgram`'s ``channel_bound``). Without it,
 on calibration draws 1–3 (delivered-envelope models, back-off 1.0) the parts |Q_A P_A|, |Q_X P_X|
-reached 4.8–6.4 at 0.35 Hz in opposed phases (|T| 1.3–1.8): the gust's own part of the measured lift
+reached 4.8–6.4 at 0.35 Hz in opposed phases (|T| 1.2–1.8): the gust's own part of the measured lift
 was as predicted (within 0.8 dB at 0.2–0.5 Hz) but the sensor's noise, which the two channels see
 differently, came through at −10…−24 dB of a 0.01 gust at 0.25–0.35 Hz (the PI −30…−46 dB) and,
 with the design's |S_o| a plateau 0.2–0.5 dB under −6 dB, took the measured band from 0.55–0.60 to
