@@ -18,6 +18,13 @@ from firmware_io.logs import CommandLog, LoggedCommand, commands_path, open_link
 from firmware_io.samples import Counters, Sample
 from rtlift.core.rate import FS_HZ
 
+DEVICE_SILENCE_S = 5.0
+"""Host seconds with the link up and no valid sample after which a run counts the device as gone
+(``rtlift record``, ``observe``, ``control``, the demo). Longer than the wire's own stalls: on a
+busy VM the pseudo-terminal carried nothing either way for 0.4–5 s while both ends ran
+(docs/results/control.md, "Host command timing under load"); nothing is lost in one, the bytes
+come after it."""
+
 SERIAL_BAUD = 921_600
 CAN_BITRATE = 500_000
 SAMPLE_WIRE_BYTES = 43

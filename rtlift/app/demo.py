@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from rtlift.app.demo_report import live_report, report_markdown, tracking_figure
+from rtlift.core.errors import UserError
 from rtlift.core.rate import FS_HZ, PERIOD_S
 from rtlift.core.records import Record, write_record
 
@@ -413,7 +414,8 @@ def _live(model_path: str, opt: DemoOptions, out: str, prog: _Progress) -> dict[
                 result = rec.run(program, None)
             counters = link.counters.as_dict()
     if not result.complete or not loop.done:
-        raise RuntimeError(f"demo: the live run over the pty did not complete ({result.reason or 'too short'})")
+        raise UserError(f"demo: the live run over the pty did not complete ({result.reason or 'too short'}); "
+                        "on a loaded machine a pseudo-terminal can stall: run it again")
     p50, p99 = loop.stats.latency_ms()
     step_us = np.frombuffer(loop.stats.step_times, dtype=float) * 1e6
     idx, truth = stream.truth_array()

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from firmware_io.latency import LatencyRecorder
+from firmware_io.link_base import DEVICE_SILENCE_S
 from firmware_io.logs import FlushedFile
 from firmware_io.samples import Sample
 from rtlift.core.errors import UserError
@@ -338,7 +339,7 @@ class ObserverLoop:
         return self.stats.end
 
 
-SILENCE_S = 5.0
+SILENCE_S = DEVICE_SILENCE_S
 """Host seconds without a sample, the link up, after which a live run with an end gives up."""
 
 

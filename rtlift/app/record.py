@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from firmware_io.link_base import DEVICE_SILENCE_S
 from rtlift.app.applied import commands_not_applied
 from rtlift.core.errors import UserError
 from rtlift.core.programs import Program, samples_of_ms
@@ -59,8 +60,9 @@ ECHO_TIMEOUT_S = 0.5
 """Host seconds to wait for a command's echo before the next one may go out anyway."""
 PROTOCOL_CHECK_SAMPLES = int(FS_HZ)
 """Samples to wait for the echo of the first command before calling the device version 1."""
-SILENCE_S = 2.0
-"""Host seconds without a valid sample before the device counts as gone."""
+SILENCE_S = DEVICE_SILENCE_S
+"""Host seconds without a valid sample before the device counts as gone (was 2 s: a stall of a
+loaded machine's pseudo-terminal cut the demo's run short in a loaded CI)."""
 BAD_FRAMES_FLOOR = 100
 BAD_FRAMES_SHARE = 0.1
 """An experiment stops when lost + invalid frames exceed FLOOR + SHARE × samples received."""
