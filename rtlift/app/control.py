@@ -176,6 +176,12 @@ def config_from_gains_text(text: str, feedback: bool, fs_hz: float) -> ControlCo
         raise UserError(f"control gains {text[:60]!r}: not valid ({exc})") from None
 
 
+def lead_lag(y_last: float, x: float, x_last: float, a: float, b: float, g: float) -> float:
+    """One step of the lead–lag g (Z − a)/(Z − b) at the burst rate: y(k) = b y(k−1) + g (x(k) − a x(k−1)),
+    g = (1 − b)/(1 − a) (unit gain at DC; x itself when a = b = 0)."""
+    return b * y_last + g * (x - a * x_last)
+
+
 def youla_rows(rows: Any) -> tuple[tuple[Any, ...], ...]:
     """``(Cμ, Q_A, Q_X, P_A, P_X)`` rows as tuples of floats (from JSON lists)."""
     return tuple((float(r[0]), *(tuple(float(v) for v in t) for t in r[1:])) for r in rows)
@@ -381,14 +387,14 @@ class LiftController:
             if self._rows:
                 self._schedule_at(self.feedforward)
             e = self._err_sum / self._n
-            e2 = self._d * self._e2 + self._g2 * (e - self._c * self._last_e)     # e itself when c = d = 0
+            e2 = lead_lag(self._e2, e, self._last_e, self._c, self._d, self._g2)   # e itself when c = d = 0
             self._e2 = e2
             self._last_e = e
-            err = self._b * self._filtered + self._g * (e2 - self._a * self._last_err)
+            err = lead_lag(self._filtered, e2, self._last_err, self._a, self._b, self._g)
             self._filtered = err
             self._last_err = e2
             x = self._est_sum / self._n - self._point
-            x2 = self._d * self._x2 + self._g2 * (x - self._c * self._last_x)
+            x2 = lead_lag(self._x2, x, self._last_x, self._c, self._d, self._g2)
             self._x2 = x2
             self._last_x = x
             fast = self.kx * x2
