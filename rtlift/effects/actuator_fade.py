@@ -11,7 +11,7 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import optimize
+import scipy  # its submodules load on first use (scipy's lazy loader): not on a live start's path
 
 from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.core.records import Record
@@ -48,7 +48,7 @@ class ActuatorFadeEffect(Effect):
 
             scale = 1.0 if clock == "time" else 0.1        # burst on-time runs at the duty cycle
             for f0, tau0 in ((0.6, 3.0), (0.85, 8.0), (0.4, 1.0)):
-                res = optimize.least_squares(resid, [f0, math.log(tau0 * scale)],
+                res = scipy.optimize.least_squares(resid, [f0, math.log(tau0 * scale)],
                                              bounds=([0.0, math.log(lo_tau)], [1.0, math.log(hi_tau)]),
                                              x_scale=[0.1, 0.5], max_nfev=60)
                 if clock not in fits or res.cost < fits[clock].cost:

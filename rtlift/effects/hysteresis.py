@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize
+import scipy  # its submodules load on first use (scipy's lazy loader): not on a live start's path
 
 from rtlift.blocks.delivered import STRUCTURE_STAGES
 from rtlift.blocks.wiener import HysteresisGain, InputGain, OutputHysteresis, OutputNonlinearity
@@ -109,7 +109,7 @@ class HysteresisEffect(Effect):
         scale = spans[driver]
         a0, b0 = math.sqrt(fraction), math.sqrt(tau)
         simplex = [[a0, b0], [a0 + 0.1, b0], [a0, b0 + 0.1]]
-        sol = optimize.minimize(lambda v: sse(column(driver, v[0] ** 2 * scale, v[1] ** 2)), [a0, b0],
+        sol = scipy.optimize.minimize(lambda v: sse(column(driver, v[0] ** 2 * scale, v[1] ** 2)), [a0, b0],
                                 method="Nelder-Mead",
                                 options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 0.0, "maxfev": 80})
         if sol.fun < best[0]:

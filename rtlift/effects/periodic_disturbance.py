@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from scipy import optimize
+import scipy  # its submodules load on first use (scipy's lazy loader): not on a live start's path
 
 from rtlift.blocks.periodic_disturbance import PeriodicDisturbance, alias_hz
 from rtlift.core.records import Record
@@ -74,7 +74,7 @@ class PeriodicDisturbanceEffect(Effect):
         near = np.flatnonzero(np.abs(freqs - line.frequency_hz) <= 1.5 * df)
         f_grid = float(freqs[near[np.argmax(power[near])]])
         step = freqs[1]
-        f0 = float(optimize.minimize_scalar(neg_power, bounds=(f_grid - step, f_grid + step), method="bounded",
+        f0 = float(scipy.optimize.minimize_scalar(neg_power, bounds=(f_grid - step, f_grid + step), method="bounded",
                                             options={"xatol": 1e-7}).x)
         # harmonics n f0 as sampled that also stand above the print and clear of the input's lines
         taken = [f0]

@@ -12,7 +12,7 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import ndimage, optimize, signal
+import scipy  # its submodules load on first use (scipy's lazy loader): not on a live start's path
 
 from rtlift.blocks.sensor_resonance import SensorResonance, resonance_ba
 from rtlift.core.records import Record
@@ -39,7 +39,7 @@ def _psd_excess(ctx: Context) -> np.ndarray:
 def _mode_gain_db(f: np.ndarray, f0: float, zeta: float, fs: float) -> np.ndarray:
     """20 log10 |H(e^{jω})| of the sensor mode (:func:`resonance_ba`) at frequencies f."""
     b, a = resonance_ba(f0, zeta, fs)
-    _, h = signal.freqz(b, a, worN=f, fs=fs)
+    _, h = scipy.signal.freqz(b, a, worN=f, fs=fs)
     return 20.0 * np.log10(np.maximum(np.abs(h), 1e-12))
 
 
@@ -65,8 +65,8 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
     for x in (*ctx.input_lines_hz, *(p.frequency_hz for p, _ in standing_lines(ctx))):
         locked |= np.abs(f - x) <= 2.0 * df
     free = (~locked).astype(float)                        # 3-bin mean over the free bins only
-    excess = 10.0 / math.log(10.0) * ndimage.uniform_filter1d(_psd_excess(ctx) * free, size=3, mode="reflect") \
-        / np.maximum(ndimage.uniform_filter1d(free, size=3, mode="reflect"), 1e-12)
+    excess = 10.0 / math.log(10.0) * scipy.ndimage.uniform_filter1d(_psd_excess(ctx) * free, size=3, mode="reflect") \
+        / np.maximum(scipy.ndimage.uniform_filter1d(free, size=3, mode="reflect"), 1e-12)
     band = (f >= lo_f) & (f <= hi_f) & ~locked
     if not band.any():
         return None
@@ -81,7 +81,7 @@ def _spectral_mode(ctx: Context, lo_f: float, hi_f: float, lo_z: float, hi_z: fl
         h2 = 10.0 ** (_mode_gain_db(f[sel], theta[0], theta[1], ctx.fs) / 10.0)
         return excess[sel] - 10.0 * np.log10(theta[2] * h2 + 1.0 - theta[2])
 
-    res = optimize.least_squares(resid, [f_peak, 0.1, 0.5],
+    res = scipy.optimize.least_squares(resid, [f_peak, 0.1, 0.5],
                                  bounds=([max(lo_f, 0.8 * f_peak), lo_z, 0.01], [min(hi_f, 1.2 * f_peak), hi_z, 1.0]),
                                  x_scale=[max(1.0, 0.05 * f_peak), 0.02, 0.1], loss="soft_l1", f_scale=3.0)
     return float(res.x[0]), float(res.x[1])
@@ -106,7 +106,7 @@ class SensorResonanceEffect(Effect):
 
         def sse(f: float, zeta: float) -> float:
             b, a = resonance_ba(f, zeta, ctx.fs)
-            return float(np.sum((z - (signal.lfilter(b, a, filtered) + extra)[ctx.start:]) ** 2))
+            return float(np.sum((z - (scipy.signal.lfilter(b, a, filtered) + extra)[ctx.start:]) ** 2))
 
         lo_f, hi_f, lo_z, hi_z = 5.0, 0.47 * ctx.fs, 0.005, 0.7
         mode = _spectral_mode(ctx, lo_f, hi_f, lo_z, hi_z)
@@ -117,7 +117,7 @@ class SensorResonanceEffect(Effect):
             # leaks into the bins next to the line and makes the spectral peak look narrower than
             # it is; the output error, which holds the lift filtered by the mode, is not fooled.
             f_s, z_s = mode
-            fits = [optimize.least_squares(lambda th: [math.sqrt(sse(th[0], th[1]))], [f_s, z0],
+            fits = [scipy.optimize.least_squares(lambda th: [math.sqrt(sse(th[0], th[1]))], [f_s, z0],
                                            bounds=([0.95 * f_s, lo_z], [1.05 * f_s, hi_z]),
                                            x_scale=[max(1.0, 0.05 * f_s), 0.3 * z0])
                     for z0 in sorted({min(max(z_s, lo_z), hi_z), 0.02, 0.05, 0.1, 0.2})]
@@ -126,7 +126,7 @@ class SensorResonanceEffect(Effect):
         else:
             grid = [(f, zt) for f in np.geomspace(8.0, 0.45 * ctx.fs, 14) for zt in (0.05, 0.2)]
             f0, z0 = min(grid, key=lambda th: sse(*th))
-            res = optimize.least_squares(lambda th: [math.sqrt(sse(th[0], th[1]))], [f0, z0],
+            res = scipy.optimize.least_squares(lambda th: [math.sqrt(sse(th[0], th[1]))], [f0, z0],
                                          bounds=([lo_f, lo_z], [hi_f, hi_z]), x_scale=[max(1.0, 0.05 * f0), 0.02])
             f, zeta = float(res.x[0]), float(res.x[1])
         fitted = SensorResonance(f, zeta, ctx.fs)

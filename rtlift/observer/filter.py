@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 from scipy.linalg import blas
 
 from rtlift.blocks.compiled import hybrid_step
@@ -76,24 +76,19 @@ class Observer:
                           config.q_gain_h > 0)
         self.layout = lay
         d, n = lay.dim_x, lay.n_wiener
-        kf = KalmanFilter(dim_x=d, dim_z=1, dim_u=1)
-        kf.F = lay.F.copy()
-        kf.B = lay.G.reshape(-1, 1).copy()
-        kf.Q = lay.Q(config)
-        kf.R = np.array([[config.R]])
-        self.kf = kf
+        self._Q = lay.Q(config)
+        self._kf = None                         # filterpy's KalmanFilter over these arrays, built by :attr:`kf`
         self.gate = chi2_1_quantile(config.gate_probability)
         # the state, preallocated: ξ, P, the row H(k), the scalar state (gate, phase, counters)
         self._xi = np.zeros(d)
         self._P = np.zeros((d, d))
         self._H = lay.h_fixed.copy()
         self._s = np.zeros(cs.SCALAR_STATE_SIZE)
-        kf.x, kf.P, kf.H = self._xi, self._P, self._H.reshape(1, -1)
         self.phase = lay.phase(self._s[cs.PHASE:cs.PHASE + 3])
         # views and scratch of the reference step
         self._PT = self._P.T                    # Fortran-ordered view for BLAS dger (P is symmetric)
         self._P_flat = self._P.reshape(-1)
-        self._Q_flat = np.ascontiguousarray(kf.Q).reshape(-1)
+        self._Q_flat = np.ascontiguousarray(self._Q).reshape(-1)
         self._FT = lay.F.T.copy()
         self._xi_wiener = self._xi[:n]
         self._xi_ripple = self._xi[lay.ripple_start:]
@@ -149,9 +144,28 @@ class Observer:
         ipar, fpar = cs.pack_layout(lay, self.config.R, self.gate, self.config.max_rejections)
         d = lay.dim_x
         tab = np.zeros((max(lay.max_period, 1) if lay.harmonics else 1, max(2 * lay.harmonics, 1)))
-        args = (*model_args, ipar, fpar, np.ascontiguousarray(self.kf.Q), self._xi, self._P, self._H,
+        args = (*model_args, ipar, fpar, np.ascontiguousarray(self._Q), self._xi, self._P, self._H,
                 np.zeros((d, d)), np.zeros(2 * d), tab, self._s)
         return step, args, touch
+
+    @property
+    def kf(self) -> Any:
+        """filterpy's ``KalmanFilter`` holding this observer's arrays: ``x`` is ξ and ``P`` its
+        covariance (the very arrays the step updates in place), ``Q``, ``H`` the step's own, ``F``,
+        ``B`` (= G) and ``R`` copies. Built on first use: importing filterpy imports scipy.stats,
+        about a second of a live start that the step itself never needs."""
+        if self._kf is None:
+            from filterpy.kalman import KalmanFilter
+
+            lay = self.layout
+            kf = KalmanFilter(dim_x=lay.dim_x, dim_z=1, dim_u=1)
+            kf.F = lay.F.copy()
+            kf.B = lay.G.reshape(-1, 1).copy()
+            kf.Q = self._Q
+            kf.R = np.array([[self.config.R]])
+            kf.x, kf.P, kf.H = self._xi, self._P, self._H.reshape(1, -1)
+            self._kf = kf
+        return self._kf
 
     @property
     def compiled(self) -> bool:

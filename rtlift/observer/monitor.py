@@ -193,15 +193,14 @@ class Settle:
 
     @classmethod
     def of_model(cls, model: Any, scale: float, lift_range: float | None = None) -> Settle:
-        from scipy.signal import sos2zpk
-
         fs = float(model.fs_hz)
         kernel = getattr(model.convolution, "kernel", None)
         memory = 0.0 if kernel is None else len(kernel) / fs
         poles = list(np.linalg.eigvals(np.atleast_2d(model.wiener.A)))
         sos = getattr(model.highpass, "sos", None)
         if sos is not None and np.size(sos):
-            poles += list(sos2zpk(np.asarray(sos, dtype=float))[1])
+            # each second-order section's poles: the roots of its denominator a₀ z² + a₁ z + a₂
+            poles += [p for sec in np.atleast_2d(np.asarray(sos, dtype=float)) for p in np.roots(sec[3:])]
         taus = [-1.0 / (fs * math.log(abs(p))) for p in poles if 0.0 < abs(p) < 1.0]
         return cls(memory, max(taus, default=0.0), math.nan if lift_range is None else float(lift_range))
 

@@ -39,7 +39,7 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import signal
+import scipy  # its submodules load on first use (scipy's lazy loader): not on a live start's path
 
 from rtlift.core.records import Record
 from rtlift.model.hybrid import HybridModel
@@ -52,7 +52,7 @@ COLUMNS = ("offset", "low", "high", "lowpass_0.2s", "lowpass_1s", "low_x_level")
 
 def _lowpass(x: np.ndarray, tau: float, fs: float) -> np.ndarray:
     a = math.exp(-1.0 / (tau * fs))
-    return signal.lfilter([1.0 - a], [1.0, -a], x)
+    return scipy.signal.lfilter([1.0 - a], [1.0, -a], x)
 
 
 def regressors(model: HybridModel, rec: Record, cmu_max: float) -> tuple[np.ndarray, np.ndarray]:
@@ -104,7 +104,7 @@ def fit_misfit(model: HybridModel, records: list[Record], start: int) -> dict[st
     noise = {}
     for (P, e), kind in zip(parts, kinds, strict=True):
         u = e - lam * (P @ theta)
-        f, p = signal.welch(u - u.mean(), fs=fs, nperseg=min(u.size, 2048), window="hann")
+        f, p = scipy.signal.welch(u - u.mean(), fs=fs, nperseg=min(u.size, 2048), window="hann")
         noise[kind] = {"f_hz": f.tolist(), "variance": float(np.mean(u**2)),
                        "log10": np.log10(np.maximum(p, 1e-300)).tolist()}
     return {"version": MISFIT_VERSION, "columns": list(COLUMNS), "theta": theta.tolist(), "transfer": lam,

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import ndimage, optimize, signal, stats
+import scipy  # its submodules load on first use (scipy's lazy loader): not on a live start's path
 
 Z99 = 2.576
 
@@ -64,10 +64,10 @@ def whiteness(e: np.ndarray, max_lag: int = 40) -> TestResult:
     r = _xcorr(e, e, lags)
     n = e.size
     q = n * (n + 2) * np.sum(r**2 / (n - lags))
-    p = float(stats.chi2.sf(q, max_lag))
+    p = float(scipy.stats.chi2.sf(q, max_lag))
     bound = Z99 / np.sqrt(n)
     out = float(np.mean(np.abs(r) > bound))
-    return TestResult("whiteness", q, float(stats.chi2.isf(0.01, max_lag)), p < 0.01,
+    return TestResult("whiteness", q, float(scipy.stats.chi2.isf(0.01, max_lag)), p < 0.01,
                       f"Ljung-Box Q = {q:.0f} over {max_lag} lags (p = {p:.2g}); "
                       f"{100 * out:.0f} % of r_ee(tau) outside +-{bound:.3f}; r_ee(1) = {r[0]:.2f}",
                       {"lags": lags, "r": r, "bound": bound})
@@ -126,7 +126,7 @@ class Peak:
 
 def welch_psd(e: np.ndarray, fs: float, seconds: float = 5.12) -> tuple[np.ndarray, np.ndarray]:
     nper = int(min(e.size, round(seconds * fs), max(256, e.size // 8)))    # ≥ 8 segments averaged
-    return signal.welch(e - e.mean(), fs=fs, nperseg=nper, window="hann", detrend="constant")
+    return scipy.signal.welch(e - e.mean(), fs=fs, nperseg=nper, window="hann", detrend="constant")
 
 
 def welch_segments(n: int, fs: float, seconds: float = 5.12) -> int:
@@ -161,7 +161,7 @@ def _fit_resonance(f: np.ndarray, p: np.ndarray, f0: float, zeta0: float, floor:
 
     theta0 = np.array([f0, zeta0, np.log(max(floor, 1e-30)), np.log(max(floor, 1e-30))])
     try:
-        res = optimize.least_squares(lambda th: model(th) - np.log(pp), theta0,
+        res = scipy.optimize.least_squares(lambda th: model(th) - np.log(pp), theta0,
                                      bounds=([0.8 * f0, 0.003, -80, -80], [1.2 * f0, 1.0, 10, 10]))
         return float(res.x[0]), float(res.x[1])
     except ValueError:
@@ -180,14 +180,14 @@ def _broad_resonance(f: np.ndarray, bg: np.ndarray, fs: float) -> Peak | None:
     w = 1.0 / pp
     tail = (10.0 / ff) ** 2                      # the buffeting bump's skirt falls as 1/f²
     base = np.column_stack([np.ones_like(ff), tail]) * w[:, None]
-    flat = float(optimize.nnls(base, pp * w)[1] ** 2)
+    flat = float(scipy.optimize.nnls(base, pp * w)[1] ** 2)
     best = None
     for f0 in np.geomspace(12.0, 0.46 * fs, 160):
         for zeta in (0.02, 0.03, 0.05, 0.07, 0.1, 0.13, 0.17, 0.21, 0.25):
             r = ff / f0
             h2 = 1.0 / ((1 - r**2) ** 2 + (2 * zeta * r) ** 2)
             X = np.column_stack([h2, np.ones_like(h2), tail]) * w[:, None]
-            coef, res = optimize.nnls(X, pp * w)
+            coef, res = scipy.optimize.nnls(X, pp * w)
             if best is None or res**2 < best[0]:
                 best = (res**2, f0, zeta, coef)
     sse, f0, zeta, (c, b, _) = best
@@ -210,9 +210,9 @@ def spectrum(e: np.ndarray, fs: float, exclude_hz: tuple[float, ...] = (), min_h
     f, p = welch_psd(e, fs)
     df = f[1] - f[0]
     logp = np.log10(np.maximum(p, 1e-300))
-    bg = 10 ** ndimage.median_filter(logp, size=max(9, int(round(4.0 / df)) | 1), mode="nearest")
+    bg = 10 ** scipy.ndimage.median_filter(logp, size=max(9, int(round(4.0 / df)) | 1), mode="nearest")
     prom = 10 * np.log10(p / bg)
-    cand, _ = signal.find_peaks(prom, height=6.0, distance=4)
+    cand, _ = scipy.signal.find_peaks(prom, height=6.0, distance=4)
     peaks: list[Peak] = []
     for k in sorted(cand, key=lambda j: -prom[j]):
         if f[k] < min_hz or any(abs(f[k] - q.frequency_hz) <= 3.0 * df for q in peaks):
