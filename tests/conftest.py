@@ -44,10 +44,54 @@ def pytest_collection_modifyitems(config, items):
     every test over real pseudo-terminals (marked ``pty``: a simulated device paced by the wall
     clock, a host reading it at 400 Hz) in one group, run one after another by one worker, so
     that no two real-time runs share the cores; every other module whole in a group of its
-    own, so that its module fixtures are built once. (Before xdist's own hook, which reads the marks.)"""
+    own, so that its module fixtures are built once. (Before xdist's own hook, which reads the marks.)
+
+    In a worker the groups are then put in the order they are to start (:func:`_start_order`;
+    xdist hands them out in collection order, :func:`pytest_configure`), each group's tests in
+    their own order."""
+    groups = {}
     for item in items:
         group = "realtime" if item.get_closest_marker("pty") else item.nodeid.split("::")[0]
         item.add_marker(pytest.mark.xdist_group(group))
+        groups[item] = group
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        sizes: dict[str, int] = {}
+        for group in groups.values():
+            sizes[group] = sizes.get(group, 0) + 1
+        items.sort(key=lambda item: _start_order(groups[item], sizes[groups[item]]))
+
+
+LONGEST_FIRST = (
+    "tests/test_interaction_blocks.py", "tests/test_identify_interaction.py",
+    "tests/test_diagnose_independent_plant.py", "tests/test_sysid.py", "tests/test_identify_cli.py",
+    "tests/test_diagnose_effects.py", "tests/test_independent_plant_interaction.py",
+    "tests/test_diagnose_cli.py", "tests/test_validate_cli.py", "tests/test_api.py",
+    "tests/test_compiled_step.py", "tests/test_sysid_property.py", "tests/test_jit_cache.py",
+    "tests/test_identify_paper.py",
+)
+"""The computing modules that took longest in the clean-clone CI runs at 0e4a2b8 and the two
+landings before it (the sum of each module's setup and call times among the 30 slowest of each
+run, 90-570 s each), longest first. They start right after the real-time group, so that the run
+does not end on one of them with the other workers idle; a module that has become quick here
+costs nothing but its place in the order."""
+
+
+def _start_order(group: str, size: int) -> tuple:
+    """Where a group starts: the real-time group first (one worker runs it whole, one test after
+    another: the longest chain), then :data:`LONGEST_FIRST`, then the rest by number of tests,
+    most first (pytest-xdist's own order)."""
+    if group == "realtime":
+        return (0, 0, "")
+    if group in LONGEST_FIRST:
+        return (1, LONGEST_FIRST.index(group), "")
+    return (2, -size, group)
+
+
+def pytest_configure(config):
+    """pytest-xdist's ``loadgroup`` hands the groups out in collection order, once its own
+    reordering (by number of tests) is off: the order :func:`pytest_collection_modifyitems` makes."""
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -58,6 +102,16 @@ def pytest_runtest_setup(item):
     worker can lower its niceness again (:func:`_favour_realtime`); elsewhere nothing changes."""
     if _favour_realtime():
         os.setpriority(os.PRIO_PROCESS, 0, 0 if item.get_closest_marker("pty") else CPU_NICE)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _shared_results(tmp_path_factory) -> None:
+    """Where :mod:`testkit.shared` keeps what one process of the run computes for all: under the
+    run's base temporary directory (the workers' common parent under xdist)."""
+    from testkit import shared
+
+    base = tmp_path_factory.getbasetemp()
+    shared.set_root((base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared")
 
 
 @pytest.fixture

@@ -3,36 +3,48 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
-from hil_sim.experiments import run_experiment
 from rtlift.app.cli import main
-from rtlift.core.records import write_record
 from rtlift.model.modelfile import load_model
+from testkit.shared import bench_records, identified
+
+CAMPAIGN = ("static", "single_burst", "sine_k0125")
+
+
+def campaign_records() -> dict:
+    """The bench's seed-1 campaign, written once per test run (read-only; tests/test_validate_cli.py
+    identifies on the same files)."""
+    return bench_records(1, CAMPAIGN)
 
 
 @pytest.fixture(scope="module")
-def campaign(tmp_path_factory):
-    d = tmp_path_factory.mktemp("campaign")
-    paths = {}
-    for name in ("static", "single_burst", "sine_k0125"):
-        paths[name] = d / f"{name}.csv"
-        write_record(paths[name], run_experiment(name, seed=1).to_record())
-    return d, paths
+def campaign():
+    paths = campaign_records()
+    return paths["static"].parent, paths
+
+
+def campaign_args(paths) -> list[str]:
+    return ["--static", str(paths["static"]), "--single-burst", str(paths["single_burst"]),
+            "--train", str(paths["sine_k0125"])]
 
 
 def identify_args(paths, out, *extra):
-    return ["identify", "--static", str(paths["static"]), "--single-burst",
-            str(paths["single_burst"]), "--train", str(paths["sine_k0125"]), "-o", str(out), *extra]
+    return ["identify", *campaign_args(paths), "-o", str(out), *extra]
+
+
+def campaign_model() -> Path:
+    """What ``rtlift identify`` with defaults writes for :func:`campaign_records` (read-only),
+    computed once per test run for this module and tests/test_validate_cli.py
+    (:func:`testkit.shared.identified`: the same command on the same files)."""
+    return identified(*campaign_args(campaign_records()))
 
 
 @pytest.fixture(scope="module")
 def model_file(campaign):
-    d, paths = campaign
-    out = d / "model.json"
-    assert main(identify_args(paths, out)) == 0
-    return out
+    return campaign_model()
 
 
 def test_identify_writes_a_model_that_loads_and_is_stable(model_file):
