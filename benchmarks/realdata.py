@@ -41,6 +41,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import sys
 import tempfile
 import time
@@ -136,14 +137,21 @@ def choose(name: str, work: Path, seed: int = SIM_SEED) -> tuple[dict, dict]:
                 "-o", work / "model.json"]
     diagnose = ["diagnose", "--model", work / "model.json", "--train", fit[0], "--validate", *val, "--skip", SKIP,
                 "--init-state", "--out", work / "diag"]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu()
     run_cli(*identify)
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), _cpu()
     run_cli(*diagnose)
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), _cpu()
     files = {"before": work / "model.json", "after": work / "diag" / "model_augmented.json"}
     return ({"files": files, "commands": [identify, diagnose]},
-            {"identify_seconds": t1 - t0, "diagnose_seconds": t2 - t1})
+            {"identify_seconds": t1 - t0, "diagnose_seconds": t2 - t1,
+             "identify_cpu_seconds": c1 - c0, "diagnose_cpu_seconds": c2 - c1})
+
+
+def _cpu() -> float:
+    """CPU seconds (user + system) of this process and of its reaped children (the forked halves)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def freeze(choices: dict, work: Path) -> str:
@@ -191,7 +199,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=SIM_SEED,
                     help=f"the simulated cases' seed (default {SIM_SEED}, the reporting seed; development used "
                          "1, 4 and 5)")
+    ap.add_argument("--choices-only", action="store_true",
+                    help="phase 1 alone (identify + diagnose on the estimation data): the frozen hash and the "
+                         "wall and CPU seconds, as one JSON line per benchmark; the test data are not read")
     args = ap.parse_args(argv)
+    if args.choices_only:
+        for name in (args.only or list(BENCHMARKS)):
+            with tempfile.TemporaryDirectory() as tmp:
+                choices, seconds = choose(name, Path(tmp), args.seed)
+                print(json.dumps({"benchmark": name, "frozen_sha256": freeze(choices, Path(tmp)),
+                                  "load_average": os.getloadavg(),
+                                  **{k: round(v, 2) for k, v in seconds.items()}}), flush=True)
+        return 0
     rows = []
     for name in (args.only or list(BENCHMARKS)):
         with tempfile.TemporaryDirectory() as tmp:
