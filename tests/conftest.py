@@ -64,8 +64,7 @@ def pytest_collection_modifyitems(config, items):
 LONGEST_FIRST = (
     "tests/test_interaction_blocks.py", "tests/test_identify_interaction.py",
     "tests/test_diagnose_independent_plant.py", "tests/test_sysid.py", "tests/test_identify_cli.py",
-    "tests/test_diagnose_effects.py", "tests/test_independent_plant_interaction.py",
-    "tests/test_diagnose_cli.py", "tests/test_validate_cli.py", "tests/test_api.py",
+    "tests/test_diagnose_effects.py", "tests/test_diagnose_cli.py", "tests/test_api.py",
     "tests/test_compiled_step.py", "tests/test_sysid_property.py", "tests/test_jit_cache.py",
     "tests/test_identify_paper.py",
 )
@@ -73,7 +72,10 @@ LONGEST_FIRST = (
 landings before it (the sum of each module's setup and call times among the 30 slowest of each
 run, 90-570 s each), longest first. They start right after the real-time group, so that the run
 does not end on one of them with the other workers idle; a module that has become quick here
-costs nothing but its place in the order."""
+costs nothing but its place in the order. Not here: test_validate_cli and
+test_independent_plant_interaction, which now read the model files test_identify_cli and
+test_diagnose_independent_plant identify (:mod:`testkit.shared`): they start later, when those
+are written, rather than wait for them beside their makers."""
 
 
 def _start_order(group: str, size: int) -> tuple:

@@ -9,6 +9,9 @@ seed-2 records neither has seen."""
 from __future__ import annotations
 
 import functools
+import json
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,22 +22,41 @@ from rtlift.identify.campaign import identify_hybrid
 from rtlift.model.hybrid import HybridModel
 from rtlift.model.modelfile import model_from_dict, model_to_dict
 from rtlift.observer import Observer, tune_observer
+from testkit.shared import shared_dir
 
 TARE = 800                                          # the bench's 2 s actuator-off start
 TRAINS = ("train_T1p75", "train_T3p5", "train_T7")
 TUNED_ON = ("sine_k0125", "random", "train_T1p75")
 
 
+def _shared_json(name: str, key: tuple, compute: Callable[[], dict]) -> dict:
+    """``compute()`` once per test run, by whichever process asks first, read back by the others
+    (the modules that need it run in several xdist workers: :func:`testkit.shared.shared_dir`);
+    the JSON round trip of these dicts is exact."""
+    def build(out: Path) -> None:
+        (out / "result.json").write_text(json.dumps(compute()))
+
+    return json.loads((shared_dir(name, key, build) / "result.json").read_text())
+
+
 @functools.cache
 def _identified() -> dict:
-    recs = {n: run_experiment(n, seed=1).to_record() for n in ("static", "single_burst", "sine_k0125")}
-    return model_to_dict(identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"]).model)
+    """The paper's hybrid identified on the seed-1 campaign, as its model-file dict."""
+    def compute() -> dict:
+        recs = {n: run_experiment(n, seed=1).to_record() for n in ("static", "single_burst", "sine_k0125")}
+        return model_to_dict(identify_hybrid(recs["static"], recs["single_burst"], recs["sine_k0125"]).model)
+
+    return _shared_json("bench-identified", (1,), compute)
 
 
 @functools.cache
 def _tuned(experiments: tuple[str, ...]) -> dict:
-    model = model_from_dict(_identified())
-    return tune_observer(model, [run_experiment(n, seed=1).to_record() for n in experiments])
+    """The observer settings tuned for :func:`_identified` on the seed-1 records ``experiments``."""
+    def compute() -> dict:
+        model = model_from_dict(_identified())
+        return tune_observer(model, [run_experiment(n, seed=1).to_record() for n in experiments])
+
+    return _shared_json("bench-tuned", (1, experiments), compute)
 
 
 @functools.cache
