@@ -8,7 +8,7 @@ import pytest
 from scipy import signal
 
 from rtlift.sysid.identify import _extrapolated_hat_basis, _Runs
-from rtlift.sysid.kernels import MIN_COLUMNS, hat_basis, lfilter
+from rtlift.sysid.kernels import MIN_COLUMNS, Hats, lfilter
 
 
 def _bits(v: np.ndarray) -> np.ndarray:
@@ -64,6 +64,10 @@ def test_runs_filter_each_run_from_rest() -> None:
     v = np.asfortranarray(rng.normal(size=(runs.u.size, 4)))
     ref = np.concatenate([signal.lfilter(b, a, v[lo:hi], axis=0) for lo, hi in runs.pairs], axis=0)
     assert np.array_equal(_bits(runs.lfilter(b, a, v)), _bits(ref))
+    knots = np.linspace(-2.0, 2.0, 2 * MIN_COLUMNS)
+    basis = _numpy_hat_basis(runs.u, knots)
+    ref = np.concatenate([signal.lfilter(b, a, basis[lo:hi], axis=0) for lo, hi in runs.pairs], axis=0)
+    assert np.array_equal(_bits(runs.filter_hats(b, a, Hats(runs.u, knots))), _bits(ref))
 
 
 @pytest.mark.parametrize("count", [2, 5, 16, 96])
@@ -76,8 +80,14 @@ def test_hat_basis_is_numpys_bit_for_bit(count: int) -> None:
     x[:len(knots)] = knots                          # on the knots, the last one included
     x[-3:] = [np.nan, -np.inf, np.inf]
     ref = _numpy_hat_basis(x, knots)
-    got = hat_basis(x, knots)
+    hats = Hats(x, knots)
+    got = hats.basis()
     assert got.flags.f_contiguous
     assert np.array_equal(_bits(got.ravel(order="F")), _bits(ref.ravel(order="F")))
     assert np.array_equal(_bits(_extrapolated_hat_basis(list(x), knots).ravel(order="F")),
                           _bits(ref.ravel(order="F")))
+    # filtered without being written out (or, few columns or no recursion, written out for scipy)
+    for b, a in (([0.4, -0.1, 0.3], [1.0, -1.3, 0.6]), ([1.0, 0.2], [1.0]), ([0.5], [1.0, -0.2, 0.1, 0.05])):
+        want = signal.lfilter(b, a, ref[:-3], axis=0)
+        out = hats.filtered(np.array(b), np.array(a), np.empty((x.size - 3, knots.size)), slice(0, x.size - 3))
+        assert np.array_equal(_bits(out), _bits(want))

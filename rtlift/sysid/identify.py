@@ -79,7 +79,7 @@ from rtlift.identify.poles import denominator_from_theta, theta_from_poles
 from rtlift.model.siso import INTEGRATOR, LIMITED, STRUCTURES, SaturatedModel, SisoModel, listed
 from rtlift.sysid.common import NO_LIMITS, Limits, SisoOptions, _limited, _pooled_rmse, _rmse
 from rtlift.sysid.feedback import identify_feedback
-from rtlift.sysid.kernels import hat_basis, lfilter
+from rtlift.sysid.kernels import Hats, lfilter
 from rtlift.sysid.parallel import least_squares
 from rtlift.sysid.store_chain import identify_store_chain
 
@@ -90,8 +90,8 @@ def _extrapolated_hat_basis(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
     structure's gains are held there instead, :func:`rtlift.identify.interaction._clamped_hat_basis`). Each row has two
     nonzero entries, those of x(k)'s segment s, [1 − (x − x_s)/h_s, (x − x_s)/h_s], written
     with the same operations :class:`OutputNonlinearity` applies to a unit table (bit for bit
-    the same basis, one search instead of one per knot; compiled, :func:`.kernels.hat_basis`)."""
-    return hat_basis(np.ascontiguousarray(x, dtype=float), np.asarray(knots, dtype=float))
+    the same basis, one search instead of one per knot; compiled, :class:`.kernels.Hats`)."""
+    return Hats(np.ascontiguousarray(x, dtype=float), np.asarray(knots, dtype=float)).basis()
 
 
 def _unit_dc(b: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -138,6 +138,14 @@ class _Runs:
             lfilter(b, a, v[lo:hi], out[lo:hi])
         return out
 
+    def filter_hats(self, b: np.ndarray, a: np.ndarray, hats: Hats) -> np.ndarray:
+        """B(q)/A(q) Φ along axis 0 (row-major), every run from rest, for the basis Φ ``hats``
+        (:meth:`.kernels.Hats.filtered`: scipy's ``lfilter`` of Φ, bit for bit)."""
+        out = np.empty((self.u.size, hats.count))
+        for lo, hi in self.pairs:
+            hats.filtered(b, a, out[lo:hi], slice(lo, hi))
+        return out
+
 
 @dataclass
 class _Dims:
@@ -172,13 +180,13 @@ class _Dims:
 def _simulate_basis(dims: _Dims, th: np.ndarray, runs: _Runs, count: int, memo: dict | None = None):
     """Φ of ``count`` knots at x's quantiles, filtered by G₂ (if any), and the knots; every run
     from rest. ValueError where x = G₁u is not finite or takes a single value (no map on it).
-    ``memo``: the last G₁'s unfiltered Φ and knots, kept there (x depends on G₁'s parameters
-    alone: the Jacobian's columns of G₂'s parameters share them; the same arrays, not a new
-    computation of them)."""
+    ``memo``: the last G₁'s unfiltered Φ (its rows' segments and values, :class:`.kernels.Hats`)
+    and knots, kept there (x depends on G₁'s parameters alone: the Jacobian's columns of G₂'s
+    parameters share them; the same arrays, not a new computation of them)."""
     b1, a1, b2, a2 = dims.build(th)
     key = (th[:dims.n1 + dims.m1].tobytes(), count)
     if memo is not None and key in memo:
-        phi, knots = memo[key]
+        hats, knots = memo[key]
     else:
         x = runs.lfilter(b1, a1, runs.u)
         if not np.all(np.isfinite(x)):
@@ -190,14 +198,11 @@ def _simulate_basis(dims: _Dims, th: np.ndarray, runs: _Runs, count: int, memo: 
             knots = np.unique([x.min(), x.max()])
             if knots.size < 2:
                 raise ValueError("the linear block's output is constant: no static map can be fitted on it")
-        phi = _extrapolated_hat_basis(x, knots)
+        hats = Hats(x, knots)
         if memo is not None:
             memo.clear()
-            memo[key] = (phi, knots)
-    if b2 is not None:
-        # column by column in Fortran order: the same numbers as on the row-major array, in half the time
-        phi = runs.lfilter(b2, a2, np.asfortranarray(phi))
-    return phi, knots
+            memo[key] = (hats, knots)
+    return (hats.basis() if b2 is None else runs.filter_hats(b2, a2, hats)), knots
 
 
 def _uncensored(y: np.ndarray, limits: Limits) -> np.ndarray:
