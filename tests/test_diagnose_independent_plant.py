@@ -32,6 +32,7 @@ These tests read ``../shared`` and skip, with that reason, in a clone without it
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -41,6 +42,7 @@ from benchmarks.independent_plant import (
     FIELD_NAMES,
     FIELD_SCORED,
     FIELD_TRAIN,
+    TRAINS,
     anonymize,
     compose,
     judge_case,
@@ -48,19 +50,34 @@ from benchmarks.independent_plant import (
     validate,
     variant,
 )
+from testkit.shared import identified
 
 pytestmark = pytest.mark.skipif(not (DEFAULT_DATA / "campaign" / "static.csv").exists(),
                                 reason=f"the independent plant's development set is not at {DEFAULT_DATA} "
                                        "(it lives in ../shared, beside the project, not in a clone)")
 
 
+def identify_args(trains: bool) -> tuple[Path | str, ...]:
+    """``rtlift identify``'s arguments on the clean campaign with defaults (the README's protocol):
+    the paper's hybrid, or with ``trains`` the structure it chooses for the burst trains."""
+    camp = DEFAULT_DATA / "campaign"
+    more = ("--trains", *(camp / f"{t}.csv" for t in TRAINS)) if trains else ()
+    return ("--static", camp / "static.csv", "--single-burst", camp / "single_burst.csv", *more,
+            "--train", camp / "sine_k0125.csv")
+
+
+def identified_copy(tmp_path_factory, folder: str, trains: bool) -> Path:
+    """The model file ``rtlift identify`` writes (:func:`identify_args`), in a folder of its own.
+    Run once per test run and shared with tests/test_independent_plant_interaction.py
+    (:func:`testkit.shared.identified`: the same command on the same bytes, the file it wrote)."""
+    out = tmp_path_factory.mktemp(folder) / "model.json"
+    shutil.copyfile(identified(*identify_args(trains)), out)
+    return out
+
+
 @pytest.fixture(scope="module")
 def model(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("ip") / "model.json"
-    camp = DEFAULT_DATA / "campaign"
-    run_cli("identify", "--static", camp / "static.csv", "--single-burst", camp / "single_burst.csv",
-            "--train", camp / "sine_k0125.csv", "-o", out)
-    return out
+    return identified_copy(tmp_path_factory, "ip", trains=False)
 
 
 @pytest.fixture(scope="module")
@@ -205,12 +222,7 @@ def test_the_hysteresis_is_right_when_a_renamed_random_record_trains(model, clea
 
 @pytest.fixture(scope="module")
 def trains_model(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("ip_trains") / "model.json"
-    camp = DEFAULT_DATA / "campaign"
-    run_cli("identify", "--static", camp / "static.csv", "--single-burst", camp / "single_burst.csv",
-            "--trains", *(camp / f"{t}.csv" for t in ("train_T1p75", "train_T3p5", "train_T7")),
-            "--train", camp / "sine_k0125.csv", "-o", out)
-    return out
+    return identified_copy(tmp_path_factory, "ip_trains", trains=True)
 
 
 @pytest.fixture(scope="module")

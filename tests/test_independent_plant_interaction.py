@@ -14,10 +14,11 @@ import pytest
 from benchmarks.independent_plant import DEFAULT_DATA
 from rtlift.core.metrics import noise_ceiling
 from rtlift.core.records import read_record
-from rtlift.identify.campaign import identify_hybrid
-from rtlift.identify.interaction import identify_interaction
 from rtlift.identify.kernel import burst_scatter_std
+from rtlift.model.modelfile import load_model
 from rtlift.model.validation import validate_record
+from testkit.shared import identified
+from tests.test_diagnose_independent_plant import identify_args
 
 pytestmark = pytest.mark.skipif(not (DEFAULT_DATA / "campaign" / "static.csv").exists(),
                                 reason=f"the independent plant's development set is not at {DEFAULT_DATA} "
@@ -27,15 +28,11 @@ RECORDS = ("static", "single_burst", "train_T1p75", "train_T3p5", "train_T7", "s
 
 
 @pytest.fixture(scope="module")
-def camp():
-    return {n: read_record(DEFAULT_DATA / "campaign" / f"{n}.csv") for n in
-            ("static", "single_burst", "train_T1p75", "train_T3p5", "train_T7", "sine_k0125")}
-
-
-@pytest.fixture(scope="module")
-def model(camp):
-    return identify_interaction(camp["static"], camp["single_burst"],
-                                [camp[t] for t in ("train_T1p75", "train_T3p5", "train_T7")], camp["sine_k0125"]).model
+def model():
+    """What ``rtlift identify`` writes for the campaign with the trains (the interaction structure,
+    its choice): the file tests/test_diagnose_independent_plant.py diagnoses with, identified once
+    per run (:func:`testkit.shared.identified`)."""
+    return load_model(identified(*identify_args(trains=True)))
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +52,9 @@ def test_interaction_model_is_within_reach_of_the_ceiling_on_every_clean_record(
 
 
 @pytest.fixture(scope="module")
-def hybrid(camp):
-    return identify_hybrid(camp["static"], camp["single_burst"], camp["sine_k0125"]).model
+def hybrid():
+    """The paper's hybrid as ``rtlift identify`` writes it for the campaign without the trains."""
+    return load_model(identified(*identify_args(trains=False)))
 
 
 @pytest.mark.parametrize("name", ["sine_k0125", "sine_k025", "random"])
