@@ -58,7 +58,7 @@ def identified_model(n: int, tmp: str, keep: str | None = None) -> str:
 
 def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
              targets: object = None, structure: str = "auto", backoff: float | None = None,
-             channel_bound: bool = False, save_design: bool = False) -> dict:
+             channel_bound: bool = False, save_design: bool = False, model_error: str | None = None) -> dict:
     from rtlift.app.control_design import design_loop
     from rtlift.model.modelfile import load_model
 
@@ -67,13 +67,13 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
     t1 = time.perf_counter()
     model = load_model(path)
     design = design_loop(model, targets, structure=structure, channel_bound=channel_bound,
-                         **({} if backoff is None else {"backoff": backoff}))
+                         model_error=load_model_error(model_error), **({} if backoff is None else {"backoff": backoff}))
     t2 = time.perf_counter()
     if save_design and keep:
         from rtlift.app.control_design import report_doc
         from rtlift.core.jsonfile import write_json_atomic
 
-        name = f"{n}_design_{design.structure}{'_cb' if channel_bound else ''}.json"
+        name = f"{n}_design_{design.structure}{'_cb' if channel_bound else ''}{'_rob' if model_error else ''}.json"
         write_json_atomic(os.path.join(keep, name), report_doc(design, path), stage="design")
     point = min(design.points, key=lambda pt: abs(pt.dcl - 0.08))   # a half-way check too: the gains run there
     config = design.control_config(fs_hz=model.fs_hz)
@@ -90,7 +90,22 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             "predicted_point_dcl": point.dcl, "predicted_point_scheduled": point.designed,
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
             "observer": design.observer, "peak_db_target": design.targets.peak_db, "structure": design.structure,
-            "backoff": backoff, "channel_bound": channel_bound, **res}
+            "backoff": backoff, "channel_bound": channel_bound, "model_error": model_error, **res}
+
+
+def load_model_error(path: str | None) -> object:
+    """The :class:`~rtlift.app.control_design.ModelError` of ``benchmarks/model_error.py --envelope
+    --out PATH`` ("calibration": :data:`~rtlift.app.control_design.MODEL_ERROR_ENVELOPE`; None: none)."""
+    if not path:
+        return None
+    from rtlift.app.control_design import MODEL_ERROR_ENVELOPE, ModelError
+
+    if path == "calibration":
+        return MODEL_ERROR_ENVELOPE
+
+    env = json.load(open(path, encoding="utf-8"))
+    return ModelError(tuple(env["f_hz"]), tuple(env["delta_A"]), tuple(env["delta_X"]),
+                      f"benchmarks/model_error.py --envelope, draws {env['draws']}")
 
 
 def table(rows: list[dict]) -> str:
@@ -132,6 +147,9 @@ def main() -> None:
                     "(default: the design's own)")
     ap.add_argument("--channel-bound", action="store_true", help="the internal-model design bounds each channel's "
                     "part of T by 1 + M (control_design.YOULA_CHANNEL_BOUND)")
+    ap.add_argument("--model-error", metavar="JSON", help="the internal-model design is robust to this envelope "
+                    "of each channel's multiplicative error (benchmarks/model_error.py --envelope --out JSON; "
+                    "'calibration': control_design.MODEL_ERROR_ENVELOPE)")
     ap.add_argument("--save-designs", action="store_true", help="with --keep: write each draw's design there "
                     "(N_design_STRUCTURE.json, report.json's form) for benchmarks/youla_gap.py")
     args = ap.parse_args()
@@ -152,7 +170,7 @@ def main() -> None:
                 continue
             r = one_draw(n, tmp, freqs, args.seed, args.keep,
                          None if args.peak_db is None else Targets(peak_db=args.peak_db), args.structure,
-                         args.backoff, args.channel_bound, args.save_designs)
+                         args.backoff, args.channel_bound, args.save_designs, args.model_error)
             results.append(r)
             with open(args.out, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(r) + "\n")

@@ -95,6 +95,7 @@ def relative_error(pm: np.ndarray, pt: np.ndarray, z: np.ndarray) -> dict:
     ratio = rm / rt
     dc = float(np.sum(pm) / np.sum(pt))
     return {"mag": np.abs(ratio - 1.0), "phase_deg": np.degrees(np.angle(ratio)), "dc": dc - 1.0,
+            "delta": np.abs(1.0 / ratio - 1.0),
             "shape": np.abs(ratio / dc - 1.0), "gain_db": 20 * np.log10(np.abs(ratio))}
 
 
@@ -149,6 +150,26 @@ def plant_errors(model, draw: int, f: np.ndarray) -> list[dict]:
     return out
 
 
+ENVELOPE_FREQS = tuple(float(v) for v in np.r_[0.05, np.arange(0.125, 4.0001, 0.125)])
+"""Where ``--envelope`` evaluates the error (Hz): to the burst rate's Nyquist frequency, 0.125 Hz apart."""
+
+
+def error_envelope(rows_by_draw: dict[int, list[dict]], kinds: tuple[str, ...] = ("true", "sensed")) -> dict:
+    """The multiplicative error's envelope δ_ch(f) = max |P_true/P_model − 1| (the Δ of P_true =
+    P_model (1 + Δ)) per channel (A: the period's mean, X: the latest value) over every draw, every
+    scheduled and half-way point and ``kinds`` ("true": the lift the gust is measured on; "sensed":
+    through the balance and the DAQ filter, what the loop feeds back), on :data:`ENVELOPE_FREQS`;
+    and each draw's own."""
+    out: dict = {"f_hz": list(ENVELOPE_FREQS), "draws": sorted(rows_by_draw), "per_draw": {}, "kinds": list(kinds)}
+    for ch in ("A", "X"):
+        per = {n: np.max([r[f"{kind}_{ch}"]["delta"] for r in rows for kind in kinds], axis=0)
+               for n, rows in rows_by_draw.items()}
+        out[f"delta_{ch}"] = np.max(list(per.values()), axis=0).tolist()
+        for n, v in per.items():
+            out["per_draw"].setdefault(str(n), {})[ch] = v.tolist()
+    return out
+
+
 def gust_maps(design, model, draw: int, f: np.ndarray) -> dict:
     """At the point the loop runs: the gust map predicted on the model (:func:`~rtlift.app.control_design.
     gust_map`), the lifted form 1 − F_o T it replaced, and the same map with the truth's plant (module
@@ -194,7 +215,25 @@ def main() -> None:
     ap.add_argument("--measured", metavar="JSONL", nargs="*", default=[],
                     help="control_family.py results of the same designs: measured suppression beside the maps")
     ap.add_argument("--out", metavar="JSON", help="write every number here too")
+    ap.add_argument("--envelope", action="store_true", help="only the multiplicative error's envelope over the "
+                    "draws (control_design.MODEL_ERROR_ENVELOPE's source; calibration draws only)")
     args = ap.parse_args()
+    if args.envelope:
+        t0 = time.process_time()
+        rows = {n: plant_errors(load_model(model_for(n, args.keep)), n, np.array(ENVELOPE_FREQS))
+                for n in parse_draws(args.draws)}
+        for kinds in (("true",), ("sensed",), ("true", "sensed")):
+            env = error_envelope(rows, kinds)
+            print(f"{'+'.join(kinds)}: f (Hz) / delta_A / delta_X (envelope) / per draw A,X")
+            for i, fv in enumerate(ENVELOPE_FREQS):
+                print(f"  {fv:5.3f}  {env['delta_A'][i]:6.3f}  {env['delta_X'][i]:6.3f}   " + "  ".join(
+                    f"{n}:{d['A'][i]:.3f},{d['X'][i]:.3f}" for n, d in env["per_draw"].items()))
+        env["cpu_s"] = time.process_time() - t0
+        if args.out:
+            with open(args.out, "w", encoding="utf-8") as fh:
+                json.dump(env, fh)
+        emit({k: env[k] for k in ("f_hz", "delta_A", "delta_X", "draws", "cpu_s")})
+        return
     f = np.array(FREQS)
     measured = {}
     for path in args.measured:
