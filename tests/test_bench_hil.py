@@ -67,17 +67,30 @@ def _measured_dcl(samples, cal):
     return np.asarray(cal.cl_from_ft(np.array([s.ft for s in samples])), dtype=float)
 
 
-def _hold(link, envelope_cv, seconds):
-    """Send ``envelope_cv`` every burst period (8 Hz) for ``seconds``; the samples received."""
+WATCHDOG_S = 0.3
+"""The watchdog :func:`_hold`'s commands set (``watchdog_ms_div10=30``)."""
+
+
+def _hold(link, envelope_cv, seconds, stalls=None):
+    """Send ``envelope_cv`` every burst period (8 Hz) for ``seconds``; the samples received.
+    ``stalls`` (a list) gets the host-clock length of every wait of ≥ :data:`WATCHDOG_S` between
+    two samples: on a loaded VM the pseudo-terminal carries nothing either way for 0.4–5 s
+    (docs/results/control.md, "Host command timing under load"), and the commands sent meanwhile
+    reach the device late, so its watchdog may trip once per such stall."""
     out = []
     end = time.perf_counter() + seconds
     next_cmd = 0.0
+    last = time.perf_counter()
     while time.perf_counter() < end:
         if time.perf_counter() >= next_cmd:
             link.send_command(envelope_cv, watchdog_ms_div10=30)
             next_cmd = time.perf_counter() + 0.125
         s = link.recv(0.05)
         if s is not None:
+            now = time.perf_counter()
+            if stalls is not None and now - last >= WATCHDOG_S:
+                stalls.append(now - last)
+            last = now
             out.append(s)
     return out
 
@@ -90,8 +103,9 @@ def test_commands_over_a_pty_move_the_measured_lift_and_the_watchdog_takes_it_to
     stream.control = dev.control
     with dev, open_link({"kind": "serial", "port": dev.path}) as link:
         dev.start()
-        low = _hold(link, 2000, 2.5)
-        high = _hold(link, 15000, 2.5)
+        stalls = []
+        low = _hold(link, 2000, 2.5, stalls)
+        high = _hold(link, 15000, 2.5, stalls)
         quiet = []
         end = time.perf_counter() + 2.5
         while time.perf_counter() < end:  # no more commands: the 300 ms watchdog fires
@@ -106,7 +120,9 @@ def test_commands_over_a_pty_move_the_measured_lift_and_the_watchdog_takes_it_to
     assert dcl_quiet < dcl_low
     assert quiet[-1].status & STATUS_WATCHDOG and quiet[-1].envelope_cv == 0
     assert all(s.volt_cv == 0 for s in quiet[-300:])
-    assert dev.stats.watchdog_trips == 1 and counters["watchdog_trips"] == 1
+    # one trip when the commands stop; one more at most per stall of the wire while they were sent
+    assert 1 <= dev.stats.watchdog_trips <= 1 + len(stalls), (dev.stats.watchdog_trips, stalls)
+    assert counters["watchdog_trips"] == dev.stats.watchdog_trips
     assert counters["lost"] == 0 and dev.error is None
     _, truth = stream.truth_array()
     assert truth[-200:].max() < 0.02
