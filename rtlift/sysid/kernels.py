@@ -41,24 +41,32 @@ def _filter_columns(b: np.ndarray, a: np.ndarray, x: np.ndarray, out: np.ndarray
     """The recursion of the module docstring on every column of ``x`` (n × k, any layout) into
     ``out`` (n × k); ``b`` and ``a`` of one length ≥ 2, already divided by a₀."""
     n, k = x.shape
-    m = b.size
-    z = np.zeros((m - 1, k))
+    z = np.zeros((b.size - 1, k))
     xr = np.empty(k)
     for i in range(n):
         for j in range(k):
             xr[j] = x[i, j]
-        yr = out[i]
+        _step_row(b, a, xr, out[i], z)
+
+
+@njit_cached
+def _step_row(b: np.ndarray, a: np.ndarray, xr: np.ndarray, yr: np.ndarray, z: np.ndarray
+              ) -> None:   # pragma: no cover
+    """One sample of the recursion on every column: input row ``xr``, output row ``yr``, the
+    state ``z`` ((m − 1) × k) advanced in place."""
+    k = xr.size
+    m = b.size
+    for j in range(k):
+        yr[j] = z[0, j] + b[0] * xr[j]
+    for q in range(m - 2):
+        bq = b[q + 1]
+        aq = a[q + 1]
         for j in range(k):
-            yr[j] = z[0, j] + b[0] * xr[j]
-        for q in range(m - 2):
-            bq = b[q + 1]
-            aq = a[q + 1]
-            for j in range(k):
-                z[q, j] = z[q + 1, j] + xr[j] * bq - yr[j] * aq
-        bq = b[m - 1]
-        aq = a[m - 1]
-        for j in range(k):
-            z[m - 2, j] = xr[j] * bq - yr[j] * aq
+            z[q, j] = z[q + 1, j] + xr[j] * bq - yr[j] * aq
+    bq = b[m - 1]
+    aq = a[m - 1]
+    for j in range(k):
+        z[m - 2, j] = xr[j] * bq - yr[j] * aq
 
 
 def _padded(b: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -149,25 +157,13 @@ def _filter_hats(b: np.ndarray, a: np.ndarray, seg: np.ndarray, w: np.ndarray, o
     written out: row k is zero but for w[k] at seg[k], seg[k] + 1, and every column's recursion
     takes the same steps on those zeros as on Φ's)."""
     n, k = out.shape
-    m = b.size
-    z = np.zeros((m - 1, k))
+    z = np.zeros((b.size - 1, k))
     xr = np.zeros(k)
     for i in range(n):
         s = seg[i]
         xr[s] = w[i, 0]
         xr[s + 1] = w[i, 1]
-        yr = out[i]
-        for j in range(k):
-            yr[j] = z[0, j] + b[0] * xr[j]
-        for q in range(m - 2):
-            bq = b[q + 1]
-            aq = a[q + 1]
-            for j in range(k):
-                z[q, j] = z[q + 1, j] + xr[j] * bq - yr[j] * aq
-        bq = b[m - 1]
-        aq = a[m - 1]
-        for j in range(k):
-            z[m - 2, j] = xr[j] * bq - yr[j] * aq
+        _step_row(b, a, xr, out[i], z)
         xr[s] = 0.0
         xr[s + 1] = 0.0
 
