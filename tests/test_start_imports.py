@@ -5,11 +5,15 @@ scipy 1.17 rewrites the docstring of every array-API function of scipy.signal, s
 modules they pull in as it imports them: about 1.5 s of CPU on this machine, more than half of a
 cached start (docs/results/control.md, "A fast start"). None of it is needed to open the link: the
 step is compiled, the monitor's settling time needs only the filter's poles, the observer's filterpy
-container is built on first use. A fresh interpreter does what ``rtlift control`` does up to its
-"link open" line — its imports, the model, the cached design, the observer, the controller and the
-departure monitor — and says which heavy modules it loaded. A module-level ``from scipy import
-signal`` anywhere on that path fails this test; so does an import moved from the start into the run
-(the monitor is built after the link opens, so its imports would stall the loop instead).
+container is built on first use.
+
+The test runs the real ``rtlift control`` against the bench's serial device over a pseudo-terminal,
+under ``python -X importtime``, which writes every import to stderr as it happens, in the same stream
+as the command's own lines. So the order on stderr says what was loaded before "link open", and what
+was loaded after it but before the monitor's line (the monitor is built after the link opens, just
+before the loop starts: an import there stalls a device that is already streaming). A module-level
+``from scipy import signal`` anywhere on that path fails this test, and no list of the start's
+imports is copied here: an import added to the start is seen as it is run.
 """
 
 from __future__ import annotations
@@ -19,47 +23,55 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+from hil_sim.devices import SerialDaq
+from hil_sim.hil import HilStream
+
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "tests" / "data" / "bench_model.json"
 HEAVY = ("scipy.signal", "scipy.stats", "scipy.optimize", "scipy.interpolate", "scipy.ndimage", "filterpy",
          "control", "matplotlib")
 
-SCRIPT = f"""
-import json, sys
-from rtlift.app.commands.control import control_config, run  # noqa: F401 - run's own imports follow
-from firmware_io.calibration import Calibration
-from firmware_io.convert import Converter
-from firmware_io.links import open_link
-from rtlift.app.applied import commands_not_applied
-from rtlift.app.closed_loop import ControlLoop
-from rtlift.app.control import LiftController, gains_text
-from rtlift.app.link_options import link_config_from_args
-from rtlift.app.live import ObserverLoop, run_live, summary, write_summary
-from rtlift.app.reference import parse_reference
-from rtlift.app.view.arguments import start_view
-from rtlift.app.watch import attach
-from rtlift.model.domain import watch_domain
-from rtlift.model.modelfile import load_model
-from rtlift.observer import Observer
-from rtlift.observer.monitor import DepartureMonitor
 
-model = load_model({str(MODEL)!r})
-config, gains = control_config(model, True, None, None, None, model_path={str(MODEL)!r})
-observer = Observer.from_model(model)
-LiftController(model, config)
-monitor = DepartureMonitor.for_model(model)
-print(json.dumps({{"heavy": [m for m in {HEAVY!r} if m in sys.modules], "source": gains["source"],
-                  "compiled": observer.compiled}}))
-"""
+def _heavy(line: str) -> str | None:
+    """The heavy module an ``-X importtime`` line reports, else None."""
+    if not line.startswith("import time:"):
+        return None
+    name = line.rsplit("|", 1)[-1].strip()
+    return next((name for h in HEAVY if name == h or name.startswith(h + ".")), None)
 
 
-def test_a_cached_start_loads_no_heavy_module_before_the_link_opens():
-    out = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, cwd=ROOT, timeout=600)
-    assert out.returncode == 0, out.stderr[-2000:]
-    got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert got["source"].startswith("cached design"), got     # the start measured is the cached one
-    assert got["compiled"] is True
-    assert got["heavy"] == [], f"loaded on the way to the link: {got['heavy']}"
+@pytest.mark.pty
+def test_a_cached_start_loads_no_heavy_module_before_the_link_opens(tmp_path):
+    stream = HilStream("random", seed=5)
+    dev = SerialDaq(stream)
+    stream.control = dev.control
+    summary = tmp_path / "summary.json"
+    cmd = [sys.executable, "-X", "importtime", "-m", "rtlift", "control", "--serial", dev.path, "--model", str(MODEL),
+           "--reference", "steps:0.08@0", "--seconds", "2", "--json", str(summary)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    before: list[str] = []
+    try:
+        for line in proc.stderr:                # every import up to the link, in the order they ran
+            if "link open" in line:
+                break
+            before.append(line)
+        else:
+            raise AssertionError("no link open line: " + "".join(before[-5:]))
+        dev.start()
+        _, rest = proc.communicate(timeout=120)
+    finally:
+        dev.stop()
+    assert proc.returncode == 0, rest[-2000:]
+    after = rest.splitlines()
+    monitor_line = next(i for i, line in enumerate(after) if "monitor thresholds" in line)
+    got = json.loads(summary.read_text())
+    assert got["gains"]["source"].startswith("cached design"), got["gains"]   # the start measured is the cached one
+    assert len(before) > 100                     # -X importtime did report the start's imports
+    assert [m for m in map(_heavy, before) if m] == [], "loaded on the way to the link"
+    assert [m for m in map(_heavy, after[:monitor_line]) if m] == [], "loaded between the link and the loop"
+    assert any(_heavy(line) for line in after[monitor_line:]), "the summary's imports were not seen after the run"
 
 
 def test_the_observers_filterpy_container_holds_the_steps_own_arrays():
