@@ -31,6 +31,9 @@ from benchmarks._common import emit, run_cli  # noqa: E402
 from benchmarks.gust_rejection import FREQUENCIES, measure  # noqa: E402
 
 CAMPAIGN = ("static", "single_burst", "sine_k0125")
+TRAINS = ("sine_k0125", "random")
+"""The training records ``--train`` may name: the paper's sine (the default), or the bench's ``random``
+envelope, whose content reaches the burst-rate loop's upper band (docs/results/control.md, "Tenth pass")."""
 
 
 def draws(text: str) -> list[int]:
@@ -42,28 +45,31 @@ def draws(text: str) -> list[int]:
     return out
 
 
-def identified_model(n: int, tmp: str, keep: str | None = None) -> str:
-    """Plant ``n``'s model as a new user makes it: its clean campaign recorded, ``rtlift identify``;
-    the path (``keep``: kept there as ``N_model.json`` and reused when it exists)."""
+def identified_model(n: int, tmp: str, keep: str | None = None, train: str = "sine_k0125",
+                     envelope: str = "recorded") -> str:
+    """Plant ``n``'s model as a new user makes it: its clean campaign recorded (the static sweep, the
+    single bursts and the training record ``train``), ``rtlift identify --envelope envelope``; the path (``keep``: kept
+    there as ``N_model.json`` and reused when it exists)."""
     path = os.path.join(keep or tmp, f"{n}_model.json")
     if not (keep and os.path.exists(path)):
         files = {}
-        for exp in CAMPAIGN:
+        for exp in (*CAMPAIGN[:2], train):
             files[exp] = os.path.join(tmp, f"{n}_{exp}.csv")
             run_cli("bench", "record", "--plant-draw", n, "--out", files[exp], exp)
         run_cli("identify", "--static", files["static"], "--single-burst", files["single_burst"], "--train",
-                files["sine_k0125"], "-o", path, "--quiet")
+                files[train], "--envelope", envelope, "-o", path, "--quiet")
     return path
 
 
 def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
              targets: object = None, structure: str = "auto", backoff: float | None = None,
-             channel_bound: bool = False, save_design: bool = False, model_error: str | None = None) -> dict:
+             channel_bound: bool = False, save_design: bool = False, model_error: str | None = None,
+             train: str = "sine_k0125", envelope: str = "recorded") -> dict:
     from rtlift.app.control_design import design_loop
     from rtlift.model.modelfile import load_model
 
     t0 = time.perf_counter()
-    path = identified_model(n, tmp, keep)
+    path = identified_model(n, tmp, keep, train, envelope)
     t1 = time.perf_counter()
     model = load_model(path)
     design = design_loop(model, targets, structure=structure, channel_bound=channel_bound,
@@ -90,7 +96,8 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             "predicted_point_dcl": point.dcl, "predicted_point_scheduled": point.designed,
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
             "observer": design.observer, "peak_db_target": design.targets.peak_db, "structure": design.structure,
-            "backoff": backoff, "channel_bound": channel_bound, "model_error": model_error, **res}
+            "backoff": backoff, "channel_bound": channel_bound, "model_error": model_error, "train": train,
+            "envelope": envelope, **res}
 
 
 def load_model_error(path: str | None) -> object:
@@ -150,6 +157,10 @@ def main() -> None:
     ap.add_argument("--model-error", metavar="JSON", help="the internal-model design is robust to this envelope "
                     "of each channel's multiplicative error (benchmarks/model_error.py --envelope --out JSON; "
                     "'calibration': control_design.MODEL_ERROR_ENVELOPE)")
+    ap.add_argument("--train", default="sine_k0125", choices=TRAINS, help="the campaign's training record the "
+                    "identification fits (default sine_k0125, the paper's; random: a broadband envelope)")
+    ap.add_argument("--envelope", default="recorded", choices=("recorded", "delivered", "auto"),
+                    help="rtlift identify's --envelope (default recorded, its own default)")
     ap.add_argument("--save-designs", action="store_true", help="with --keep: write each draw's design there "
                     "(N_design_STRUCTURE.json, report.json's form) for benchmarks/youla_gap.py")
     args = ap.parse_args()
@@ -170,7 +181,8 @@ def main() -> None:
                 continue
             r = one_draw(n, tmp, freqs, args.seed, args.keep,
                          None if args.peak_db is None else Targets(peak_db=args.peak_db), args.structure,
-                         args.backoff, args.channel_bound, args.save_designs, args.model_error)
+                         args.backoff, args.channel_bound, args.save_designs, args.model_error, args.train,
+                         args.envelope)
             results.append(r)
             with open(args.out, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(r) + "\n")
