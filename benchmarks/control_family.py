@@ -64,7 +64,7 @@ def identified_model(n: int, tmp: str, keep: str | None = None, train: str = "si
 def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
              targets: object = None, structure: str = "auto", backoff: float | None = None,
              channel_bound: bool = False, save_design: bool = False, model_error: str | None = None,
-             train: str = "sine_k0125", envelope: str = "recorded") -> dict:
+             train: str = "sine_k0125", envelope: str = "recorded", band_hz: float | None = None) -> dict:
     from rtlift.app.control_design import design_loop
     from rtlift.model.modelfile import load_model
 
@@ -73,7 +73,8 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
     t1 = time.perf_counter()
     model = load_model(path)
     design = design_loop(model, targets, structure=structure, channel_bound=channel_bound,
-                         model_error=load_model_error(model_error), **({} if backoff is None else {"backoff": backoff}))
+                         model_error=load_model_error(model_error), band_hz=band_hz,
+                         **({} if backoff is None else {"backoff": backoff}))
     t2 = time.perf_counter()
     if save_design and keep:
         from rtlift.app.control_design import report_doc
@@ -97,7 +98,7 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
             "observer": design.observer, "peak_db_target": design.targets.peak_db, "structure": design.structure,
             "backoff": backoff, "channel_bound": channel_bound, "model_error": model_error, "train": train,
-            "envelope": envelope, **res}
+            "envelope": envelope, "band_hz": band_hz, **res}
 
 
 def load_model_error(path: str | None) -> object:
@@ -161,6 +162,8 @@ def main() -> None:
                     "identification fits (default sine_k0125, the paper's; random: a broadband envelope)")
     ap.add_argument("--envelope", default="recorded", choices=("recorded", "delivered", "auto"),
                     help="rtlift identify's --envelope (default recorded, its own default)")
+    ap.add_argument("--band-hz", type=float, help="the internal-model design's band at most this (Hz; the "
+                    "programme's further reach spent on margin)")
     ap.add_argument("--save-designs", action="store_true", help="with --keep: write each draw's design there "
                     "(N_design_STRUCTURE.json, report.json's form) for benchmarks/youla_gap.py")
     args = ap.parse_args()
@@ -182,7 +185,7 @@ def main() -> None:
             r = one_draw(n, tmp, freqs, args.seed, args.keep,
                          None if args.peak_db is None else Targets(peak_db=args.peak_db), args.structure,
                          args.backoff, args.channel_bound, args.save_designs, args.model_error, args.train,
-                         args.envelope)
+                         args.envelope, args.band_hz)
             results.append(r)
             with open(args.out, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(r) + "\n")

@@ -1364,7 +1364,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 uncertainty: Uncertainty | None = None, limit: bool = True,
                 max_inserted: int = MAX_INSERTED, structure: str = DEFAULT_STRUCTURE,
                 backoff: float = YOULA_BACKOFF, channel_bound: bool = YOULA_CHANNEL_BOUND,
-                model_error: ModelError | None = None) -> Design:
+                model_error: ModelError | None = None, band_hz: float | None = None) -> Design:
     """The gain-scheduled design for ``model`` (module docstring): the controller designed at each
     of ``fractions``, then every target checked there and half-way between neighbours with the
     controller interpolated there as :class:`~rtlift.app.control.LiftController` does; where a
@@ -1377,7 +1377,9 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     "youla" (the internal-model controller from :class:`YoulaProgram` at ``backoff`` of its band,
     lowered by :data:`YOULA_STEP` where a target is missed; ``channel_bound``: each channel's part of T
     bounded by 1 + M, :data:`YOULA_CHANNEL_BOUND`; ``model_error``: robust performance against that
-    bound on each channel's error and its depth margin in the band, :class:`ModelError`) or "auto":
+    bound on each channel's error and its depth margin in the band, :class:`ModelError`; ``band_hz``: its
+    design band at most this, the programme's further reach spent on the least common scale λ of every
+    bound instead, a deeper band and a lower |S| peak) or "auto":
     both, and the one with the wider predicted band (the smallest f₆ over every checked point) among
     those that miss no target (the PI when neither or both tie)."""
     if structure not in STRUCTURES:
@@ -1484,7 +1486,10 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                                           channel_bound=1.0 + 10.0 ** (targets.peak_db / 20.0) if channel_bound
                                           else None, model_error=model_error))
             band, frac, points = joint_band(progs), backoff, None
-            while frac >= YOULA_FLOOR - 1e-9:
+            if band_hz is not None and band > 0:        # the rest of the band spent on λ: margin
+                frac = min(frac, band_hz / band)
+            floor = min(YOULA_FLOOR, frac)
+            while frac >= floor - 1e-9:
                 sol = joint_solve(progs, band * frac)
                 if sol is not None:
                     designed = []
