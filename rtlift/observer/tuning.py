@@ -69,12 +69,14 @@ def fit_noise(segments: Sequence[np.ndarray], order: int = 2) -> dict[str, Any]:
 
     def coeffs(p: np.ndarray) -> np.ndarray:
         if order == 2:     # a complex or double pole pair: radius, angle
-            r = R_MAX / (1.0 + math.exp(-p[2]))
-            th = math.pi / (1.0 + math.exp(-p[3]))
+            r = R_MAX * _logistic(p[2])
+            th = math.pi * _logistic(p[3])
             return np.array([2.0 * r * math.cos(th), -r * r])
-        return -np.poly(R_MAX / (1.0 + np.exp(-p[2:2 + order])))[1:]
+        return -np.poly(R_MAX * np.array([_logistic(v) for v in p[2:2 + order]]))[1:]
 
     def nll(p: np.ndarray) -> float:
+        if max(p[0], p[1]) > LOG_VARIANCE_MAX:     # the simplex wandered off: variances past any data
+            return math.inf
         a = coeffs(p)
         out = 0.0
         for w, per in pgrams:
@@ -105,6 +107,19 @@ def fit_noise(segments: Sequence[np.ndarray], order: int = 2) -> dict[str, Any]:
     ar_var = float(solve_discrete_lyapunov(Fn, e1)[0, 0]) * q
     return {"R": Rw, "noise_ar": tuple(float(v) for v in a), "q_noise": q, "total": total,
             "coloured_std": math.sqrt(ar_var)}
+
+
+LOG_VARIANCE_MAX = 700.0
+"""Above this a variance's logarithm overflows ``math.exp``: :func:`fit_noise`'s likelihood is +∞ there."""
+
+
+def _logistic(x: float) -> float:
+    """1/(1 + e^{−x}) for any finite x, without overflow (e^{−x} for x ≪ 0 overflowed in
+    :func:`fit_noise`'s simplex on plant draw 125's campaign: an internal error of ``rtlift identify``)."""
+    if x > -LOG_VARIANCE_MAX:        # the formula as it always was: the same bits wherever it did not fail
+        return 1.0 / (1.0 + math.exp(-x))
+    e = math.exp(x)
+    return e / (1.0 + e)
 
 
 HARMONICS = (8, 12)
