@@ -6,6 +6,7 @@ import dataclasses
 import math
 import sys
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -167,6 +168,18 @@ def test_fit_noise_recovers_a_white_plus_ar2_noise(rng):
     assert fit["q_noise"] == pytest.approx(2.7e-4**2, rel=0.5)
     white = fit_noise([rng.normal(0, 0.004, 800) for _ in range(3)])
     assert white["noise_ar"] == () and math.sqrt(white["R"]) == pytest.approx(0.004, rel=0.05)
+
+
+def test_fit_noise_on_a_tare_that_drove_its_simplex_to_overflow():
+    """Plant draw 125's 2-s tare (its campaign's random training record, the lift with the actuator
+    off): the likelihood's simplex wandered to a pole angle whose logistic overflowed ``math.exp``,
+    and ``rtlift identify`` ended in an internal error. It now fits, and the fit accounts for the
+    segment's variance: white plus coloured within 20 % of the total."""
+    z = np.load(Path(__file__).parent / "data" / "tare_noise_draw125.npy")
+    fit = fit_noise([z])
+    assert all(math.isfinite(v) for v in (fit["R"], fit["q_noise"], *fit["noise_ar"]))
+    assert len(fit["noise_ar"]) == 2 and fit["R"] > 0
+    assert fit["R"] + fit["coloured_std"] ** 2 == pytest.approx(fit["total"], rel=0.2)
 
 
 def test_dense_outliers_open_the_gate_isolated_ones_stay_out(rng):
