@@ -73,8 +73,9 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
     t1 = time.perf_counter()
     model = load_model(path)
     design = design_loop(model, targets, structure=structure, channel_bound=channel_bound,
-                         model_error=load_model_error(model_error), band_hz=band_hz,
-                         **({} if backoff is None else {"backoff": backoff}))
+                         model_error=load_model_error(model_error),
+                         **({} if backoff is None else {"backoff": backoff}),
+                         **({} if band_hz is None else {"band_hz": band_hz}))
     t2 = time.perf_counter()
     if save_design and keep:
         from rtlift.app.control_design import report_doc
@@ -163,7 +164,7 @@ def main() -> None:
     ap.add_argument("--envelope", default="recorded", choices=("recorded", "delivered", "auto"),
                     help="rtlift identify's --envelope (default recorded, its own default)")
     ap.add_argument("--band-hz", type=float, help="the internal-model design's band at most this (Hz; the "
-                    "programme's further reach spent on margin)")
+                    "programme's further reach spent on margin; default: the design's own)")
     ap.add_argument("--save-designs", action="store_true", help="with --keep: write each draw's design there "
                     "(N_design_STRUCTURE.json, report.json's form) for benchmarks/youla_gap.py")
     args = ap.parse_args()
