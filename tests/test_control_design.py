@@ -428,13 +428,9 @@ PI_BAND_HZ = 0.2135
 +2.85 dB: 0.211-0.244 Hz over its checked points; docs/results/control.md, "Second pass")."""
 
 
-@pytest.fixture(scope="module")
-def youla(cached):
-    """(point, controller): one Youla parameter for the cached design's scheduled points (their lifted
-    plants scaled to unit DC gain and observers, :func:`joint_solve` at 0.48 Hz, as ``design_loop``'s
-    "youla" structure builds it), run as the internal-model controller of the second point, checked
-    there. (One point's programme alone gives a Q that meets every target on the model but not on
-    our bench: −1.3 dB measured at 0.1 Hz against −7.7 predicted; the joint one holds.)"""
+def _programmes(cached) -> tuple[list, list[float]]:
+    """Each scheduled point's :class:`YoulaProgram` on its lifted plant scaled to unit DC gain, and
+    the gains, as ``design_loop``'s "youla" structure builds them."""
     progs, g0s = [], []
     for pt in cached.scheduled:
         p, q, g0 = np.asarray(pt.plant), np.asarray(pt.plant_point), float(np.sum(pt.plant))
@@ -442,6 +438,26 @@ def youla(cached):
         progs.append(YoulaProgram(p / g0, q / g0, cached.dt, cached.targets.peak_db, f_o=pt.observer_response,
                                   unc=cached.uncertainty, gm_db=cached.targets.gm_db,
                                   nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True))
+    return progs, g0s
+
+
+def test_a_narrower_band_asked_of_the_programme_lowers_every_bound_together(cached):
+    """What ``design_loop(band_hz=...)`` relies on (:data:`YOULA_BAND_HZ`): asked for a narrower band,
+    the joint programme's least common scale λ of every bound (|S_o| ≤ 0.5 λ in the band, |S| and
+    |S_o| ≤ λ M, |W T| ≤ λ) falls: on the bench model 0.955 at 0.48 Hz, 0.871 at 0.25 Hz."""
+    progs, _ = _programmes(cached)
+    lam = {f: joint_solve(progs, f)[2] for f in (0.25, 0.48)}
+    assert 0.0 < lam[0.25] < 0.95 * lam[0.48] <= 0.95
+
+
+@pytest.fixture(scope="module")
+def youla(cached):
+    """(point, controller): one Youla parameter for the cached design's scheduled points (their lifted
+    plants scaled to unit DC gain and observers, :func:`joint_solve` at 0.48 Hz, as ``design_loop``'s
+    "youla" structure builds it), run as the internal-model controller of the second point, checked
+    there. (One point's programme alone gives a Q that meets every target on the model but not on
+    our bench: −1.3 dB measured at 0.1 Hz against −7.7 predicted; the joint one holds.)"""
+    progs, g0s = _programmes(cached)
     qa, qx, lam = joint_solve(progs, 0.48)
     assert 0.0 < lam <= 1.0
     pt, g0 = cached.scheduled[1], g0s[1]

@@ -1345,11 +1345,13 @@ trained on the paper's sine ("Eighth pass"). On by default since the tenth pass,
 :data:`YOULA_BACKOFF` (set together on the same draws, random-trained models)."""
 YOULA_BAND_HZ = 0.40
 """The internal-model design asks for at most this band (Hz); where its programme reaches further the
-surplus goes to the least common scale λ of every bound (a deeper band, a lower |S| peak) instead of
-width. On reporting draws 100–119 the programme reached 0.53–0.65 Hz, the design asked for 0.46–0.55 Hz
-at :data:`YOULA_BACKOFF` and the whole band sat at its bound, |S_o| = 0.5: 6 dB to 0.35 Hz on 3 of 20.
-The value is calibration draws 1–3's own (at 0.85 their designs asked for 0.36–0.40 Hz and met 6 dB to
-0.35 Hz with ≤ 3 dB), so it leaves them as they were; judged on fresh reporting draws 120–139
+surplus goes to margin instead of width: the band's edge, where |S_o| meets its bound 0.5 λ, stays
+past 0.35 Hz with room for the model's in-band error, and λ (every bound's common scale) is a little
+lower (on the bench model 0.92 at 0.40 Hz against 0.96 at 0.48). On reporting draws 100–119, without
+it, the designs asked for 0.39–0.55 Hz and where they asked for 0.50 Hz or more the whole band sat at
+its bound, |S_o| = 0.5, measured −4.7…−5.9 dB at 0.35 Hz: 6 dB to 0.35 Hz on 4 of 20. The value is
+calibration draws 1–3's own (at 0.85 their designs asked for 0.36–0.40 Hz and met 6 dB to 0.35 Hz with
+≤ 3 dB), so it leaves them as they were; judged on fresh reporting draws 120–139
 (docs/results/control.md, "Tenth pass")."""
 YOULA_STEP = 0.05
 """Where a Youla point misses a target (the phase margin, not in the programme; a half-way check),
@@ -1386,8 +1388,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     lowered by :data:`YOULA_STEP` where a target is missed; ``channel_bound``: each channel's part of T
     bounded by 1 + M, :data:`YOULA_CHANNEL_BOUND`; ``model_error``: robust performance against that
     bound on each channel's error and its depth margin in the band, :class:`ModelError`; ``band_hz``: its
-    design band at most this, the programme's further reach spent on the least common scale λ of every
-    bound instead, a deeper band and a lower |S| peak) or "auto":
+    design band at most this, :data:`YOULA_BAND_HZ`: the programme's further reach spent on margin) or
+    "auto":
     both, and the one with the wider predicted band (the smallest f₆ over every checked point) among
     those that miss no target (the PI when neither or both tie)."""
     if structure not in STRUCTURES:
@@ -1494,7 +1496,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                                           channel_bound=1.0 + 10.0 ** (targets.peak_db / 20.0) if channel_bound
                                           else None, model_error=model_error))
             band, frac, points = joint_band(progs), backoff, None
-            if band_hz is not None and band > 0:        # the rest of the band spent on λ: margin
+            if band_hz is not None and band > 0:        # no wider than asked: the rest is margin
                 frac = min(frac, band_hz / band)
             floor = min(YOULA_FLOOR, frac)
             while frac >= floor - 1e-9:
