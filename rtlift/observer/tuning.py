@@ -69,13 +69,15 @@ def fit_noise(segments: Sequence[np.ndarray], order: int = 2) -> dict[str, Any]:
 
     def coeffs(p: np.ndarray) -> np.ndarray:
         if order == 2:     # a complex or double pole pair: radius, angle
-            r = R_MAX * _logistic(p[2])
-            th = math.pi * _logistic(p[3])
+            r = _logistic(R_MAX, p[2])
+            th = _logistic(math.pi, p[3])
             return np.array([2.0 * r * math.cos(th), -r * r])
-        return -np.poly(R_MAX * np.array([_logistic(v) for v in p[2:2 + order]]))[1:]
+        x = p[2:2 + order]
+        radii = R_MAX / (1.0 + np.exp(-x)) if np.all(x > -EXP_ARG_MAX) else [_logistic(R_MAX, v) for v in x]
+        return -np.poly(radii)[1:]
 
     def nll(p: np.ndarray) -> float:
-        if max(p[0], p[1]) > LOG_VARIANCE_MAX:     # the simplex wandered off: variances past any data
+        if max(p[0], p[1]) > EXP_ARG_MAX:     # the simplex wandered off: variances past any data
             return math.inf
         a = coeffs(p)
         out = 0.0
@@ -109,17 +111,19 @@ def fit_noise(segments: Sequence[np.ndarray], order: int = 2) -> dict[str, Any]:
             "coloured_std": math.sqrt(ar_var)}
 
 
-LOG_VARIANCE_MAX = 700.0
-"""Above this a variance's logarithm overflows ``math.exp``: :func:`fit_noise`'s likelihood is +∞ there."""
+EXP_ARG_MAX = 700.0
+"""``math.exp`` overflows past 709.78: :func:`fit_noise`'s likelihood is +∞ where a log-variance passes
+this, and :func:`_logistic` changes its form below −this."""
 
 
-def _logistic(x: float) -> float:
-    """1/(1 + e^{−x}) for any finite x, without overflow (e^{−x} for x ≪ 0 overflowed in
-    :func:`fit_noise`'s simplex on plant draw 125's campaign: an internal error of ``rtlift identify``)."""
-    if x > -LOG_VARIANCE_MAX:        # the formula as it always was: the same bits wherever it did not fail
-        return 1.0 / (1.0 + math.exp(-x))
+def _logistic(scale: float, x: float) -> float:
+    """scale/(1 + e^{−x}) for any finite x, without overflow: e^{−x} for x ≪ 0 overflowed in
+    :func:`fit_noise`'s simplex on plant draw 125's campaign, an internal error of ``rtlift identify``.
+    Above −:data:`EXP_ARG_MAX` it is the expression as it always was, the same bits."""
+    if x > -EXP_ARG_MAX:
+        return scale / (1.0 + math.exp(-x))
     e = math.exp(x)
-    return e / (1.0 + e)
+    return scale * e / (1.0 + e)
 
 
 HARMONICS = (8, 12)
