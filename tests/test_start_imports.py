@@ -27,6 +27,7 @@ import pytest
 
 from hil_sim.devices import SerialDaq
 from hil_sim.hil import HilStream
+from testkit.lines import lines_until
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "tests" / "data" / "bench_model.json"
@@ -51,18 +52,15 @@ def test_a_cached_start_loads_no_heavy_module_before_the_link_opens(tmp_path):
     cmd = [sys.executable, "-X", "importtime", "-m", "rtlift", "control", "--serial", dev.path, "--model", str(MODEL),
            "--reference", "steps:0.08@0", "--seconds", "2", "--json", str(summary)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    before: list[str] = []
     try:
-        for line in proc.stderr:                # every import up to the link, in the order they ran
-            if "link open" in line:
-                break
-            before.append(line)
-        else:
-            raise AssertionError("no link open line: " + "".join(before[-5:]))
+        before = lines_until(proc.stderr, "link open", most=100_000)[:-1]   # every import up to the link
         dev.start()
         _, rest = proc.communicate(timeout=120)
     finally:
         dev.stop()
+        if proc.poll() is None:                 # a failed wait leaves no host behind
+            proc.kill()
+            proc.communicate()
     assert proc.returncode == 0, rest[-2000:]
     after = rest.splitlines()
     monitor_line = next(i for i, line in enumerate(after) if "monitor thresholds" in line)
