@@ -10,10 +10,10 @@ bench's truth, a constant reference ``--level``, a gust ``A sin(2π f t)`` on th
 amplitude A of ``--amplitudes`` beside the design's predicted |S_o| at the checked point nearest
 the reference. A suppression that changes with A, or clamped periods, is a nonlinearity the linear
 prediction leaves out; one that does neither is linear. Each feedback run is repeated without
-the gust at the same seed (:func:`gust_part`): the lift the loop makes of the sensor noise alone
-at f (the floor) and the gust's own part (the two runs' difference), printed as measured / gust's
-part / predicted dB [clamped %, floor dB]. One JSON object per (draw, structure,
-amplitude) is appended to ``--out``; the last line printed is one JSON line of all.
+the gust at the same seed (:func:`~benchmarks.gust_rejection.suppression_rows`): the lift the loop
+makes of the sensor noise alone at f (the floor) and the gust's own part (the two runs' difference),
+printed as measured (the whole lift) / gust's part / predicted dB [clamped %, floor dB]. One JSON
+object per (draw, structure, amplitude) is appended to ``--out``; the last line printed is one JSON line of all.
 """
 
 from __future__ import annotations
@@ -31,27 +31,6 @@ from benchmarks.control_family import draws  # noqa: E402
 from benchmarks.gust_rejection import crossing_hz, suppression_rows  # noqa: E402
 
 
-def gust_part(model, fb_config, f_hz: float, amplitude: float, amp_ff: float, *, level: float, seed: int,
-              plant_draw: int) -> dict:
-    """The feedback run at ``f_hz`` split in two, with the same seed (the same sensor noise): the lift
-    without the gust (what the loop makes of the noise alone: its amplitude at f, ``floor``) and the
-    difference of the two runs y_gust − y_none (the gust's own part, linear in the small), whose
-    amplitude at f over ``amp_ff`` is the gust map the design predicts (dB)."""
-    import math
-
-    from benchmarks.gust_rejection import SETTLE_S, in_process, sine_amplitude
-
-    seconds = SETTLE_S + max(12.0, 4.0 / f_hz)
-    ref = f"steps:{level}@0"
-    t, y_gust, _ = in_process(model, fb_config, ref, seconds, seed=seed, plant_draw=plant_draw,
-                              gust=f"{f_hz:g}:{amplitude:g}").traces()
-    _, y_none, _ = in_process(model, fb_config, ref, seconds, seed=seed, plant_draw=plant_draw).traces()
-    floor = sine_amplitude(t, y_none, f_hz, SETTLE_S)
-    part = sine_amplitude(t, y_gust - y_none, f_hz, SETTLE_S)
-    return {"floor_amp": floor, "floor_db": 20 * math.log10(floor / amp_ff), "gust_part_amp": part,
-            "gust_part_db": 20 * math.log10(part / amp_ff)}
-
-
 def one(directory: str, n: int, structure: str, amplitude: float, frequencies: tuple[float, ...], *,
         level: float, seed: int) -> dict:
     """Draw ``n``'s saved ``structure`` design measured at gust ``amplitude`` (ΔCL)."""
@@ -66,10 +45,6 @@ def one(directory: str, n: int, structure: str, amplitude: float, frequencies: t
     rows = suppression_rows(design.control_model(model), ControlConfig(feedback=False, fs_hz=model.fs_hz),
                             design.control_config(fs_hz=model.fs_hz), point, design.dt, level=level,
                             amplitude=amplitude, seed=seed, plant_draw=n, frequencies=frequencies)
-    fb = design.control_config(fs_hz=model.fs_hz)
-    for row in rows:
-        row.update(gust_part(design.control_model(model), fb, row["f_hz"], amplitude, row["amp_ff"], level=level,
-                             seed=seed, plant_draw=n))
     freqs = [r["f_hz"] for r in rows]
     return {"draw": n, "structure": structure, "amplitude": amplitude, "level": level, "seed": seed,
             "f6_hz_measured": crossing_hz(freqs, [r["suppression_db"] for r in rows]),
@@ -99,7 +74,7 @@ def main() -> None:
                     fh.write(json.dumps(r) + "\n")
                 print(f"draw {n} {s} gust {a:g}: band {r['f6_hz_measured']:.3f} Hz (predicted "
                       f"{r['f6_hz_predicted']:.3f}); " + " ".join(
-                          f"{row['f_hz']:g}:{row['suppression_db']:+.1f}/{row['gust_part_db']:+.1f}/"
+                          f"{row['f_hz']:g}:{row['suppression_single_db']:+.1f}/{row['suppression_db']:+.1f}/"
                           f"{row['predicted_s_db']:+.1f}[{100 * row['clamped_fraction']:.0f}%, floor "
                           f"{row['floor_db']:+.1f}]" for row in r["rows"])
                       + f" ({r['measure_s']:.0f} s)", flush=True)
