@@ -450,6 +450,28 @@ def test_a_narrower_band_asked_of_the_programme_lowers_every_bound_together(cach
     assert 0.0 < lam[0.25] < 0.95 * lam[0.48] <= 0.95
 
 
+def test_a_design_report_states_both_limits_of_the_band_and_keeps_them(cached, tmp_path):
+    """The internal-model design's record of its own programme (:attr:`Design.reach`): report.md
+    names the model's noise-free limit beside the programme's band with the noise bounded and the
+    band asked; report.json carries it back through ``load_design`` (``rtlift control --design``)."""
+    from dataclasses import replace
+
+    from rtlift.app.commands.design import write_report
+
+    reach = {"programme_band_hz": 0.5012, "asked_band_hz": 0.4, "fraction": 0.4 / 0.5012, "backoff": 0.85,
+             "band_cap_hz": 0.4, "depth_db": 0.0, "channel_bound": True}
+    d = replace(cached, reach=reach)
+    write_report(d, str(tmp_path), str(MODEL))
+    md = (tmp_path / "report.md").read_text(encoding="utf-8")
+    lim = d.summary()["limit_f6_hz_min"]
+    assert (f"noise-free: {lim:.3f} Hz" in md and "depth margin of 0 dB: 0.501 Hz" in md
+            and "designed for 0.400 Hz (0.80 of it: back-off 0.85, at most 0.4 Hz)" in md)
+    back = load_design(str(tmp_path / "report.json"))
+    assert back.reach == reach and back.summary()["programme_band_hz"] == 0.5012
+    write_report(cached, str(tmp_path / "pi"), str(MODEL))      # the PI has no programme of its own
+    assert cached.reach is None and "two limits" not in (tmp_path / "pi" / "report.md").read_text(encoding="utf-8")
+
+
 @pytest.fixture(scope="module")
 def youla(cached):
     """(point, controller): one Youla parameter for the cached design's scheduled points (their lifted

@@ -627,6 +627,12 @@ class Design:
     observer: dict[str, Any] | None = None
     """The observer ``rtlift control`` runs with this design: ``q_bias`` (its bias variance),
     ``factor`` on the model's, ``max_gap_to_0p5_hz`` (:func:`control_q_bias`); None: the model's."""
+    reach: dict[str, Any] | None = None
+    """The internal-model design's own programme (None for the PI): ``programme_band_hz``, the widest
+    band its joint programme reaches with every bound exact — every target, the channel bound (the
+    sensor's noise) and the depth margin: the limit of a controller that must also keep the noise down,
+    beside :attr:`PointDesign.limit_f6_hz` (the model's, noise-free) —; ``asked_band_hz``, the band
+    designed (``fraction`` of it: the back-off, the cap ``band_cap_hz``, lowered where a check missed)."""
 
     @property
     def scheduled(self) -> list[PointDesign]:
@@ -700,6 +706,7 @@ class Design:
                 "peak_s_db_max": max(p.peak_s_db for p in pts), "f6_hz_min": min(p.f6_hz for p in pts),
                 "robust_max": max(p.margins.robust for p in pts),
                 "limit_f6_hz_min": min(lim) if lim else None,
+                "programme_band_hz": (self.reach or {}).get("programme_band_hz"),
                 "stable": all(p.stable for p in pts), "violations": self.violations()}
 
     def to_dict(self) -> dict[str, Any]:
@@ -714,7 +721,7 @@ class Design:
             pts.append(d)
         return {"dt_s": self.dt, "period_samples": self.period, "margin_samples": self.margin,
                 "targets": asdict(self.targets), "uncertainty": asdict(self.uncertainty),
-                "observer": self.observer, "summary": self.summary(), "points": pts}
+                "observer": self.observer, "reach": self.reach, "summary": self.summary(), "points": pts}
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> Design:
@@ -734,7 +741,8 @@ class Design:
                               cross_check=False, pulse=np.asarray(p.get("pulse") or [], float))
                   for p in doc["points"]]
         return cls(points, dt, int(doc.get("period_samples", BURST_PERIOD_SAMPLES)),
-                   int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc, doc.get("observer"))
+                   int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc, doc.get("observer"),
+                   doc.get("reach"))
 
     def control_model(self, model: Any) -> Any:
         """``model`` with the observer settings this design was checked with (itself if none)."""
@@ -1096,13 +1104,15 @@ class YoulaProgram:
     B: also each channel's own part of T bounded everywhere, |Q_A P_A| ≤ λ B and |Q_X P_X| ≤ λ B. The
     sensor's noise reaches the two channels differently (n_A the period's mean, n_X the latest
     estimate) and the lift as Q_A P_A n_A + Q_X P_X n_X, so parts that cancel in T (large and opposed)
-    do not cancel on the noise (:data:`YOULA_CHANNEL_BOUND`)."""
+    do not cancel on the noise (:data:`YOULA_CHANNEL_BOUND`). ``depth_db`` m: the band's bound is
+    |S_o| ≤ 0.5 λ 10^(−m/20) (None: ``model_error``'s :meth:`ModelError.band_margin_db`, or 0 without
+    it; :data:`YOULA_DEPTH_DB`)."""
 
     def __init__(self, p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, f_o: Any = None,
                  unc: Uncertainty | None = None, taps: int = LIMIT_TAPS, gm_db: float | None = None,
                  nyquist_gain: float | None = None, controller: bool = False, g_y: Any = None,
                  integral: bool = False, channel_bound: float | None = None,
-                 model_error: ModelError | None = None) -> None:
+                 model_error: ModelError | None = None, depth_db: float | None = None) -> None:
         self.taps = taps
         nyq = 0.5 / dt
 
@@ -1141,9 +1151,11 @@ class YoulaProgram:
         self.b_peak = np.concatenate([b for (_, b), _ in scaled])
         self.n_aux = 0
         self.a_rob, self.b_rob = np.zeros((0, self.nx + 1)), np.zeros(0)
-        self.depth = 1.0
+        if depth_db is None:
+            depth_db = model_error.band_margin_db() if model_error is not None else 0.0
+        self.depth_db = float(depth_db)
+        self.depth = 10.0 ** (-depth_db / 20.0)
         if model_error is not None:
-            self.depth = 10.0 ** (-model_error.band_margin_db() / 20.0)
             self.robust_rows(f_all, rows_all, gust_all, model_error, taps)
         parts = []
         alt = (-1.0) ** np.arange(taps)                      # Z⁻ᵏ at z = −1
@@ -1354,6 +1366,9 @@ the bound |S_o| = 0.5 (weakest measured suppression to 0.35 Hz −4.7…−5.8 d
 ≤ 3 dB), so it leaves them as they were. Judged on fresh reporting draws 120–139: 6 dB to 0.35 Hz on
 15 of 20 (the misses by ≤ 0.31 dB at 0.2–0.25 Hz), ≤ 3 dB on 20 of 20 (docs/results/control.md, "Tenth
 pass")."""
+YOULA_DEPTH_DB = 0.0
+"""The internal-model design's depth margin m (dB): the band's bound |S_o| ≤ 0.5 λ 10^(−m/20), room for
+what the measured suppression falls short of the predicted in the band."""
 YOULA_STEP = 0.05
 """Where a Youla point misses a target (the phase margin, not in the programme; a half-way check),
 the fraction is lowered by this much and the point designed again, down to :data:`YOULA_FLOOR`."""
@@ -1375,7 +1390,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 uncertainty: Uncertainty | None = None, limit: bool = True,
                 max_inserted: int = MAX_INSERTED, structure: str = DEFAULT_STRUCTURE,
                 backoff: float = YOULA_BACKOFF, channel_bound: bool = YOULA_CHANNEL_BOUND,
-                model_error: ModelError | None = None, band_hz: float | None = YOULA_BAND_HZ) -> Design:
+                model_error: ModelError | None = None, band_hz: float | None = YOULA_BAND_HZ,
+                depth_db: float | None = None) -> Design:
     """The gain-scheduled design for ``model`` (module docstring): the controller designed at each
     of ``fractions``, then every target checked there and half-way between neighbours with the
     controller interpolated there as :class:`~rtlift.app.control.LiftController` does; where a
@@ -1389,7 +1405,9 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     lowered by :data:`YOULA_STEP` where a target is missed; ``channel_bound``: each channel's part of T
     bounded by 1 + M, :data:`YOULA_CHANNEL_BOUND`; ``model_error``: robust performance against that
     bound on each channel's error and its depth margin in the band, :class:`ModelError`; ``band_hz``: its
-    design band at most this, :data:`YOULA_BAND_HZ`: the programme's further reach spent on margin) or
+    design band at most this, :data:`YOULA_BAND_HZ`: the programme's further reach spent on margin;
+    ``depth_db``: the band's bound that many dB under 0.5; None: ``model_error``'s with it, else
+    :data:`YOULA_DEPTH_DB`) or
     "auto":
     both, and the one with the wider predicted band (the smallest f₆ over every checked point) among
     those that miss no target (the PI when neither or both tie)."""
@@ -1485,6 +1503,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         :data:`YOULA_STEP` while a checked point misses a target; a half-way point that still misses
         at the floor joins the schedule (at most ``max_inserted`` times)."""
         dcls = [ctl.dcl_min + fr * (ctl.dcl_max - ctl.dcl_min) for fr in fractions]
+        depth = depth_db if depth_db is not None or model_error is not None else YOULA_DEPTH_DB
         for _ in range(max_inserted + 1):
             progs, gains = [], []
             for dcl0 in dcls:
@@ -1495,15 +1514,15 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                                           g_y=gy_at(dcl0, g0),
                                           gm_db=targets.gm_db, nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True,
                                           channel_bound=1.0 + 10.0 ** (targets.peak_db / 20.0) if channel_bound
-                                          else None, model_error=model_error))
-            band, frac, points = joint_band(progs), backoff, None
+                                          else None, model_error=model_error, depth_db=depth))
+            band, frac, points, asked = joint_band(progs), backoff, None, backoff
             if band_hz is not None and band > 0:        # no wider than asked: the rest is margin
                 frac = min(frac, band_hz / band)
             floor = min(YOULA_FLOOR, frac)
             while frac >= floor - 1e-9:
                 sol = joint_solve(progs, band * frac)
                 if sol is not None:
-                    designed = []
+                    designed, asked = [], frac
                     for dcl0, g0 in zip(dcls, gains, strict=True):
                         p, q, _, _, _ = plant_at(dcl0)
                         yg = YoulaGains(tuple(float(v) / g0 for v in sol[0]), tuple(float(v) / g0 for v in sol[1]),
@@ -1519,7 +1538,9 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
             if not bad or bad[0].designed:
                 break
             dcls = sorted([*dcls, bad[0].dcl])
-        return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
+        reach = {"programme_band_hz": band, "asked_band_hz": band * asked, "fraction": asked, "backoff": backoff,
+                 "band_cap_hz": band_hz, "depth_db": progs[0].depth_db, "channel_bound": channel_bound}
+        return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs, reach)
 
     def build(design_at: Any) -> Design:
         designed: list[PointDesign] = []
