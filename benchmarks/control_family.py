@@ -105,7 +105,8 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
             "observer": design.observer, "peak_db_target": design.targets.peak_db, "structure": design.structure,
             "backoff": backoff, "channel_bound": channel_bound, "model_error": model_error, "train": train,
-            "envelope": envelope, "band_hz": band_hz, "depth_db": depth_db, "reused_design": reuse_design, **res}
+            "envelope": envelope, "band_hz": band_hz, "depth_db": depth_db, "reused_design": reuse_design,
+            "reach": design.reach, **res}
 
 
 def load_model_error(path: str | None) -> object:
