@@ -472,6 +472,30 @@ def test_a_design_report_states_both_limits_of_the_band_and_keeps_them(cached, t
     assert cached.reach is None and "two limits" not in (tmp_path / "pi" / "report.md").read_text(encoding="utf-8")
 
 
+def test_a_crossover_past_the_training_envelope_s_reach_is_a_caution_not_a_missed_target(cached, tmp_path):
+    """:meth:`Design.cautions`: a gain crossover above the frequency below which 95 % of the training
+    envelope's variance lies is one line, in report.md and report.json, and not a violation; below it,
+    or with no word from the model file, nothing."""
+    from dataclasses import replace
+
+    from rtlift.app.commands.design import write_report
+    from rtlift.model.domain import envelope_reach
+
+    top = max(fc for p in cached.points for fc, _ in p.margins.gain_crossovers)
+    t = np.arange(0, 120, 1 / 400)
+    narrow = envelope_reach(np.sin(2 * np.pi * 0.3 * t) + 0.1 * np.sin(2 * np.pi * 2.0 * t), 400.0)
+    assert narrow["f95_hz"] == pytest.approx(0.3, abs=0.01)
+    assert narrow["share_above_1hz"] == pytest.approx(0.01 / 1.01, rel=1e-3)
+    d = replace(cached, training=narrow)
+    (line,) = d.cautions()
+    assert f"crosses over at up to {top:.2f} Hz, above the 0.30 Hz" in line and not d.violations()
+    write_report(d, str(tmp_path), str(MODEL))
+    assert "**Cautions**" in (tmp_path / "report.md").read_text(encoding="utf-8")
+    assert load_design(str(tmp_path / "report.json")).cautions() == [line]
+    assert replace(cached, training={"f95_hz": top + 0.01, "share_above_1hz": 0.2}).cautions() == []
+    assert cached.training is None and cached.cautions() == []
+
+
 @pytest.fixture(scope="module")
 def youla(cached):
     """(point, controller): one Youla parameter for the cached design's scheduled points (their lifted

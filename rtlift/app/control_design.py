@@ -633,6 +633,9 @@ class Design:
     sensor's noise) and the depth margin: the limit of a controller that must also keep the noise down,
     beside :attr:`PointDesign.limit_f6_hz` (the model's, noise-free) —; ``asked_band_hz``, the band
     designed (``fraction`` of it: the back-off, the cap ``band_cap_hz``, lowered where a check missed)."""
+    training: dict[str, float] | None = None
+    """How far the model's training envelope reaches (``provenance.domain.train_envelope``,
+    :func:`rtlift.model.domain.envelope_reach`); None where the model file does not say."""
 
     @property
     def scheduled(self) -> list[PointDesign]:
@@ -696,6 +699,24 @@ class Design:
                            f"(W: gain error {100 * u.gain:.0f} %, delay {1e3 * u.delay_s:g} ms)")
         return out
 
+    def cautions(self) -> list[str]:
+        """What the design leans on beyond the model's data, one line each (not a missed target:
+        ``rtlift design`` still exits 0): a gain crossover above the frequency below which 95 % of the
+        training envelope's variance lies. The margins are read at the crossovers, and above that
+        frequency the model's dynamics are extrapolated: on the plant family's calibration draws the
+        paper's ``sine_k0125`` (95 % below 0.49 Hz on draw 1) left the lifted plant wrong by 1.2–7
+        times at 1.5–2 Hz and the internal-model design (crossovers 0.61–0.65 Hz) amplified +3.7 dB at
+        2 Hz where it predicted +1.7…+2.0; trained on ``random`` (1.67 Hz) the error there was
+        0.29–0.40 (docs/results/control.md, "Tenth pass")."""
+        t = self.training
+        xs = [fc for p in self.points for fc, _ in p.margins.gain_crossovers]
+        if not t or not xs or max(xs) <= t["f95_hz"]:
+            return []
+        return [f"the loop crosses over at up to {max(xs):.2f} Hz, above the {t['f95_hz']:.2f} Hz below which 95 % "
+                f"of the training envelope's variance lies ({100 * t['share_above_1hz']:.1f} % above 1 Hz): the "
+                "margins are read where the model is extrapolated; identify on a broadband training record "
+                "(rtlift bench record random; rtlift identify --train)"]
+
     def summary(self) -> dict[str, Any]:
         """Worst case over every operating point checked: margins, peak |S|, f₆, the limit."""
         pts = self.points
@@ -707,7 +728,7 @@ class Design:
                 "robust_max": max(p.margins.robust for p in pts),
                 "limit_f6_hz_min": min(lim) if lim else None,
                 "programme_band_hz": (self.reach or {}).get("programme_band_hz"),
-                "stable": all(p.stable for p in pts), "violations": self.violations()}
+                "stable": all(p.stable for p in pts), "violations": self.violations(), "cautions": self.cautions()}
 
     def to_dict(self) -> dict[str, Any]:
         pts = []
@@ -721,7 +742,8 @@ class Design:
             pts.append(d)
         return {"dt_s": self.dt, "period_samples": self.period, "margin_samples": self.margin,
                 "targets": asdict(self.targets), "uncertainty": asdict(self.uncertainty),
-                "observer": self.observer, "reach": self.reach, "summary": self.summary(), "points": pts}
+                "observer": self.observer, "reach": self.reach, "training": self.training,
+                "summary": self.summary(), "points": pts}
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> Design:
@@ -742,7 +764,7 @@ class Design:
                   for p in doc["points"]]
         return cls(points, dt, int(doc.get("period_samples", BURST_PERIOD_SAMPLES)),
                    int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc, doc.get("observer"),
-                   doc.get("reach"))
+                   doc.get("reach"), doc.get("training"))
 
     def control_model(self, model: Any) -> Any:
         """``model`` with the observer settings this design was checked with (itself if none)."""
@@ -1431,6 +1453,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     watched = with_q_bias(model, q_bias) if observer else model
     obs = None if not observer else {"q_bias": q_bias, "factor": factor, "model_q_bias": q_bias / factor,
                                      "max_gap_to_0p5_hz": gap}
+    training = (((getattr(model, "provenance", None) or {}).get("domain") or {}).get("train_envelope")
+                or None)
     plants: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]] = {}
     limits: dict[float, float | None] = {}
 
@@ -1545,7 +1569,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
             dcls = sorted([*dcls, bad[0].dcl])
         reach = {"programme_band_hz": band, "asked_band_hz": band * asked, "fraction": asked, "backoff": backoff,
                  "band_cap_hz": band_hz, "depth_db": progs[0].depth_db, "channel_bound": channel_bound}
-        return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs, reach)
+        return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs, reach, training)
 
     def build(design_at: Any) -> Design:
         designed: list[PointDesign] = []
@@ -1561,7 +1585,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
             start = max((d for d in designed if d.cmu < pt.cmu), key=lambda d: d.cmu).gains
             designed = sorted([*designed, design_at(pt.dcl, start)], key=lambda d: d.cmu)
             points, inserted = between(designed), inserted + 1
-        return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
+        return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs, None, training)
 
     def joint(cont: Design) -> Design:
         """The continued ``pi2`` schedule searched jointly (:func:`design_joint`) over its scheduled and
@@ -1582,7 +1606,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                  else [pt.gains for pt in sched])
         gs = design_joint([g for g in start if isinstance(g, Gains)], measures)
         out = Design(between([check(pt.cmu, pt.dcl, g) for pt, g in zip(sched, gs, strict=True)]),
-                     dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs)
+                     dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs, None, training)
         def score(d: Design) -> float:
             bands = [p.f6_hz for p in d.points]
             return min(bands) if JOINT_OBJECTIVE == "min" else float(np.mean(bands))

@@ -64,7 +64,7 @@ from rtlift.identify.kernel import KernelRefinement, SingleBurstKernel, burst_on
 from rtlift.identify.order import OrderChoice, choose_order
 from rtlift.identify.pem import PEMResult, fit_wiener
 from rtlift.identify.static_map import StaticMap, fit_static_map
-from rtlift.model.domain import domain_of
+from rtlift.model.domain import domain_of, envelope_reach
 from rtlift.model.hybrid import HybridModel
 from rtlift.residual.fingerprint import FINGERPRINT_START_S, fingerprint
 
@@ -367,7 +367,8 @@ def identify_hybrid(static_rec: Record, burst_rec: Record, train_rec: Record,
                        "cmu_zero": "N(0) = limit slope of the map at the origin"},
         "kernel": {**kernel.to_dict(), "refinement": refined.to_dict()},
         "phi": phi,
-        "domain": domain_of([static_rec, burst_rec, train_rec], fs, kernel.kernel.size),
+        "domain": {**domain_of([static_rec, burst_rec, train_rec], fs, kernel.kernel.size),
+                   "train_envelope": envelope_reach(train_rec.cmu_envelope, fs)},
         "phi_choice": {
             "used": "train" if refine else "single_burst",
             "phi_single_burst": kernel.phi,

@@ -49,6 +49,23 @@ def domain_of(records: Iterable[Any], fs_hz: float, isolated_samples: int) -> di
             "cmu_envelope_max": float(max(np.max(r.cmu_envelope) for r in records))}
 
 
+def envelope_reach(envelope: np.ndarray, fs_hz: float, share: float = 0.95) -> dict[str, float]:
+    """How far in frequency a training record's envelope reaches: ``f95_hz``, the frequency below
+    which ``share`` of its variance lies (periodogram of the envelope less its mean, cumulated), and
+    ``share_above_1hz``, the part of its variance above 1 Hz. The model's dynamics are fitted on that
+    envelope, so above ``f95_hz`` they are extrapolated (docs/results/control.md, "Tenth pass": the
+    paper's ``sine_k0125`` of plant draw 1 reaches 0.49 Hz, the bench's ``random`` 1.67 Hz)."""
+    x = np.asarray(envelope, float)
+    p = np.abs(np.fft.rfft(x - x.mean())) ** 2
+    f = np.fft.rfftfreq(x.size, 1.0 / fs_hz)
+    total = float(p[1:].sum())
+    if x.size < 2 or total <= 0.0:
+        return {"f95_hz": 0.0, "share_above_1hz": 0.0}
+    cum = np.cumsum(p[1:]) / total
+    return {"f95_hz": float(f[1:][min(int(np.searchsorted(cum, share)), cum.size - 1)]),
+            "share_above_1hz": float(p[1:][f[1:] > 1.0].sum() / total)}
+
+
 def _period_outside(domain: dict[str, Any], gap_s: float) -> bool:
     if gap_s >= domain["isolated_after_s"]:
         return not domain["isolated_bursts"]

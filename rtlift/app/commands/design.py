@@ -69,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
           f"{s['f6_hz_min']:.3f} Hz (limit for any causal controller: {limit} Hz) -> {args.out}")
     for line in s["violations"]:
         print(f"rtlift design: target missed: {line}", file=sys.stderr)
+    for line in s["cautions"]:
+        print(f"rtlift design: caution: {line}", file=sys.stderr)
     return 1 if s["violations"] else 0
 
 
@@ -113,6 +115,9 @@ def _markdown(design, doc: dict, model: str) -> str:
                         f"({r['fraction']:.2f} of it: back-off {r['backoff']:g}"
                         + ("" if r["band_cap_hz"] is None else f", at most {r['band_cap_hz']:g} Hz") + ").", ""]
     lines += [f"- {v}" for v in s["violations"]]
+    if s["cautions"]:
+        lines += ["", "**Cautions** (targets met on the model, which is extrapolated here):", ""]
+        lines += [f"- {c}" for c in s["cautions"]]
     two = design.structure == "pi2"
     head = ("Kp | Ti (s) | a | b | Kx" + (" | c | d" if two else "") if design.structure != "youla" else
             "Q_A(1) | sum abs Q_A | Q_X(-1) | gain at 4 Hz | -")

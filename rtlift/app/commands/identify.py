@@ -163,6 +163,11 @@ def summary(idf, out_path: str, seconds: float) -> str:
         f"  training record {tr['record']}: corr {tr['corr']:.4f}, NRMSE {tr['nrmse']:.4f}, "
         f"RMSE {tr['rmse']:.4g}",
     ]
+    reach = p["domain"].get("train_envelope")
+    if reach:
+        lines.append(f"  training envelope: 95 % of its variance below {reach['f95_hz']:.2f} Hz "
+                     f"({100 * reach['share_above_1hz']:.1f} % above 1 Hz): the model's dynamics are "
+                     f"extrapolated above that")
     return "\n".join(lines)
 
 
