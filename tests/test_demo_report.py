@@ -69,6 +69,15 @@ def test_a_design_that_misses_a_target_is_said_in_the_table_and_the_report():
     assert "misses a target" not in results_table(s) + report_markdown(s)
 
 
+def test_a_caution_on_the_design_is_said_in_the_table_and_the_report():
+    s = _summary(ACCEPTED)
+    s["closed_loop"]["design_cautions"] = ["the loop crosses over at up to 0.51 Hz, above the 0.49 Hz below which"]
+    assert "  caution on the feedback design: the loop crosses over at up to 0.51 Hz" in results_table(s)
+    assert "- the loop crosses over at up to 0.51 Hz, above the 0.49 Hz" in report_markdown(s)
+    s["closed_loop"]["design_cautions"] = []
+    assert "caution" not in (results_table(s) + report_markdown(s)).lower()
+
+
 def test_nothing_accepted_reads_as_nothing():
     assert "diagnosis found: nothing" in results_table(_summary([]))
     assert "- nothing accepted" in report_markdown(_summary([]))

@@ -467,4 +467,4 @@ def _closed_loop(model_path: str, opt: DemoOptions, out: str) -> dict[str, Any]:
     return {"seconds": TRACKING_S, "elapsed_s": seconds, "effect": FADE, "reference": os.path.basename(spec),
             "feedforward": rows["off"], "feedback": rows["on"],
             "ratio": rows["on"]["rmse_truth"] / rows["off"]["rmse_truth"], "figure": "figures/closed_loop.png",
-            "design_warnings": warnings}
+            "design_warnings": warnings, "design_cautions": design.cautions()}

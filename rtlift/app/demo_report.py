@@ -99,6 +99,7 @@ def results_table(summary: dict[str, Any]) -> str:
                      f"latency p99 {_fmt(r['command_latency_p99_ms'], '.2f')} ms")
     lines.append(f"  feedback / feedforward RMSE {c['ratio']:.2f}")
     lines += [f"  the feedback design misses a target: {w}" for w in c.get("design_warnings", [])]
+    lines += [f"  caution on the feedback design: {w}" for w in c.get("design_cautions", [])]
     return "\n".join(lines)
 
 
@@ -180,6 +181,9 @@ def _closed_loop_markdown(c: dict[str, Any]) -> list[str]:
         md += ["", "The feedback's design (python-control, `rtlift design`) misses a target; run anyway here "
                "(`--accept-design-warnings`) to show what it gives:", ""]
         md += [f"- {w}" for w in c["design_warnings"]]
+    if c.get("design_cautions"):
+        md += ["", "Caution on the feedback's design (its targets met on the model, which is extrapolated there):", ""]
+        md += [f"- {w}" for w in c["design_cautions"]]
     md += ["", f"Feedback / feedforward RMSE: {c['ratio']:.2f}. The section took {c['elapsed_s']:.1f} s.", "",
            "![closed loop](figures/closed_loop.png)", ""]
     return md
