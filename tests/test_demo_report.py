@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from rtlift.app.demo_report import report_markdown, results_table
 
@@ -60,22 +61,19 @@ def test_report_md_lists_every_accepted_effect_with_its_parameters():
     assert md.rstrip().endswith("![closed loop](figures/closed_loop.png)")
 
 
-def test_a_design_that_misses_a_target_is_said_in_the_table_and_the_report():
+@pytest.mark.parametrize(("key", "line", "table_line", "absent"), [
+    ("design_warnings", "|S| peak +4.31 dB > +4 dB at ΔCL 0.130 (Cμ 0.0108): at 4.00 Hz",
+     "  the feedback design misses a target: |S| peak +4.31 dB > +4 dB", "misses a target"),
+    ("design_cautions", "the loop crosses over at up to 0.51 Hz, above the 0.49 Hz below which",
+     "  caution on the feedback design: the loop crosses over at up to 0.51 Hz", "caution"),
+])
+def test_a_missed_target_or_a_caution_of_the_design_is_said_in_the_table_and_the_report(key, line, table_line,
+                                                                                          absent):
     s = _summary(ACCEPTED)
-    s["closed_loop"]["design_warnings"] = ["|S| peak +4.31 dB > +4 dB at ΔCL 0.130 (Cμ 0.0108): at 4.00 Hz"]
-    assert "  the feedback design misses a target: |S| peak +4.31 dB > +4 dB" in results_table(s)
-    assert "- |S| peak +4.31 dB > +4 dB at ΔCL 0.130" in report_markdown(s)
-    s["closed_loop"]["design_warnings"] = []
-    assert "misses a target" not in results_table(s) + report_markdown(s)
-
-
-def test_a_caution_on_the_design_is_said_in_the_table_and_the_report():
-    s = _summary(ACCEPTED)
-    s["closed_loop"]["design_cautions"] = ["the loop crosses over at up to 0.51 Hz, above the 0.49 Hz below which"]
-    assert "  caution on the feedback design: the loop crosses over at up to 0.51 Hz" in results_table(s)
-    assert "- the loop crosses over at up to 0.51 Hz, above the 0.49 Hz" in report_markdown(s)
-    s["closed_loop"]["design_cautions"] = []
-    assert "caution" not in (results_table(s) + report_markdown(s)).lower()
+    s["closed_loop"][key] = [line]
+    assert table_line in results_table(s) and f"- {line}" in report_markdown(s)
+    s["closed_loop"][key] = []
+    assert absent not in (results_table(s) + report_markdown(s)).lower()
 
 
 def test_nothing_accepted_reads_as_nothing():
