@@ -65,7 +65,7 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
              targets: object = None, structure: str = "auto", backoff: float | None = None,
              channel_bound: bool = False, save_design: bool = False, model_error: str | None = None,
              train: str = "sine_k0125", envelope: str = "recorded", band_hz: float | None = None,
-             depth_db: float | None = None, seeds: int = 1, reuse_design: bool = False) -> dict:
+             seeds: int = 1, reuse_design: bool = False) -> dict:
     from rtlift.app.control_design import design_loop, load_design
     from rtlift.model.modelfile import load_model
 
@@ -73,21 +73,22 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
     path = identified_model(n, tmp, keep, train, envelope)
     t1 = time.perf_counter()
     model = load_model(path)
-    saved = os.path.join(keep or "", f"{n}_design_{structure}{'_cb' if channel_bound else ''}"
-                                     f"{'_rob' if model_error else ''}.json")
-    if reuse_design and keep and os.path.exists(saved):
-        design = load_design(saved, accept_warnings=True)
+    def saved(s: str) -> str:        # DIR/N_design_STRUCTURE[_cb][_rob].json
+        return os.path.join(keep or "", f"{n}_design_{s}{'_cb' if channel_bound else ''}"
+                                        f"{'_rob' if model_error else ''}.json")
+
+    if reuse_design and keep and os.path.exists(saved(structure)):
+        design = load_design(saved(structure), accept_warnings=True)
     else:
         design = design_loop(model, targets, structure=structure, channel_bound=channel_bound,
                              model_error=load_model_error(model_error),
                              **({} if backoff is None else {"backoff": backoff}),
-                             **({} if band_hz is None else {"band_hz": band_hz}),
-                             **({} if depth_db is None else {"depth_db": depth_db}))
+                             **({} if band_hz is None else {"band_hz": band_hz}))
         if save_design and keep:
             from rtlift.app.control_design import report_doc
             from rtlift.core.jsonfile import write_json_atomic
 
-            write_json_atomic(saved, report_doc(design, path), stage="design")
+            write_json_atomic(saved(design.structure), report_doc(design, path), stage="design")
     t2 = time.perf_counter()
     point = min(design.points, key=lambda pt: abs(pt.dcl - 0.08))   # a half-way check too: the gains run there
     config = design.control_config(fs_hz=model.fs_hz)
@@ -105,7 +106,7 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
             "observer": design.observer, "peak_db_target": design.targets.peak_db, "structure": design.structure,
             "backoff": backoff, "channel_bound": channel_bound, "model_error": model_error, "train": train,
-            "envelope": envelope, "band_hz": band_hz, "depth_db": depth_db, "reused_design": reuse_design,
+            "envelope": envelope, "band_hz": band_hz, "reused_design": reuse_design,
             "reach": design.reach, **res}
 
 
@@ -172,8 +173,6 @@ def main() -> None:
                     help="rtlift identify's --envelope (default recorded, its own default)")
     ap.add_argument("--band-hz", type=float, help="the internal-model design's band at most this (Hz; the "
                     "programme's further reach spent on margin; default: the design's own)")
-    ap.add_argument("--depth-db", type=float, help="the internal-model design's depth margin: the band's bound "
-                    "this many dB under 6 dB of suppression (default: the design's own, YOULA_DEPTH_DB)")
     ap.add_argument("--seeds", type=int, default=1, help="measure over this many noise seeds from --seed (the "
                     "gust's part and the fade's RMSEs averaged; default 1)")
     ap.add_argument("--reuse-designs", action="store_true", help="with --keep: measure the design saved there "
@@ -199,7 +198,7 @@ def main() -> None:
             r = one_draw(n, tmp, freqs, args.seed, args.keep,
                          None if args.peak_db is None else Targets(peak_db=args.peak_db), args.structure,
                          args.backoff, args.channel_bound, args.save_designs, args.model_error, args.train,
-                         args.envelope, args.band_hz, args.depth_db, args.seeds, args.reuse_designs)
+                         args.envelope, args.band_hz, args.seeds, args.reuse_designs)
             results.append(r)
             with open(args.out, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(r) + "\n")

@@ -183,9 +183,10 @@ def measure(model, fb_config, point, dt: float, *, level: float = 0.08, amplitud
         for name, cfg in (("ff", ff_config), ("fb", fb_config)):
             t, y, env = in_process(model, cfg, spec, 20.0, seed=seed + k, plant_draw=plant_draw,
                                    effects=(FADE_70,)).traces()
-            tracking[name].append(truth_rmse(y, reference_values(spec, len(y))))
+            r = reference_values(spec, len(y))
+            tracking[name].append(truth_rmse(y, r))
             if name == "fb" and k == 0:
-                floor = reach_floor(y, env, reference_values(spec, len(y)))
+                floor = reach_floor(y, env, r)
     quiet = in_process(model, fb_config, ref, 20.0, seed=seed, plant_draw=plant_draw)
     tq, _, envq = quiet.traces()
     per_period = envq[(tq >= SETTLE_S)][::50]

@@ -1126,15 +1126,14 @@ class YoulaProgram:
     B: also each channel's own part of T bounded everywhere, |Q_A P_A| ≤ λ B and |Q_X P_X| ≤ λ B. The
     sensor's noise reaches the two channels differently (n_A the period's mean, n_X the latest
     estimate) and the lift as Q_A P_A n_A + Q_X P_X n_X, so parts that cancel in T (large and opposed)
-    do not cancel on the noise (:data:`YOULA_CHANNEL_BOUND`). ``depth_db`` m: the band's bound is
-    |S_o| ≤ 0.5 λ 10^(−m/20) (None: ``model_error``'s :meth:`ModelError.band_margin_db`, or 0 without
-    it; :data:`YOULA_DEPTH_DB`)."""
+    do not cancel on the noise (:data:`YOULA_CHANNEL_BOUND`). ``depth_db``: the band's depth margin m in
+    use, |S_o| ≤ 0.5 λ 10^(−m/20) (``model_error``'s :meth:`ModelError.band_margin_db`, 0 without it)."""
 
     def __init__(self, p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, f_o: Any = None,
                  unc: Uncertainty | None = None, taps: int = LIMIT_TAPS, gm_db: float | None = None,
                  nyquist_gain: float | None = None, controller: bool = False, g_y: Any = None,
                  integral: bool = False, channel_bound: float | None = None,
-                 model_error: ModelError | None = None, depth_db: float | None = None) -> None:
+                 model_error: ModelError | None = None) -> None:
         self.taps = taps
         nyq = 0.5 / dt
 
@@ -1173,10 +1172,8 @@ class YoulaProgram:
         self.b_peak = np.concatenate([b for (_, b), _ in scaled])
         self.n_aux = 0
         self.a_rob, self.b_rob = np.zeros((0, self.nx + 1)), np.zeros(0)
-        if depth_db is None:
-            depth_db = model_error.band_margin_db() if model_error is not None else 0.0
-        self.depth_db = float(depth_db)
-        self.depth = 10.0 ** (-depth_db / 20.0)
+        self.depth_db = model_error.band_margin_db() if model_error is not None else 0.0
+        self.depth = 10.0 ** (-self.depth_db / 20.0)
         if model_error is not None:
             self.robust_rows(f_all, rows_all, gust_all, model_error, taps)
         parts = []
@@ -1393,9 +1390,6 @@ back, ±1.5 dB at 0.2 Hz over seeds; measured as the gust's own part over three 
 ≤ 3 dB on 20 of 20 ("Eleventh pass"). With that measurement the cap was checked again on calibration
 draws 4–11: with it all three clauses on 8 of 8 (weakest −6.23 dB, at most +2.81 dB); without it 4 of 8
 (draws 6 and 9 a plateau at −5.8…−5.9 dB across the band, 7 and 10 +3.04 and +3.22 dB)."""
-YOULA_DEPTH_DB = 0.0
-"""The internal-model design's depth margin m (dB): the band's bound |S_o| ≤ 0.5 λ 10^(−m/20), room for
-what the measured suppression falls short of the predicted in the band."""
 YOULA_STEP = 0.05
 """Where a Youla point misses a target (the phase margin, not in the programme; a half-way check),
 the fraction is lowered by this much and the point designed again, down to :data:`YOULA_FLOOR`."""
@@ -1417,8 +1411,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 uncertainty: Uncertainty | None = None, limit: bool = True,
                 max_inserted: int = MAX_INSERTED, structure: str = DEFAULT_STRUCTURE,
                 backoff: float = YOULA_BACKOFF, channel_bound: bool = YOULA_CHANNEL_BOUND,
-                model_error: ModelError | None = None, band_hz: float | None = YOULA_BAND_HZ,
-                depth_db: float | None = None) -> Design:
+                model_error: ModelError | None = None, band_hz: float | None = YOULA_BAND_HZ) -> Design:
     """The gain-scheduled design for ``model`` (module docstring): the controller designed at each
     of ``fractions``, then every target checked there and half-way between neighbours with the
     controller interpolated there as :class:`~rtlift.app.control.LiftController` does; where a
@@ -1432,9 +1425,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     lowered by :data:`YOULA_STEP` where a target is missed; ``channel_bound``: each channel's part of T
     bounded by 1 + M, :data:`YOULA_CHANNEL_BOUND`; ``model_error``: robust performance against that
     bound on each channel's error and its depth margin in the band, :class:`ModelError`; ``band_hz``: its
-    design band at most this, :data:`YOULA_BAND_HZ`: the programme's further reach spent on margin;
-    ``depth_db``: the band's bound that many dB under 0.5; None: ``model_error``'s with it, else
-    :data:`YOULA_DEPTH_DB`) or
+    design band at most this, :data:`YOULA_BAND_HZ`: the programme's further reach spent on margin) or
     "auto":
     both, and the one with the wider predicted band (the smallest f₆ over every checked point) among
     those that miss no target (the PI when neither or both tie)."""
@@ -1453,8 +1444,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     watched = with_q_bias(model, q_bias) if observer else model
     obs = None if not observer else {"q_bias": q_bias, "factor": factor, "model_q_bias": q_bias / factor,
                                      "max_gap_to_0p5_hz": gap}
-    training = (((getattr(model, "provenance", None) or {}).get("domain") or {}).get("train_envelope")
-                or None)
+    training = ((getattr(model, "provenance", None) or {}).get("domain") or {}).get("train_envelope")
     plants: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]] = {}
     limits: dict[float, float | None] = {}
 
@@ -1532,7 +1522,6 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         :data:`YOULA_STEP` while a checked point misses a target; a half-way point that still misses
         at the floor joins the schedule (at most ``max_inserted`` times)."""
         dcls = [ctl.dcl_min + fr * (ctl.dcl_max - ctl.dcl_min) for fr in fractions]
-        depth = depth_db if depth_db is not None or model_error is not None else YOULA_DEPTH_DB
         for _ in range(max_inserted + 1):
             progs, gains = [], []
             for dcl0 in dcls:
@@ -1543,7 +1532,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                                           g_y=gy_at(dcl0, g0),
                                           gm_db=targets.gm_db, nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True,
                                           channel_bound=1.0 + 10.0 ** (targets.peak_db / 20.0) if channel_bound
-                                          else None, model_error=model_error, depth_db=depth))
+                                          else None, model_error=model_error))
             band, frac, points, asked = joint_band(progs), backoff, None, backoff
             if band_hz is not None and band > 0:        # no wider than asked: the rest is margin
                 frac = min(frac, band_hz / band)
