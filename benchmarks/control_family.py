@@ -65,7 +65,7 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
              targets: object = None, structure: str = "auto", backoff: float | None = None,
              channel_bound: bool = False, save_design: bool = False, model_error: str | None = None,
              train: str = "sine_k0125", envelope: str = "recorded", band_hz: float | None = None,
-             seeds: int = 1, reuse_design: bool = False) -> dict:
+             seeds: int = 1, reuse_design: bool = False, s_error: str | None = None) -> dict:
     from rtlift.app.control_design import design_loop, load_design
     from rtlift.model.modelfile import load_model
 
@@ -83,7 +83,8 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
         design = design_loop(model, targets, structure=structure, channel_bound=channel_bound,
                              model_error=load_model_error(model_error),
                              **({} if backoff is None else {"backoff": backoff}),
-                             **({} if band_hz is None else {"band_hz": band_hz}))
+                             **({} if band_hz is None else {"band_hz": band_hz}),
+                             **({} if s_error is None else {"s_error": load_s_error(s_error)}))
         if save_design and keep:
             from rtlift.app.control_design import report_doc
             from rtlift.core.jsonfile import write_json_atomic
@@ -106,7 +107,7 @@ def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: 
             "limit_f6_hz_scheduled": [pt.limit_f6_hz for pt in design.scheduled],
             "observer": design.observer, "peak_db_target": design.targets.peak_db, "structure": design.structure,
             "backoff": backoff, "channel_bound": channel_bound, "model_error": model_error, "train": train,
-            "envelope": envelope, "band_hz": band_hz, "reused_design": reuse_design,
+            "envelope": envelope, "band_hz": band_hz, "s_error": s_error, "reused_design": reuse_design,
             "reach": design.reach, **res}
 
 
@@ -123,6 +124,45 @@ def load_model_error(path: str | None) -> object:
     env = json.load(open(path, encoding="utf-8"))
     return ModelError(tuple(env["f_hz"]), tuple(env["delta_A"]), tuple(env["delta_X"]),
                       f"benchmarks/model_error.py --envelope, draws {env['draws']}")
+
+
+def load_s_error(name: str) -> object:
+    """The :class:`~rtlift.app.control_design.SensitivityError` named: "calibration"
+    (:data:`~rtlift.app.control_design.YOULA_S_ERROR`), "none" (None) or the JSON ``--excess`` printed."""
+    from rtlift.app.control_design import YOULA_S_ERROR, SensitivityError
+
+    if name in ("calibration", "none"):
+        return YOULA_S_ERROR if name == "calibration" else None
+    doc = json.load(open(name, encoding="utf-8"))
+    return SensitivityError(tuple(doc["f_hz"]), tuple(doc["band"]), tuple(doc["peak"]), doc.get("source", name))
+
+
+def excess(rows: list[dict]) -> dict:
+    """The model's error as the loop sees it, from measured draws: at each gust frequency the largest
+    excess of the measured |S_o| (the gust's own part) over the predicted, absolute (≥ 0), over the
+    draws, apart where the prediction stood in the band (at most ``BAND_CLASS_DB``) and elsewhere, and
+    which draw set each (None: no prediction of that class there; the nearest frequency's value
+    stands) — :class:`~rtlift.app.control_design.SensitivityError`'s tables."""
+    from rtlift.app.control_design import BAND_CLASS_DB
+
+    freqs = sorted({x["f_hz"] for r in rows for x in r["rows"]})
+    out: dict = {"f_hz": freqs, "band": [], "peak": [], "band_draw": [], "peak_draw": [],
+                 "draws": sorted(r["draw"] for r in rows)}
+    for f in freqs:
+        best = {"band": (0.0, None), "peak": (0.0, None)}
+        for r in rows:
+            for x in r["rows"]:
+                if x["f_hz"] == f:
+                    e = 10.0 ** (x["suppression_db"] / 20.0) - 10.0 ** (x["predicted_s_db"] / 20.0)
+                    which = "band" if x["predicted_s_db"] <= BAND_CLASS_DB else "peak"
+                    best[which] = max(best[which], (e, r["draw"]), key=lambda b: b[0])
+        for which, (e, draw) in best.items():
+            out[which].append(round(e, 4))
+            out[which + "_draw"].append(draw)
+    for which in ("band", "peak"):      # a frequency no prediction of the class stood at: the nearest one's
+        have = [i for i, d in enumerate(out[which + "_draw"]) if d is not None]
+        out[which] = [out[which][min(have, key=lambda j: abs(j - i))] for i in range(len(freqs))]
+    return out
 
 
 def table(rows: list[dict]) -> str:
@@ -151,6 +191,9 @@ def table(rows: list[dict]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--table", metavar="JSONL", nargs="+", help="print the markdown table of saved results and stop")
+    ap.add_argument("--excess", metavar="JSONL", nargs="+", help="print the model's error as the loop sees it "
+                    "(the largest excess of measured over predicted |S_o| per frequency over the saved draws; "
+                    "SensitivityError's table, JSON) and stop")
     ap.add_argument("--draws", default="100-104", help="draw numbers, A-B or A,B,C (default 100-104)")
     ap.add_argument("--out", default="control_family.jsonl", help="JSON lines, one per draw (appended)")
     ap.add_argument("--seed", type=int, default=11, help="the bench's noise seed of the measuring runs")
@@ -173,6 +216,9 @@ def main() -> None:
                     help="rtlift identify's --envelope (default recorded, its own default)")
     ap.add_argument("--band-hz", type=float, help="the internal-model design's band at most this (Hz; the "
                     "programme's further reach spent on margin; default: the design's own)")
+    ap.add_argument("--s-error", metavar="JSON", help="the internal-model programme spares this error from every "
+                    "|S| bound ('calibration': control_design.YOULA_S_ERROR, 'none', or --excess's JSON; default: "
+                    "the design's own)")
     ap.add_argument("--seeds", type=int, default=1, help="measure over this many noise seeds from --seed (the "
                     "gust's part and the fade's RMSEs averaged; default 1)")
     ap.add_argument("--reuse-designs", action="store_true", help="with --keep: measure the design saved there "
@@ -180,9 +226,10 @@ def main() -> None:
     ap.add_argument("--save-designs", action="store_true", help="with --keep: write each draw's design there "
                     "(N_design_STRUCTURE.json, report.json's form) for benchmarks/youla_gap.py")
     args = ap.parse_args()
-    if args.table:
-        rows = [json.loads(line) for path in args.table for line in open(path, encoding="utf-8") if line.strip()]
-        print(table(rows))
+    if args.table or args.excess:
+        rows = [json.loads(line) for path in args.table or args.excess for line in open(path, encoding="utf-8")
+                if line.strip()]
+        print(table(rows) if args.table else json.dumps(excess(rows)))
         return
     from rtlift.app.control_design import Targets
 
@@ -198,7 +245,7 @@ def main() -> None:
             r = one_draw(n, tmp, freqs, args.seed, args.keep,
                          None if args.peak_db is None else Targets(peak_db=args.peak_db), args.structure,
                          args.backoff, args.channel_bound, args.save_designs, args.model_error, args.train,
-                         args.envelope, args.band_hz, args.seeds, args.reuse_designs)
+                         args.envelope, args.band_hz, args.seeds, args.reuse_designs, args.s_error)
             results.append(r)
             with open(args.out, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(r) + "\n")

@@ -23,6 +23,7 @@ from rtlift.app.control_design import (
     NYQUIST_GAIN_MAX,
     Design,
     Gains,
+    SensitivityError,
     Targets,
     Uncertainty,
     YoulaGains,
@@ -428,16 +429,16 @@ PI_BAND_HZ = 0.2135
 +2.85 dB: 0.211-0.244 Hz over its checked points; docs/results/control.md, "Second pass")."""
 
 
-def _programmes(cached) -> tuple[list, list[float]]:
+def _programmes(cached, s_error: SensitivityError | None = None) -> tuple[list, list[float]]:
     """Each scheduled point's :class:`YoulaProgram` on its lifted plant scaled to unit DC gain, and
-    the gains, as ``design_loop``'s "youla" structure builds them."""
+    the gains, as ``design_loop``'s "youla" structure builds them (``s_error`` spared)."""
     progs, g0s = [], []
     for pt in cached.scheduled:
         p, q, g0 = np.asarray(pt.plant), np.asarray(pt.plant_point), float(np.sum(pt.plant))
         g0s.append(g0)
         progs.append(YoulaProgram(p / g0, q / g0, cached.dt, cached.targets.peak_db, f_o=pt.observer_response,
                                   unc=cached.uncertainty, gm_db=cached.targets.gm_db,
-                                  nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True))
+                                  nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True, s_error=s_error))
     return progs, g0s
 
 
@@ -450,26 +451,53 @@ def test_a_narrower_band_asked_of_the_programme_lowers_every_bound_together(cach
     assert 0.0 < lam[0.25] < 0.95 * lam[0.48] <= 0.95
 
 
-def test_a_design_report_states_both_limits_of_the_band_and_keeps_them(cached, tmp_path):
+def test_the_programme_spares_the_model_s_error_from_every_bound_and_the_limit_falls(cached):
+    """:class:`SensitivityError` in the programme: the solution keeps |S_o| + a_band(f) ≤ 0.5 λ on the
+    band's grid, and its least λ at the same band rises; the limit of any causal controller with the
+    error spared is narrower than without."""
+    a = SensitivityError((0.1, 1.0, 4.0), (0.04, 0.06, 0.06), (0.0, 0.12, 0.02), "test")
+    progs, spared = _programmes(cached)[0], _programmes(cached, a)[0]
+    qa, qx, lam = joint_solve(spared, 0.25)
+    lam0 = joint_solve(progs, 0.25)[2]
+    assert lam0 < lam <= 1.0
+    x = np.r_[qa, qx]
+    for pr in spared:
+        band = pr.f <= 0.25 * (1 + 1e-9)
+        s_o = np.abs(1.0 - pr.gust[band] @ x)
+        assert np.all(s_o + a.at(pr.f[band], "band") <= 0.5 * lam + 1e-9)
+    pt = cached.scheduled[1]
+    args = dict(f_o=pt.observer_response, unc=cached.uncertainty, gm_db=cached.targets.gm_db,
+                nyquist_gain=NYQUIST_GAIN_MAX)
+    p, q = np.asarray(pt.plant), np.asarray(pt.plant_point)
+    plain = rejection_limit(p, q, cached.dt, cached.targets.peak_db, **args)
+    with_error = rejection_limit(p, q, cached.dt, cached.targets.peak_db, s_error=a, **args)
+    assert 0.0 < with_error < plain
+
+
+def test_a_design_report_states_the_band_s_limits_and_keeps_them(cached, tmp_path):
     """The internal-model design's record of its own programme (:attr:`Design.reach`): report.md
-    names the model's noise-free limit beside the programme's band with the noise bounded and the
-    band asked; report.json carries it back through ``load_design`` (``rtlift control --design``)."""
+    names the model's noise-free limit beside the same with the model's error spared, the programme's
+    band with the noise bounded and the band asked; report.json carries it back through
+    ``load_design`` (``rtlift control --design``)."""
     from dataclasses import replace
 
     from rtlift.app.commands.design import write_report
 
     reach = {"programme_band_hz": 0.5012, "asked_band_hz": 0.4, "fraction": 0.4 / 0.5012, "backoff": 0.85,
-             "band_cap_hz": 0.4, "depth_db": 0.0, "channel_bound": True}
+             "band_cap_hz": 0.4, "depth_db": 0.0, "channel_bound": True, "s_error": "calibration draws",
+             "limit_with_error_hz": 0.5521}
     d = replace(cached, reach=reach)
     write_report(d, str(tmp_path), str(MODEL))
     md = (tmp_path / "report.md").read_text(encoding="utf-8")
     lim = d.summary()["limit_f6_hz_min"]
-    assert (f"noise-free: {lim:.3f} Hz" in md and "depth margin of 0 dB: 0.501 Hz" in md
+    assert (f"noise-free: {lim:.3f} Hz" in md and "error spared from every bound (calibration draws): 0.552 Hz" in md
+            and "the model's error spared and a depth margin of 0 dB: 0.501 Hz" in md
             and "designed for 0.400 Hz (0.80 of it: back-off 0.85, at most 0.4 Hz)" in md)
     back = load_design(str(tmp_path / "report.json"))
     assert back.reach == reach and back.summary()["programme_band_hz"] == 0.5012
+    assert back.summary()["limit_with_error_hz"] == 0.5521
     write_report(cached, str(tmp_path / "pi"), str(MODEL))      # the PI has no programme of its own
-    assert cached.reach is None and "two limits" not in (tmp_path / "pi" / "report.md").read_text(encoding="utf-8")
+    assert cached.reach is None and "band's limits" not in (tmp_path / "pi" / "report.md").read_text(encoding="utf-8")
 
 
 def test_a_crossover_past_the_training_envelope_s_reach_is_a_caution_not_a_missed_target(cached, tmp_path):
