@@ -1195,7 +1195,6 @@ class YoulaProgram:
         rows_all, gust_all = t_rows(f_all)  # the bounds everywhere: dense (an FIR of 3 s resolves 0.33 Hz)
         self.f = np.geomspace(0.02, nyq, 90)       # the band's edge: 6 % apart
         self.rows, self.gust = t_rows(self.f)
-        self.s_error = s_error
         # the model's error spared from each bound (|S_o| + a_band ≤ 0.5 λ, |S| + a_peak ≤ λ M), per polygon side
         self.spare = np.zeros(self.f.size) if s_error is None else s_error.at(self.f, "band")
         spare_all = np.zeros(f_all.size) if s_error is None else s_error.at(f_all, "peak")
