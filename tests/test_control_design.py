@@ -500,6 +500,26 @@ def test_a_design_report_states_the_band_s_limits_and_keeps_them(cached, tmp_pat
     assert cached.reach is None and "band's limits" not in (tmp_path / "pi" / "report.md").read_text(encoding="utf-8")
 
 
+def test_rtlift_design_youla_spares_the_model_s_error_and_states_the_limits_in_order(tmp_path, capsys):
+    """The user's path for the internal-model controller (``rtlift design --structure youla``, the
+    defaults): the programme spares :data:`YOULA_S_ERROR` and asks for its whole band; the limits stand in
+    order — the programme's band (noise bounded, error spared) ≤ any causal controller's with the error
+    spared < the noise-free one — and the printed line names them. On the bench model 0.392 / 0.802 /
+    1.017 Hz, 6 dB of rejection predicted to 0.407 Hz."""
+    from rtlift.app.cli import main
+    from rtlift.app.control_design import YOULA_S_ERROR
+
+    out = tmp_path / "youla"
+    assert main(["design", "--model", str(MODEL), "--out", str(out), "--structure", "youla"]) == 0
+    doc = json.loads((out / "report.json").read_text())
+    r, s = doc["reach"], doc["summary"]
+    assert r["s_error"] == YOULA_S_ERROR.source and r["band_cap_hz"] is None
+    assert r["asked_band_hz"] == r["programme_band_hz"] * r["fraction"] and 0.5 <= r["fraction"] <= 1.0
+    assert 0.35 <= r["programme_band_hz"] <= r["limit_with_error_hz"] < s["limit_f6_hz_min"]
+    assert s["f6_hz_min"] >= 0.35 and not s["violations"]
+    assert f"with the model's error spared: {r['limit_with_error_hz']:.3f}" in capsys.readouterr().out
+
+
 def test_a_crossover_past_the_training_envelope_s_reach_is_a_caution_not_a_missed_target(cached, tmp_path):
     """:meth:`Design.cautions`: a gain crossover above the frequency below which 95 % of the training
     envelope's variance lies is one line, in report.md and report.json, and not a violation; below it,
