@@ -1427,7 +1427,7 @@ calibration draws 1–3: without it their back-off of 0.85 over-stretched the ba
 reached further (calibration draws 4–11: 4 of 8 without it, 8 of 8 with it; docs/results/control.md,
 "Eleventh pass"). A constant stood there for what :data:`YOULA_S_ERROR` now measures: the model's error
 at the band and at the peak. On calibration draws 20–27 the cap gave 0.389–0.395 Hz measured at −6.28…
-−6.78 dB and +2.16…+2.94 dB; the spared error 0.385–0.423 Hz at −6.53…−6.75 dB and +2.24…+2.69 dB
+−6.78 dB and +2.16…+2.94 dB; the spared error 0.385–0.423 Hz at −6.43…−6.75 dB and +2.24…+2.69 dB
 ("Twelfth pass")."""
 YOULA_S_ERROR: SensitivityError | None = SensitivityError(
     (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0),
