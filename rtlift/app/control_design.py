@@ -302,7 +302,7 @@ class SensitivityError:
     peak: tuple[float, ...]
     source: str = ""
 
-    def at(self, f_hz: np.ndarray, which: str = "peak") -> np.ndarray:
+    def at(self, f_hz: np.ndarray, which: str) -> np.ndarray:
         """a(f) of ``which`` table ("band" or "peak") at ``f_hz`` (Hz; dimensionless, ≥ 0)."""
         return np.maximum(np.interp(np.asarray(f_hz, float), self.f_hz, getattr(self, which)), 0.0)
 
@@ -1503,7 +1503,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                                      "max_gap_to_0p5_hz": gap}
     training = ((getattr(model, "provenance", None) or {}).get("domain") or {}).get("train_envelope")
     plants: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]] = {}
-    limits: dict[float, float | None] = {}
+    limits: dict[tuple[float, bool], float | None] = {}
 
     def plant_at(dcl0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
         """(p, q, h_o, r, pulse) at ΔCL₀: the lifted plant, the observer's response and its tail, the
@@ -1523,12 +1523,15 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         pulse = plant_at(dcl0)[4] / scale
         return lambda x: gust_gain(pulse, fs, cfg.period, x)
 
-    def limit_at(dcl0: float) -> float | None:
-        if limit and dcl0 not in limits:
+    def limit_at(dcl0: float, spared: SensitivityError | None = None) -> float | None:
+        """Any causal controller's limit at ΔCL₀ (:func:`rejection_limit`; ``spared``: with that error
+        spared), computed once each."""
+        key = (dcl0, spared is not None)
+        if limit and key not in limits:
             p, q, _, _, _ = plant_at(dcl0)
-            limits[dcl0] = rejection_limit(p, q, dt, targets.peak_db, f_o=fo_at(dcl0), unc=unc, gm_db=targets.gm_db,
-                                           nyquist_gain=NYQUIST_GAIN_MAX, g_y=gy_at(dcl0))
-        return limits.get(dcl0)
+            limits[key] = rejection_limit(p, q, dt, targets.peak_db, f_o=fo_at(dcl0), unc=unc, gm_db=targets.gm_db,
+                                          nyquist_gain=NYQUIST_GAIN_MAX, g_y=gy_at(dcl0), s_error=spared)
+        return limits.get(key)
 
     def check(cmu: float, dcl0: float, g: Gains | YoulaGains, designed: bool = True) -> PointDesign:
         p, q, h, r, pulse = plant_at(dcl0)
@@ -1617,9 +1620,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                  "band_cap_hz": band_hz, "depth_db": progs[0].depth_db, "channel_bound": channel_bound,
                  "s_error": None if s_error is None else s_error.source}
         if limit and s_error is not None:       # any causal controller, the model's error spared
-            reach["limit_with_error_hz"] = min(
-                rejection_limit(*plant_at(d)[:2], dt, targets.peak_db, f_o=fo_at(d), unc=unc, gm_db=targets.gm_db,
-                                nyquist_gain=NYQUIST_GAIN_MAX, g_y=gy_at(d), s_error=s_error) for d in dcls)
+            reach["limit_with_error_hz"] = min(limit_at(d, s_error) for d in dcls)
         return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs, reach, training)
 
     def build(design_at: Any) -> Design:
