@@ -474,6 +474,31 @@ def test_the_programme_spares_the_model_s_error_from_every_bound_and_the_limit_f
     assert 0.0 < with_error < plain
 
 
+def test_the_limit_with_each_channel_s_noise_bounded_keeps_the_bound_and_narrows_as_it_tightens(cached):
+    """:func:`rejection_limit` with ``channel_bound`` B (the sensor's noise, as the internal-model
+    design bounds it): a Q at that limit keeps each channel's part |Q_A P_A|, |Q_X P_X| within B (to the
+    outer polygon's 1/cos(π/n)) on a grid finer than the programme's; the limit is no wider than without
+    the bound and no wider at B = 1 than at 1 + M; below 1 there is none, since the integral action
+    asks T(1) = Q_A P_A(1) = 1 (Q_X(1) = 0). On the bench model the bound does not bind at this point:
+    0.671 Hz at 1 + M and at 1 (on plant draw 160 it takes one point from 0.595 to 0.561 Hz)."""
+    from rtlift.app.control_design import LIMIT_SIDES, plant_response
+
+    pt = cached.scheduled[1]
+    args = dict(f_o=pt.observer_response, unc=cached.uncertainty, gm_db=cached.targets.gm_db,
+                nyquist_gain=NYQUIST_GAIN_MAX)
+    p, q = np.asarray(pt.plant), np.asarray(pt.plant_point)
+    peak = cached.targets.peak_db
+    b = 1.0 + 10.0 ** (peak / 20.0)
+    lims = [rejection_limit(p, q, cached.dt, peak, channel_bound=c, **args) for c in (None, b, 1.0, 0.9)]
+    assert lims[0] >= lims[1] >= lims[2] > 0.3 and lims[3] == 0.0
+    qa, qx, _ = YoulaProgram(p, q, cached.dt, peak, integral=True, channel_bound=1.0, **args).solve(lims[2])
+    f = np.linspace(0.01, 0.5 / cached.dt, 997)
+    z = np.exp(2j * np.pi * f * cached.dt)
+    shifts = z[:, None] ** -np.arange(qa.size)[None, :]
+    for h, coef in ((p, qa), (q, qx)):
+        assert np.max(np.abs(plant_response(h, z) * (shifts @ coef))) <= 1.0 / math.cos(math.pi / LIMIT_SIDES) * 1.01
+
+
 def test_a_design_report_states_the_band_s_limits_and_keeps_them(cached, tmp_path):
     """The internal-model design's record of its own programme (:attr:`Design.reach`): report.md
     names the model's noise-free limit beside the same with the model's error spared, the programme's
@@ -485,17 +510,18 @@ def test_a_design_report_states_the_band_s_limits_and_keeps_them(cached, tmp_pat
 
     reach = {"programme_band_hz": 0.5012, "asked_band_hz": 0.4, "fraction": 0.4 / 0.5012, "backoff": 0.85,
              "band_cap_hz": 0.4, "depth_db": 0.0, "channel_bound": True, "s_error": "calibration draws",
-             "limit_with_error_hz": 0.5521}
+             "limit_with_error_hz": 0.5521, "limit_with_noise_hz": 0.5302}
     d = replace(cached, reach=reach)
     write_report(d, str(tmp_path), str(MODEL))
     md = (tmp_path / "report.md").read_text(encoding="utf-8")
     lim = d.summary()["limit_f6_hz_min"]
     assert (f"noise-free: {lim:.3f} Hz" in md and "error spared from every bound (calibration draws): 0.552 Hz" in md
-            and "the model's error spared and a depth margin of 0 dB: 0.501 Hz" in md
+            and "the same with each channel's part of T bounded as this design bounds it (the sensor's noise): "
+            "0.530 Hz" in md and "the model's error spared and a depth margin of 0 dB: 0.501 Hz" in md
             and "designed for 0.400 Hz (0.80 of it: back-off 0.85, at most 0.4 Hz)" in md)
     back = load_design(str(tmp_path / "report.json"))
     assert back.reach == reach and back.summary()["programme_band_hz"] == 0.5012
-    assert back.summary()["limit_with_error_hz"] == 0.5521
+    assert back.summary()["limit_with_error_hz"] == 0.5521 and back.summary()["limit_with_noise_hz"] == 0.5302
     write_report(cached, str(tmp_path / "pi"), str(MODEL))      # the PI has no programme of its own
     assert cached.reach is None and "band's limits" not in (tmp_path / "pi" / "report.md").read_text(encoding="utf-8")
 
@@ -515,9 +541,11 @@ def test_rtlift_design_youla_spares_the_model_s_error_and_states_the_limits_in_o
     r, s = doc["reach"], doc["summary"]
     assert r["s_error"] == YOULA_S_ERROR.source and r["band_cap_hz"] is None
     assert r["asked_band_hz"] == r["programme_band_hz"] * r["fraction"] and 0.5 <= r["fraction"] <= 1.0
-    assert 0.35 <= r["programme_band_hz"] <= r["limit_with_error_hz"] < s["limit_f6_hz_min"]
+    assert 0.35 <= r["programme_band_hz"] <= r["limit_with_noise_hz"] <= r["limit_with_error_hz"] < s["limit_f6_hz_min"]
     assert s["f6_hz_min"] >= 0.35 and not s["violations"]
-    assert f"with the model's error spared: {r['limit_with_error_hz']:.3f}" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert (f"with the model's error spared: {r['limit_with_error_hz']:.3f}; with the sensor noise bounded too: "
+            f"{r['limit_with_noise_hz']:.3f}; this controller's programme: {r['programme_band_hz']:.3f}" in out)
 
 
 def test_a_crossover_past_the_training_envelope_s_reach_is_a_caution_not_a_missed_target(cached, tmp_path):

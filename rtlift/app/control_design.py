@@ -173,9 +173,15 @@ Q_BIAS_FACTORS = tuple(float(v) for v in 10.0 ** np.arange(0.0, 6.01, 0.5))
 :data:`OBSERVER_GAP`: the least extra noise let into the estimate)."""
 LIMIT_TAPS = 24
 """FIR length (burst periods, 3 s) of each Youla parameter in the limit's search."""
-LIMIT_SIDES = 12
-"""Sides of the polygon that stands for a circle |x| ≤ r in the limit's linear programme (outer:
-the bound is optimistic by at most 1/cos(π/12) − 1 = 3.5 %, 0.3 dB)."""
+LIMIT_SIDES = 24
+"""Sides of the polygon that stands for a circle |x| ≤ r in the linear programmes: the limit's outer
+(optimistic by at most 1/cos(π/24) − 1 = 0.86 %, 0.07 dB), the controller's inner (pessimistic by as
+much). 12 until the thirteenth pass (3.5 %, 0.3 dB): the band sits where the Bode integral binds, so
+the 3.5 % moved it by grid points. On plant draw 160 the joint programme reached 0.416 / 0.469 /
+0.498 Hz at 12 / 24 / 48 sides, its outer twin 0.561 / 0.528 Hz at 12 / 24; on calibration draws
+20–27 the design at 24 measured 0.396–0.529 Hz (at 12: 0.385–0.423), every clause on 8 of 8 at both,
+and took 121–534 s to design against 21–264 s (docs/results/control.md, "Thirteenth pass"). 48 took
+another 4× the time for 6 %."""
 
 
 PEAK_DB = 2.85
@@ -666,8 +672,10 @@ class Design:
     beside :attr:`PointDesign.limit_f6_hz` (the model's, noise-free) —; ``asked_band_hz``, the band
     designed (``fraction`` of it: the back-off, the cap ``band_cap_hz``, lowered where a check missed);
     ``s_error``, the source of the model's error the programme spares (:class:`SensitivityError`, None:
-    none), and ``limit_with_error_hz``, any causal controller's limit with that error spared (the
-    narrowest over the scheduled points)."""
+    none), ``limit_with_error_hz``, any causal controller's limit with that error spared, and
+    ``limit_with_noise_hz``, the same with each channel's part of T within the bound this design keeps
+    (the sensor's noise; :func:`rejection_limit`'s ``channel_bound``) — each the narrowest over the
+    scheduled points."""
     training: dict[str, float] | None = None
     """How far the model's training envelope reaches (``provenance.domain.train_envelope``,
     :func:`rtlift.model.domain.envelope_reach`); None where the model file does not say."""
@@ -764,6 +772,7 @@ class Design:
                 "limit_f6_hz_min": min(lim) if lim else None,
                 "programme_band_hz": (self.reach or {}).get("programme_band_hz"),
                 "limit_with_error_hz": (self.reach or {}).get("limit_with_error_hz"),
+                "limit_with_noise_hz": (self.reach or {}).get("limit_with_noise_hz"),
                 "stable": all(p.stable for p in pts), "violations": self.violations(), "cautions": self.cautions()}
 
     def to_dict(self) -> dict[str, Any]:
@@ -1118,7 +1127,7 @@ def check_point(cmu: float, dcl: float, p: np.ndarray, q: np.ndarray, g: Gains |
 def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, f_o: Any = None,
                     unc: Uncertainty | None = None, taps: int = LIMIT_TAPS, gm_db: float | None = None,
                     nyquist_gain: float | None = None, g_y: Any = None,
-                    s_error: SensitivityError | None = None) -> float:
+                    s_error: SensitivityError | None = None, channel_bound: float | None = None) -> float:
     """The widest band [0, f_B] of |S_o| ≤ 0.5 that *any* causal linear controller acting on the two
     lifted measurements can reach on this plant, subject to |S_o| ≤ ``peak_db`` and |S| ≤ ``peak_db``
     everywhere and robust stability |W T| ≤ 1 (module docstring, "The limit"; docs/DESIGN.md); with
@@ -1145,9 +1154,15 @@ def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, 
     ``f_o``: callable F_o(f) (None: 1); ``g_y``: callable G_y(f) (:func:`gust_gain`), the gust's map
     S_o = 1 − F_o G_y (Q_A M + Q_X) (:func:`gust_map` with K/(1 + L) = Q; None: 1 − F_o T).
     ``s_error``: every bound kept on the plant with the model's measured error a(f) to spare
-    (:class:`SensitivityError`): the limit with the model's error allowed for."""
+    (:class:`SensitivityError`): the limit with the model's error allowed for. ``channel_bound`` B: each
+    channel's own part of T bounded too, |Q_A P_A|, |Q_X P_X| ≤ B (:class:`YoulaProgram`): the sensor's
+    noise reaches the lift as Q_A P_A n_A + Q_X P_X n_X, so this is the limit of any causal controller
+    that keeps the noise it feeds back within B per channel — the bound the internal-model design
+    keeps (:data:`YOULA_CHANNEL_BOUND`), here with outer polygons and at one point, so no controller
+    meeting it at that point does better."""
     return YoulaProgram(p, q, dt, peak_db, f_o=f_o, unc=unc, taps=taps, gm_db=gm_db,
-                        nyquist_gain=nyquist_gain, g_y=g_y, integral=True, s_error=s_error).band()
+                        nyquist_gain=nyquist_gain, g_y=g_y, integral=True, s_error=s_error,
+                        channel_bound=channel_bound).band()
 
 
 class YoulaProgram:
@@ -1503,7 +1518,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                                      "max_gap_to_0p5_hz": gap}
     training = ((getattr(model, "provenance", None) or {}).get("domain") or {}).get("train_envelope")
     plants: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]] = {}
-    limits: dict[tuple[float, bool], float | None] = {}
+    limits: dict[tuple[float, bool, float | None], float | None] = {}
 
     def plant_at(dcl0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
         """(p, q, h_o, r, pulse) at ΔCL₀: the lifted plant, the observer's response and its tail, the
@@ -1523,14 +1538,15 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         pulse = plant_at(dcl0)[4] / scale
         return lambda x: gust_gain(pulse, fs, cfg.period, x)
 
-    def limit_at(dcl0: float, spared: SensitivityError | None = None) -> float | None:
+    def limit_at(dcl0: float, spared: SensitivityError | None = None, bound: float | None = None) -> float | None:
         """Any causal controller's limit at ΔCL₀ (:func:`rejection_limit`; ``spared``: with that error
-        spared), computed once each."""
-        key = (dcl0, spared is not None)
+        spared; ``bound``: each channel's part of T within it, the sensor's noise), computed once each."""
+        key = (dcl0, spared is not None, bound)
         if limit and key not in limits:
             p, q, _, _, _ = plant_at(dcl0)
             limits[key] = rejection_limit(p, q, dt, targets.peak_db, f_o=fo_at(dcl0), unc=unc, gm_db=targets.gm_db,
-                                          nyquist_gain=NYQUIST_GAIN_MAX, g_y=gy_at(dcl0), s_error=spared)
+                                          nyquist_gain=NYQUIST_GAIN_MAX, g_y=gy_at(dcl0), s_error=spared,
+                                          channel_bound=bound)
         return limits.get(key)
 
     def check(cmu: float, dcl0: float, g: Gains | YoulaGains, designed: bool = True) -> PointDesign:
@@ -1582,6 +1598,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
         :data:`YOULA_STEP` while a checked point misses a target; a half-way point that still misses
         at the floor joins the schedule (at most ``max_inserted`` times)."""
         dcls = [ctl.dcl_min + fr * (ctl.dcl_max - ctl.dcl_min) for fr in fractions]
+        bound = 1.0 + 10.0 ** (targets.peak_db / 20.0) if channel_bound else None
         for _ in range(max_inserted + 1):
             progs, gains = [], []
             for dcl0 in dcls:
@@ -1591,8 +1608,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                 progs.append(YoulaProgram(p / g0, q / g0, dt, targets.peak_db, f_o=fo_at(dcl0), unc=unc,
                                           g_y=gy_at(dcl0, g0), gm_db=targets.gm_db,
                                           nyquist_gain=NYQUIST_GAIN_MAX * g0, controller=True,
-                                          channel_bound=1.0 + 10.0 ** (targets.peak_db / 20.0) if channel_bound
-                                          else None, model_error=model_error, s_error=s_error))
+                                          channel_bound=bound, model_error=model_error, s_error=s_error))
             band, frac, points, asked = joint_band(progs), backoff, None, backoff
             if band_hz is not None and band > 0:        # no wider than asked: the rest is margin
                 frac = min(frac, band_hz / band)
@@ -1621,6 +1637,8 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
                  "s_error": None if s_error is None else s_error.source}
         if limit and s_error is not None:       # any causal controller, the model's error spared
             reach["limit_with_error_hz"] = min(limit_at(d, s_error) for d in dcls)
+        if limit and bound is not None:         # ... and the sensor's noise bounded as this design bounds it
+            reach["limit_with_noise_hz"] = min(limit_at(d, s_error, bound) for d in dcls)
         return Design(points, dt, cfg.period, MARGIN_SAMPLES, targets, unc, obs, reach, training)
 
     def build(design_at: Any) -> Design:

@@ -62,8 +62,10 @@ def run(args: argparse.Namespace) -> int:
     limit = "n/a" if s["limit_f6_hz_min"] is None else f"{s['limit_f6_hz_min']:.3f}"
     if s["limit_with_error_hz"] is not None:
         limit += f"; with the model's error spared: {s['limit_with_error_hz']:.3f}"
+    if s["limit_with_noise_hz"] is not None:
+        limit += f"; with the sensor noise bounded too: {s['limit_with_noise_hz']:.3f}"
     if s["programme_band_hz"] is not None:
-        limit += f"; with the sensor noise bounded too: {s['programme_band_hz']:.3f}"
+        limit += f"; this controller's programme: {s['programme_band_hz']:.3f}"
     print(f"rtlift design: {design.structure} controller, {len(design.scheduled)} scheduled points, "
           f"{len(design.points)} checked; gain margin "
           f">= {gm} dB, phase margin >= {s['pm_deg_min']:.1f} deg (every crossover to Nyquist), |S| <= "
@@ -115,6 +117,9 @@ def _markdown(design, doc: dict, model: str) -> str:
                         + ("" if r.get("limit_with_error_hz") is None else
                            f"; the same with the model's measured error spared from every bound ({spared}): "
                            f"{r['limit_with_error_hz']:.3f} Hz")
+                        + ("" if r.get("limit_with_noise_hz") is None else
+                           "; the same with each channel's part of T bounded as this design bounds it (the "
+                           f"sensor's noise): {r['limit_with_noise_hz']:.3f} Hz")
                         + "; this controller's programme with every bound exact, each channel's part of T "
                         "bounded (the sensor's noise)" + ("" if spared is None else ", the model's error spared")
                         + f" and a depth margin of {r['depth_db']:g} dB: "
