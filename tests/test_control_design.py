@@ -667,3 +667,31 @@ def test_the_internal_model_controller_streams_k_equals_q_over_1_minus_qp(model,
     den = np.r_[1.0, np.zeros(7)] - np.convolve(qa, pa) - np.convolve(qx, px)
     batch = lfilter(qa, den, e_a) + lfilter(qx, den, e_x)
     np.testing.assert_allclose(w, batch, rtol=0, atol=1e-12 * np.max(np.abs(batch)))
+
+
+def test_an_lp_highs_cannot_settle_in_time_goes_to_interior_point_then_counts_as_infeasible(cached, monkeypatch):
+    """:func:`settled_lp`: each of the programmes' LPs gets :data:`LP_TIME_S` per method. Where the
+    default method neither solves nor proves infeasibility (a time limit, numerical difficulties:
+    HiGHS's statuses 1 and 4), interior point is tried for as long; still unsettled, the LP counts as
+    infeasible, so a design's band can only narrow. HiGHS stands in for itself where it is let through."""
+    from types import SimpleNamespace
+
+    import scipy.optimize
+
+    from rtlift.app.control_design import LP_TIME_S
+
+    progs, _ = _programmes(cached)
+    real = scipy.optimize.linprog
+    calls = []
+
+    def stuck_first(cost, method, options, **kw):
+        calls.append((method, options["time_limit"]))
+        return SimpleNamespace(status=1) if method == "highs" else real(cost, method=method, options=options, **kw)
+
+    monkeypatch.setattr(scipy.optimize, "linprog", stuck_first)
+    qa, qx, lam = joint_solve(progs, 0.25)
+    assert calls[:2] == [("highs", LP_TIME_S), ("highs-ipm", LP_TIME_S)] and 0.0 < lam <= 1.0
+    calls.clear()
+    monkeypatch.setattr(scipy.optimize, "linprog",
+                        lambda cost, method, options, **kw: calls.append(method) or SimpleNamespace(status=4))
+    assert joint_solve(progs, 0.25) is None and calls == ["highs", "highs-ipm"] * 2     # both signs of S(−1)

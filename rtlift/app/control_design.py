@@ -174,14 +174,18 @@ Q_BIAS_FACTORS = tuple(float(v) for v in 10.0 ** np.arange(0.0, 6.01, 0.5))
 LIMIT_TAPS = 24
 """FIR length (burst periods, 3 s) of each Youla parameter in the limit's search."""
 LIMIT_SIDES = 24
-"""Sides of the polygon that stands for a circle |x| ≤ r in the linear programmes: the limit's outer
-(optimistic by at most 1/cos(π/24) − 1 = 0.86 %, 0.07 dB), the controller's inner (pessimistic by as
-much). 12 until the thirteenth pass (3.5 %, 0.3 dB): the band sits where the Bode integral binds, so
-the 3.5 % moved it by grid points. On plant draw 160 the joint programme reached 0.416 / 0.469 /
-0.498 Hz at 12 / 24 / 48 sides, its outer twin 0.561 / 0.528 Hz at 12 / 24; on calibration draws
-20–27 the design at 24 measured 0.396–0.529 Hz (at 12: 0.385–0.423), every clause on 8 of 8 at both,
-and took 121–534 s to design against 21–264 s (docs/results/control.md, "Thirteenth pass"). 48 took
-another 4× the time for 6 %."""
+"""Sides of the outer polygon that stands for a circle |x| ≤ r in the limit's linear programme
+(:func:`rejection_limit`): optimistic by at most 1/cos(π/24) − 1 = 0.86 %, 0.07 dB. 12 until the
+thirteenth pass (3.5 %, 0.3 dB): the band sits where the Bode integral binds, so that 3.5 % moved the
+limit by grid points — on calibration draws 20–27 the limit with the model's error spared fell from
+0.528–0.632 to 0.469–0.632 Hz at 24 sides (docs/results/control.md, "Thirteenth pass")."""
+CONTROLLER_SIDES = 12
+"""Sides of the inner polygon in the internal-model controller's programme (``YoulaProgram(controller=True)``):
+pessimistic by 1 − cos(π/12) = 3.4 %, 0.3 dB. At 24 sides its band rose on calibration draws 20–27
+(0.396–0.529 Hz measured against 0.385–0.423, every clause on 8 of 8 at both; on plant draw 160 the
+joint programme 0.416 / 0.469 / 0.498 Hz at 12 / 24 / 48 sides), but the design took 121–534 s there
+against 21–264 s, and up to 1255 s on a reporting draw, where one feasibility LP took HiGHS 731 s
+("Thirteenth pass"): kept at 12 until each LP is bounded in time."""
 
 
 PEAK_DB = 2.85
@@ -1170,6 +1174,7 @@ class YoulaProgram:
     :func:`rejection_limit` (its docstring: T = Q_A P_A + Q_X P_X, S = 1 − T, S_o = 1 − F_o T, each
     circle bound an outer polygon of :data:`LIMIT_SIDES` sides). With ``controller`` the bounds are
     those a controller built from Q must meet, not an optimistic limit: every polygon *inner*
+    (:data:`CONTROLLER_SIDES` sides)
     (the bound holds exactly at every grid point) and, in :meth:`solve`, every bound scaled by one
     λ ≤ 1 that is minimised (|S_o| ≤ 0.5 λ on the band, |S|, |S_o| ≤ λ M, |W T| ≤ λ: the same margin
     of −20 log₁₀ λ dB from each, where the programme at its widest band has none), and two
@@ -1214,8 +1219,9 @@ class YoulaProgram:
         self.spare = np.zeros(self.f.size) if s_error is None else s_error.at(self.f, "band")
         spare_all = np.zeros(f_all.size) if s_error is None else s_error.at(f_all, "peak")
         w = (unc or Uncertainty()).weight(f_all)
-        self.ang = np.exp(-2j * np.pi * np.arange(LIMIT_SIDES) / LIMIT_SIDES)
-        self.shrink = math.cos(math.pi / LIMIT_SIDES) if controller else 1.0
+        sides = CONTROLLER_SIDES if controller else LIMIT_SIDES
+        self.ang = np.exp(-2j * np.pi * np.arange(sides) / sides)
+        self.shrink = math.cos(math.pi / sides) if controller else 1.0
         self.mpk = 10.0 ** (peak_db / 20.0)
         self.nx = rows_all.shape[1]
         ones = np.ones(f_all.size)
@@ -1333,13 +1339,35 @@ class YoulaProgram:
         return joint_solve([self], band_hz, objective=True)
 
 
+LP_TIME_S = 60.0
+"""The most time HiGHS gets for one of the programmes' LPs, per method (:func:`settled_lp`). Most take
+1–6 s here (three operating points, 24-sided polygons); near the band's edge one feasibility LP on a
+reporting draw took 731 s and ended in "numerical difficulties" (interior point; the design with the
+default method took 1255 s), docs/results/control.md, "Thirteenth pass"."""
+
+
+def settled_lp(cost: np.ndarray, **kw: Any) -> Any:
+    """``scipy.optimize.linprog`` with HiGHS, settled or given up in bounded time: the default method
+    (dual simplex) for at most :data:`LP_TIME_S`, then, where it neither solved nor proved the
+    programme infeasible (a time limit, numerical difficulties), interior point for as long; what is
+    still unsettled counts as infeasible: for the controller the safe side (a narrower band); a limit
+    may then come out low, never high."""
+    from scipy.optimize import linprog
+
+    res = None
+    for method in ("highs", "highs-ipm"):
+        res = linprog(cost, method=method, options={"time_limit": LP_TIME_S}, **kw)
+        if res.status in (0, 2):
+            break
+    return res
+
+
 def joint_solve(progs: list[YoulaProgram], band_hz: float, *, objective: bool = True
                 ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """One Q meeting every programme of ``progs`` (the same taps, the same grids: one per operating
     point) with |S_o| ≤ 0.5 up to ``band_hz``; with ``objective`` the least common scale λ of every
     bound (:meth:`YoulaProgram.solve`). The sign
     of S(−1) of the controller-gain bound is taken the same at every point (both tried)."""
-    from scipy.optimize import linprog
 
     p0 = progs[0]
     signs = (None,) if p0.nyquist_gain is None else (1.0, -1.0)
@@ -1356,10 +1384,10 @@ def joint_solve(progs: list[YoulaProgram], band_hz: float, *, objective: bool = 
             rows.append((full, b))
             at += pr.n_aux
         eqs = [pr for pr in progs if pr.a_eq is not None]
-        res = linprog(cost, A_ub=np.vstack([a for a, _ in rows]), b_ub=np.concatenate([b for _, b in rows]),
-                      A_eq=np.c_[np.vstack([pr.a_eq for pr in eqs]), np.zeros((2 * len(eqs), n_aux))] if eqs else None,
-                      b_eq=np.concatenate([pr.b_eq for pr in eqs]) if eqs else None,
-                      bounds=[(None, None)] * p0.nx + [(0.0, 1.0)] + [(0.0, None)] * n_aux, method="highs")
+        res = settled_lp(cost, A_ub=np.vstack([a for a, _ in rows]), b_ub=np.concatenate([b for _, b in rows]),
+                         A_eq=np.c_[np.vstack([pr.a_eq for pr in eqs]), np.zeros((2 * len(eqs), n_aux))] if eqs else None,
+                         b_eq=np.concatenate([pr.b_eq for pr in eqs]) if eqs else None,
+                         bounds=[(None, None)] * p0.nx + [(0.0, 1.0)] + [(0.0, None)] * n_aux)
         if res.status == 0 and (best is None or res.fun < best.fun):
             best = res
             if not objective:
