@@ -178,14 +178,15 @@ LIMIT_SIDES = 24
 (:func:`rejection_limit`): optimistic by at most 1/cos(π/24) − 1 = 0.86 %, 0.07 dB. 12 until the
 thirteenth pass (3.5 %, 0.3 dB): the band sits where the Bode integral binds, so that 3.5 % moved the
 limit by grid points — on calibration draws 20–27 the limit with the model's error spared fell from
-0.528–0.632 to 0.469–0.632 Hz at 24 sides (docs/results/control.md, "Thirteenth pass")."""
+0.498–0.632 to 0.469–0.632 Hz at 24 sides, a grid point lower on 4 of 8 (docs/results/control.md, "Thirteenth pass")."""
 CONTROLLER_SIDES = 12
 """Sides of the inner polygon in the internal-model controller's programme (``YoulaProgram(controller=True)``):
 pessimistic by 1 − cos(π/12) = 3.4 %, 0.3 dB. At 24 sides its band rose on calibration draws 20–27
 (0.396–0.529 Hz measured against 0.385–0.423, every clause on 8 of 8 at both; on plant draw 160 the
 joint programme 0.416 / 0.469 / 0.498 Hz at 12 / 24 / 48 sides), but the design took 121–534 s there
-against 21–264 s, and up to 1255 s on a reporting draw, where one feasibility LP took HiGHS 731 s
-("Thirteenth pass"): kept at 12 until each LP is bounded in time."""
+against 21–264 s, and 65–1255 s on four reporting draws (180, 181, 190, 191), where one feasibility LP
+took HiGHS 731 s ("Thirteenth pass"). Kept at 12: each LP is now bounded in time (:func:`settled_lp`),
+but 24 with that bound has not been measured on reporting draws."""
 
 
 PEAK_DB = 2.85
@@ -1384,9 +1385,9 @@ def joint_solve(progs: list[YoulaProgram], band_hz: float, *, objective: bool = 
             rows.append((full, b))
             at += pr.n_aux
         eqs = [pr for pr in progs if pr.a_eq is not None]
+        a_eq = np.c_[np.vstack([pr.a_eq for pr in eqs]), np.zeros((2 * len(eqs), n_aux))] if eqs else None
         res = settled_lp(cost, A_ub=np.vstack([a for a, _ in rows]), b_ub=np.concatenate([b for _, b in rows]),
-                         A_eq=np.c_[np.vstack([pr.a_eq for pr in eqs]), np.zeros((2 * len(eqs), n_aux))] if eqs else None,
-                         b_eq=np.concatenate([pr.b_eq for pr in eqs]) if eqs else None,
+                         A_eq=a_eq, b_eq=np.concatenate([pr.b_eq for pr in eqs]) if eqs else None,
                          bounds=[(None, None)] * p0.nx + [(0.0, 1.0)] + [(0.0, None)] * n_aux)
         if res.status == 0 and (best is None or res.fun < best.fun):
             best = res
