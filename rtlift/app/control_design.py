@@ -1348,8 +1348,8 @@ default method took 1255 s), docs/results/control.md, "Thirteenth pass"."""
 
 
 def settled_lp(cost: np.ndarray, **kw: Any) -> Any:
-    """``scipy.optimize.linprog`` with HiGHS, settled or given up in bounded time: the default method
-    (dual simplex) for at most :data:`LP_TIME_S`, then, where it neither solved nor proved the
+    """``scipy.optimize.linprog`` with HiGHS, settled or given up in bounded time: ``"highs"`` (HiGHS
+    picks the method itself) for at most :data:`LP_TIME_S`, then, where it neither solved nor proved the
     programme infeasible (a time limit, numerical difficulties), interior point for as long; what is
     still unsettled counts as infeasible: for the controller the safe side (a narrower band); a limit
     may then come out low, never high."""
