@@ -73,8 +73,8 @@ model's error measured on calibration draws (:data:`YOULA_S_ERROR`) and asks for
 The limit (:func:`rejection_limit`): the widest band of |S_o| ≤ 0.5 *any* causal linear
 controller with integral action on the two lifted measurements reaches under the same |S|, |S_o|
 and |W T| bounds —
-a linear programme over the Youla parameter (docs/DESIGN.md derives it and the delay and Bode
-bounds it refines).
+a convex programme over the Youla parameter, every bound a second-order cone (docs/DESIGN.md
+derives it and the delay and Bode bounds it refines).
 
 The feedback, in ΔCL per ΔCL, is PI with a first-order lead–lag on the mean error, plus a
 gain K_x on the latest estimate's departure from the mean (no integral on it, so its ripple
@@ -174,19 +174,18 @@ Q_BIAS_FACTORS = tuple(float(v) for v in 10.0 ** np.arange(0.0, 6.01, 0.5))
 LIMIT_TAPS = 24
 """FIR length (burst periods, 3 s) of each Youla parameter in the limit's search."""
 LIMIT_SIDES = 24
-"""Sides of the outer polygon that stands for a circle |x| ≤ r in the limit's linear programme
-(:func:`rejection_limit`): optimistic by at most 1/cos(π/24) − 1 = 0.86 %, 0.07 dB. 12 until the
-thirteenth pass (3.5 %, 0.3 dB): the band sits where the Bode integral binds, so that 3.5 % moved the
-limit by grid points — on calibration draws 20–27 the limit with the model's error spared fell from
-0.498–0.632 to 0.469–0.632 Hz at 24 sides, a grid point lower on 4 of 8 (docs/results/control.md, "Thirteenth pass")."""
+"""Sides of the outer polygon that stands for a disc |x| ≤ r in the limit's programme where the cone
+solver does not settle (:func:`joint_solve`'s fallback): optimistic by at most 1/cos(π/24) − 1 = 0.86 %,
+0.07 dB. Until the fifteenth pass every limit was drawn so (12 sides until the thirteenth, 3.5 %: on
+calibration draws 20–27 the limit with the model's error spared fell from 0.498–0.632 to 0.469–0.632 Hz
+at 24 sides, docs/results/control.md, "Thirteenth pass"); now each disc is a second-order cone, exact."""
 CONTROLLER_SIDES = 12
-"""Sides of the inner polygon in the internal-model controller's programme (``YoulaProgram(controller=True)``):
-pessimistic by 1 − cos(π/12) = 3.4 %, 0.3 dB. At 24 sides its band rose on calibration draws 20–27
-(0.396–0.529 Hz measured against 0.385–0.423, every clause on 8 of 8 at both; on plant draw 160 the
-joint programme 0.416 / 0.469 / 0.498 Hz at 12 / 24 / 48 sides), but the design took 121–534 s there
-against 21–264 s, and 65–1255 s on four reporting draws (180, 181, 190, 191), where one feasibility LP
-took HiGHS 731 s ("Thirteenth pass"). Kept at 12: each LP is now bounded in time (:func:`settled_lp`),
-but 24 with that bound has not been measured on reporting draws."""
+"""Sides of the inner polygon in the internal-model controller's programme (``YoulaProgram(controller=True)``)
+where the cone solver does not settle (:func:`joint_solve`'s fallback): pessimistic by 1 − cos(π/12) =
+3.4 %, 0.3 dB. Until the fifteenth pass every design was drawn so; on plant draw 160 its joint programme
+reached 0.416 / 0.469 / 0.498 Hz at 12 / 24 / 48 sides, and 24 took HiGHS up to 731 s for one LP
+("Thirteenth pass"). As cones (exact) the joint band search takes seconds (plant draw 200: 0.595 Hz in
+3.4 s, the 12-sided polygons 0.442 Hz in 17 s; docs/results/control.md, "Fifteenth pass")."""
 
 
 PEAK_DB = 2.85
@@ -1152,10 +1151,10 @@ def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, 
 
     The plant is FIR, hence stable: every stabilising controller is u = −K y with
     T = Q_A P_A + Q_X P_X for stable Q (Youla), S = 1 − T, S_o = 1 − F_o T — affine in Q. With Q
-    FIR (``taps`` periods) each bound is a set of linear inequalities (a circle as an outer
-    polygon; the bounds on 190 frequencies, 0.025 Hz apart above 0.4 Hz, far finer than the FIR's
+    FIR (``taps`` periods) each bound is a disc |c + a x| ≤ r, a second-order cone (:class:`Discs`;
+    the bounds on 190 frequencies, 0.025 Hz apart above 0.4 Hz, far finer than the FIR's
     resolution); the band is the highest point f_B of a log grid (90 points to Nyquist, 6 % apart) up
-    to which some Q keeps |S_o| ≤ 0.5 (a feasibility LP, HiGHS; binary search over the grid).
+    to which some Q keeps |S_o| ≤ 0.5 (a feasibility programme, Clarabel; binary search over the grid).
     ``f_o``: callable F_o(f) (None: 1); ``g_y``: callable G_y(f) (:func:`gust_gain`), the gust's map
     S_o = 1 − F_o G_y (Q_A M + Q_X) (:func:`gust_map` with K/(1 + L) = Q; None: 1 − F_o T).
     ``s_error``: every bound kept on the plant with the model's measured error a(f) to spare
@@ -1163,25 +1162,82 @@ def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, 
     channel's own part of T bounded too, |Q_A P_A|, |Q_X P_X| ≤ B (:class:`YoulaProgram`): the sensor's
     noise reaches the lift as Q_A P_A n_A + Q_X P_X n_X, so this is the limit of any causal controller
     that keeps the noise it feeds back within B per channel — the bound the internal-model design
-    keeps (:data:`YOULA_CHANNEL_BOUND`), here with outer polygons and at one point, so no controller
-    meeting it at that point does better."""
+    keeps (:data:`YOULA_CHANNEL_BOUND`), here at one point, so no controller meeting it at that point
+    does better."""
     return YoulaProgram(p, q, dt, peak_db, f_o=f_o, unc=unc, taps=taps, gm_db=gm_db,
                         nyquist_gain=nyquist_gain, g_y=g_y, integral=True, s_error=s_error,
                         channel_bound=channel_bound).band()
 
 
+@dataclass(frozen=True)
+class Discs:
+    """Bounds |c_i + a_i·v| ≤ r_i + g_i·v, one per row, on a programme's variables v = (Q_A taps, Q_X
+    taps, λ, auxiliaries): ``a`` complex (n × nv), ``c`` complex (n), ``r`` real (n), ``g`` real (n × nv).
+    Each is a second-order cone ‖(Re(c + a v), Im(c + a v))‖ ≤ r + g v, solved as one exactly
+    (:func:`settled_cone`, Clarabel); where that solver does not settle, as a polygon of sides
+    Re(e^{−jθ_k}(c + a v)) ≤ κ (r + g v) (:meth:`polygon`: outer with κ = 1, inner with κ = cos(π/n))."""
+
+    a: np.ndarray
+    c: np.ndarray
+    r: np.ndarray
+    g: np.ndarray
+
+    @staticmethod
+    def of(a: np.ndarray, c: Any, r: Any, nv: int, g: dict[int, Any] | None = None) -> Discs:
+        """|c + a x| ≤ r + Σ_k g[k] v_k, ``a`` on the first a.shape[1] variables of ``nv``; ``g``: the
+        right-hand side's coefficient (scalar or per row) of variable k."""
+        n = a.shape[0]
+        full = np.zeros((n, nv), complex)
+        full[:, :a.shape[1]] = a
+        rhs = np.zeros((n, nv))
+        for k, v in (g or {}).items():
+            rhs[:, k] = v
+        return Discs(full, np.broadcast_to(np.asarray(c, complex), (n,)).copy(),
+                     np.broadcast_to(np.asarray(r, float), (n,)).copy(), rhs)
+
+    @staticmethod
+    def stack(parts: list[Discs]) -> Discs:
+        return Discs(np.vstack([d.a for d in parts]), np.concatenate([d.c for d in parts]),
+                     np.concatenate([d.r for d in parts]), np.vstack([d.g for d in parts]))
+
+    def placed(self, cols: np.ndarray, nv: int) -> Discs:
+        """The same bounds on a larger variable vector: this one's variable j is ``cols[j]`` of ``nv``."""
+        a, g = np.zeros((self.a.shape[0], nv), complex), np.zeros((self.a.shape[0], nv))
+        a[:, cols], g[:, cols] = self.a, self.g
+        return Discs(a, self.c, self.r, g)
+
+    def polygon(self, sides: int, inner: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds as A_ub v ≤ b_ub, each disc a polygon of ``sides`` (inner: scaled by cos(π/n))."""
+        ang = np.exp(-2j * np.pi * np.arange(sides) / sides)
+        k = math.cos(math.pi / sides) if inner else 1.0
+        rot = (ang[None, :, None] * self.a[:, None, :]).real - k * self.g[:, None, :]
+        b = k * self.r[:, None] - (ang[None, :] * self.c[:, None]).real
+        return rot.reshape(-1, self.a.shape[1]), b.reshape(-1)
+
+    def cones(self) -> tuple[np.ndarray, np.ndarray]:
+        """(A, b) of Clarabel's A v + s = b, s in one 3-dimensional second-order cone per disc:
+        s = (r + g v, Re(c + a v), Im(c + a v))."""
+        n, nv = self.a.shape
+        a = np.empty((3 * n, nv))
+        a[0::3], a[1::3], a[2::3] = -self.g, -self.a.real, -self.a.imag
+        b = np.empty(3 * n)
+        b[0::3], b[1::3], b[2::3] = self.r, self.c.real, self.c.imag
+        return a, b
+
+
 class YoulaProgram:
-    """The linear programme over the Youla parameter Q = (Q_A, Q_X), FIR of ``taps`` periods, of
-    :func:`rejection_limit` (its docstring: T = Q_A P_A + Q_X P_X, S = 1 − T, S_o = 1 − F_o T, each
-    circle bound an outer polygon of :data:`LIMIT_SIDES` sides). With ``controller`` the bounds are
-    those a controller built from Q must meet, not an optimistic limit: every polygon *inner*
-    (:data:`CONTROLLER_SIDES` sides)
-    (the bound holds exactly at every grid point) and, in :meth:`solve`, every bound scaled by one
+    """The convex programme over the Youla parameter Q = (Q_A, Q_X), FIR of ``taps`` periods, of
+    :func:`rejection_limit` (its docstring: T = Q_A P_A + Q_X P_X, S = 1 − T, S_o = 1 − F_o T, every
+    bound a disc |x| ≤ r on a complex affine function of Q: a second-order cone, :class:`Discs`,
+    solved exactly by :func:`joint_solve`). With ``controller`` the bounds are those a controller built
+    from Q must meet, not an optimistic limit: in :meth:`solve`, every bound scaled by one
     λ ≤ 1 that is minimised (|S_o| ≤ 0.5 λ on the band, |S|, |S_o| ≤ λ M, |W T| ≤ λ: the same margin
     of −20 log₁₀ λ dB from each, where the programme at its widest band has none), and two
     equalities for the integral action the PI has: T(1) = 1 (S(1) = 0: no
     steady error, a fade is integrated away) and Q_X(1) = 0 (the latest estimate's constant burst
     ripple offset at the decisions' fixed phase cannot bias the mean, as K_x's difference in the PI).
+    Where the cone solver does not settle, the polygon fallback is inner for a controller
+    (:data:`CONTROLLER_SIDES`: the bound still holds) and outer for a limit (:data:`LIMIT_SIDES`).
     ``integral``: those two equalities alone (the limit's, :func:`rejection_limit`). ``channel_bound``
     B: also each channel's own part of T bounded everywhere, |Q_A P_A| ≤ λ B and |Q_X P_X| ≤ λ B. The
     sensor's noise reaches the two channels differently (n_A the period's mean, n_X the latest
@@ -1198,6 +1254,7 @@ class YoulaProgram:
                  integral: bool = False, channel_bound: float | None = None,
                  model_error: ModelError | None = None, s_error: SensitivityError | None = None) -> None:
         self.taps = taps
+        self.controller = controller
         nyq = 0.5 / dt
 
         def t_rows(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1216,33 +1273,27 @@ class YoulaProgram:
         rows_all, gust_all = t_rows(f_all)  # the bounds everywhere: dense (an FIR of 3 s resolves 0.33 Hz)
         self.f = np.geomspace(0.02, nyq, 90)       # the band's edge: 6 % apart
         self.rows, self.gust = t_rows(self.f)
-        # the model's error spared from each bound (|S_o| + a_band ≤ 0.5 λ, |S| + a_peak ≤ λ M), per polygon side
+        # the model's error spared from each bound (|S_o| + a_band ≤ 0.5 λ, |S| + a_peak ≤ λ M)
         self.spare = np.zeros(self.f.size) if s_error is None else s_error.at(self.f, "band")
         spare_all = np.zeros(f_all.size) if s_error is None else s_error.at(f_all, "peak")
         w = (unc or Uncertainty()).weight(f_all)
-        sides = CONTROLLER_SIDES if controller else LIMIT_SIDES
-        self.ang = np.exp(-2j * np.pi * np.arange(sides) / sides)
-        self.shrink = math.cos(math.pi / sides) if controller else 1.0
         self.mpk = 10.0 ** (peak_db / 20.0)
-        self.nx = rows_all.shape[1]
-        ones = np.ones(f_all.size)
-        # |S|, |S_o| ≤ λ M and |W T| ≤ λ: the column of λ (last) carries −r cos(π/n); λ ≤ 1 by its bound
-        scaled = [(self.polygon(-rows_all, ones, 0.0, spare_all), self.mpk),
-                  (self.polygon(-gust_all, ones, 0.0, spare_all), self.mpk),
-                  (self.polygon(w[:, None] * rows_all, 0.0 * ones, 0.0), 1.0)]
+        self.nx = nx = rows_all.shape[1]
+        self.n_aux = 0
+        self.depth_db = model_error.band_margin_db() if model_error is not None else 0.0
+        self.depth = 10.0 ** (-self.depth_db / 20.0)
+        robust = self.robust_rows(f_all, rows_all, gust_all, model_error, taps) if model_error is not None else []
+        nv = nx + 1 + self.n_aux                  # v = (Q, λ, the robust rows' auxiliaries)
+        # |S|, |S_o| ≤ λ M − a_peak and |W T| ≤ λ
+        fixed = [Discs.of(-rows_all, 1.0, -spare_all, nv, {nx: self.mpk}),
+                 Discs.of(-gust_all, 1.0, -spare_all, nv, {nx: self.mpk}),
+                 Discs.of(w[:, None] * rows_all, 0.0, 0.0, nv, {nx: 1.0})]
         if channel_bound is not None:        # |Q_A P_A|, |Q_X P_X| ≤ λ B: one channel's columns each
             for part in (np.s_[:taps], np.s_[taps:]):
                 only = np.zeros_like(rows_all)
                 only[:, part] = rows_all[:, part]
-                scaled.append((self.polygon(only, 0.0 * ones, 0.0), channel_bound))
-        self.a_peak = np.vstack([np.c_[a, np.full(a.shape[0], -r * self.shrink)] for (a, _), r in scaled])
-        self.b_peak = np.concatenate([b for (_, b), _ in scaled])
-        self.n_aux = 0
-        self.a_rob, self.b_rob = np.zeros((0, self.nx + 1)), np.zeros(0)
-        self.depth_db = model_error.band_margin_db() if model_error is not None else 0.0
-        self.depth = 10.0 ** (-self.depth_db / 20.0)
-        if model_error is not None:
-            self.robust_rows(f_all, rows_all, gust_all, model_error, taps)
+                fixed.append(Discs.of(only, 0.0, 0.0, nv, {nx: channel_bound}))
+        self.fixed = Discs.stack(fixed + robust)
         parts = []
         alt = (-1.0) ** np.arange(taps)                      # Z⁻ᵏ at z = −1
         nyq1 = np.array([-1.0 + 0j])
@@ -1250,19 +1301,20 @@ class YoulaProgram:
         if gm_db is not None:
             g = 10.0 ** (gm_db / 20.0)
             parts.append((np.vstack([self.t_nyq, -self.t_nyq]), np.array([g / (g - 1.0), 1.0 / (g - 1.0)]) - 1e-6))
-        self.a_fix = (np.c_[np.vstack([a for a, _ in parts]), np.zeros(sum(a.shape[0] for a, _ in parts))]
-                      if parts else np.zeros((0, self.nx + 1)))
+        a_fix = np.vstack([a for a, _ in parts]) if parts else np.zeros((0, nx))
+        self.a_fix = np.c_[a_fix, np.zeros((a_fix.shape[0], 1 + self.n_aux))]
         self.b_fix = np.concatenate([b for _, b in parts]) if parts else np.zeros(0)
         self.q_nyq = [np.r_[sa * alt, sx * alt] for sa in (1.0, -1.0) for sx in (1.0, -1.0)]   # ±Q_A(−1) ± Q_X(−1)
         self.nyquist_gain = nyquist_gain
         self.a_eq = self.b_eq = None
         if controller or integral:        # T(1) = 1, Q_X(1) = 0
             one = np.ones(taps)
-            self.a_eq = np.array([np.r_[float(np.sum(p)) * one, float(np.sum(q)) * one, 0.0],
-                                  np.r_[0.0 * one, one, 0.0]])
+            self.a_eq = np.c_[np.array([np.r_[float(np.sum(p)) * one, float(np.sum(q)) * one],
+                                        np.r_[0.0 * one, one]]), np.zeros((2, 1 + self.n_aux))]
             self.b_eq = np.array([1.0, 0.0])
 
-    def robust_rows(self, f: np.ndarray, rows: np.ndarray, gust: np.ndarray, err: ModelError, taps: int) -> None:
+    def robust_rows(self, f: np.ndarray, rows: np.ndarray, gust: np.ndarray, err: ModelError,
+                    taps: int) -> list[Discs]:
         """Robust performance against the multiplicative error of each channel, P_true = P (1 + Δ),
         |Δ_A| ≤ δ_A(f), |Δ_X| ≤ δ_X(f) (:class:`ModelError`): then 1 + L_true = (1 + L)(1 + D),
         D = T_A Δ_A + T_X Δ_X (T_A = Q_A P_A, T_X = Q_X P_X, each channel's part of T), so
@@ -1272,59 +1324,44 @@ class YoulaProgram:
         the feedback (G_y from the lift's pulse response, :func:`gust_gain`), so where its path's error
         is the loop's, S_o,true = S_o (1 + Δ)/(1 + D) − S Δ/(1 + D) ≈ S_o/(1 + D) (exact for S_o = S,
         F_o = 1; an approximation, not a bound, where the observer's F_o departs from 1). On every
-        :data:`ROBUST_STRIDE`-th frequency of the dense grid from :data:`ROBUST_FROM_HZ`, with t_A ≥ |T_A|, t_X ≥ |T_X|
-        auxiliary variables (two per frequency, after λ); every bound an inner polygon. Convex (a sum
-        of moduli of affine functions of Q); it also implies robust stability |D| < 1."""
+        :data:`ROBUST_STRIDE`-th frequency of the dense grid from :data:`ROBUST_FROM_HZ`, with t_A ≥ |T_A|,
+        t_X ≥ |T_X| auxiliary variables (two per frequency, after λ; :attr:`n_aux` set here). Convex (a
+        sum of moduli of affine functions of Q); it also implies robust stability |D| < 1."""
         d = err.deltas(f)
         keep = np.flatnonzero(f >= ROBUST_FROM_HZ)[::ROBUST_STRIDE]
         n = keep.size
         if n == 0:
-            return
+            return []
         self.n_aux = 2 * n
-        sides = self.ang.size
-        blocks_a, blocks_b = [], []
-        zeros_q = np.zeros((n, self.nx))
-        for k, part in enumerate((np.s_[:taps], np.s_[taps:])):     # t_ch ≥ |T_ch|: inner polygon of radius t
-            only = zeros_q.astype(complex)
+        nv = self.nx + 1 + self.n_aux
+        aux = self.nx + 1 + np.arange(self.n_aux)
+        out = []
+        for k, part in enumerate((np.s_[:taps], np.s_[taps:])):     # |T_ch| ≤ t_ch
+            only = np.zeros((n, self.nx), complex)
             only[:, part] = rows[keep][:, part]
-            a, b = self.polygon(only, np.zeros(n), 0.0)
-            aux = np.zeros((n * sides, self.n_aux))
-            aux[np.arange(n * sides), k * n + np.repeat(np.arange(n), sides)] = -self.shrink
-            blocks_a.append(np.c_[a, np.zeros(n * sides), aux])
-            blocks_b.append(b)
-        for t_rows, weight in ((-rows[keep], self.mpk), (-gust[keep], self.mpk)):   # S, then S_o
-            a, b = self.polygon(t_rows, np.ones(n), 0.0)
-            aux = np.zeros((n * sides, self.n_aux))
-            idx = np.repeat(np.arange(n), sides)
-            aux[np.arange(n * sides), idx] = self.shrink * weight * d[0][keep][idx]
-            aux[np.arange(n * sides), n + idx] = self.shrink * weight * d[1][keep][idx]
-            blocks_a.append(np.c_[a, np.full(n * sides, -self.mpk * self.shrink), aux])
-            blocks_b.append(b)
-        self.a_rob, self.b_rob = np.vstack(blocks_a), np.concatenate(blocks_b)
+            disc = Discs.of(only, 0.0, 0.0, nv)
+            disc.g[np.arange(n), aux[k * n:(k + 1) * n]] = 1.0
+            out.append(disc)
+        for t_rows in (-rows[keep], -gust[keep]):                   # |S|, |S_o| ≤ λ M − M (δ_A t_A + δ_X t_X)
+            disc = Discs.of(t_rows, 1.0, 0.0, nv, {self.nx: self.mpk})
+            disc.g[np.arange(n), aux[:n]] = -self.mpk * d[0][keep]
+            disc.g[np.arange(n), aux[n:]] = -self.mpk * d[1][keep]
+            out.append(disc)
         self.f_robust, self.gust_robust = f[keep], gust[keep]
+        return out
 
-    def polygon(self, a: np.ndarray, c: np.ndarray, r: float, spare: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-        """Re(e^{−jθ_k}(c + a x)) ≤ r − s for every side k, as A_ub x ≤ b_ub (r − s scaled by the
-        inner polygon's cos(π/n) for a controller; ``spare`` s per frequency, 0 without it)."""
-        rot = self.ang[None, :, None] * a[:, None, :]
-        s = np.zeros(a.shape[0]) if spare is None else np.asarray(spare, float)
-        return rot.real.reshape(-1, a.shape[1]), ((r - s[:, None]) * self.shrink
-                                                  - (self.ang[None, :] * c[:, None]).real).reshape(-1)
-
-    def constraints(self, top: int, sign: float | None) -> tuple[np.ndarray, np.ndarray]:
-        """(A_ub, b_ub) on (Q taps, t): |S_o| ≤ 0.5 on f[0..top], the fixed bounds, and with the
-        controller-gain bound the sign of S(−1) assumed (``sign``: ±Q_A ± Q_X ≤ N sign (1 − T),
-        sign (1 − T) ≥ 0)."""
-        a, b = self.polygon(-self.gust[:top + 1], np.ones(top + 1), 0.0, self.spare[:top + 1])
-        a = np.c_[a, np.full(a.shape[0], -0.5 * self.depth * self.shrink)]   # |S_o| + a_band ≤ 0.5 λ 10^(−m/20)
+    def constraints(self, top: int, sign: float | None) -> tuple[Discs, np.ndarray, np.ndarray]:
+        """(discs, A_ub, b_ub) on v = (Q taps, λ, auxiliaries): |S_o| ≤ 0.5 λ 10^(−m/20) − a_band on
+        f[0..top], the fixed bounds, and with the controller-gain bound the sign of S(−1) assumed
+        (``sign``: ±Q_A ± Q_X ≤ N sign (1 − T), sign (1 − T) ≥ 0)."""
+        nv = self.nx + 1 + self.n_aux
+        band = Discs.of(-self.gust[:top + 1], 1.0, -self.spare[:top + 1], nv, {self.nx: 0.5 * self.depth})
         n_g = self.nyquist_gain
         extra = ([] if sign is None else
                  [(np.r_[qn + n_g * sign * self.t_nyq, 0.0], n_g * sign) for qn in self.q_nyq]
                  + [(np.r_[sign * self.t_nyq, 0.0], sign)])
-        shared = np.vstack([a, self.a_peak, self.a_fix, *[r for r, _ in extra]])
-        return (np.r_[np.c_[shared, np.zeros((shared.shape[0], self.n_aux))], self.a_rob],
-                np.r_[b, self.b_peak, self.b_fix, [v for _, v in extra], self.b_rob])
+        lin = np.vstack([self.a_fix, *[np.r_[r, np.zeros(self.n_aux)] for r, _ in extra]])
+        return Discs.stack([band, self.fixed]), lin, np.r_[self.b_fix, [v for _, v in extra]]
 
     def top(self, band_hz: float) -> int:
         """The index of the grid point at or below ``band_hz`` (0 at least)."""
@@ -1341,10 +1378,15 @@ class YoulaProgram:
 
 
 LP_TIME_S = 60.0
-"""The most time HiGHS gets for one of the programmes' LPs, per method (:func:`settled_lp`). Most take
-1–6 s here (three operating points, 24-sided polygons); near the band's edge one feasibility LP on a
-reporting draw took 731 s and ended in "numerical difficulties" (interior point; the design with the
-default method took 1255 s), docs/results/control.md, "Thirteenth pass"."""
+"""The most time a solver gets for one of the programmes, per method (:func:`settled_cone`,
+:func:`settled_lp`). As polygon LPs most took 1–6 s here (three operating points, 24-sided polygons);
+near the band's edge one feasibility LP on a reporting draw took 731 s and ended in "numerical
+difficulties" (interior point; the design with the default method took 1255 s), docs/results/control.md,
+"Thirteenth pass"."""
+
+CONE_TIGHTEN = 1e-6
+"""Each disc's radius is solved for 1 − this of itself less the same absolute amount, so that the
+interior-point solution, feasible to Clarabel's tolerance (1e-8), meets the bound as stated."""
 
 
 def settled_lp(cost: np.ndarray, **kw: Any) -> Any:
@@ -1363,40 +1405,87 @@ def settled_lp(cost: np.ndarray, **kw: Any) -> Any:
     return res
 
 
+def settled_cone(cost: np.ndarray, discs: Discs, a_ub: np.ndarray, b_ub: np.ndarray,
+                 a_eq: np.ndarray | None, b_eq: np.ndarray | None) -> tuple[str, np.ndarray | None]:
+    """min cost·v subject to a_eq v = b_eq, a_ub v ≤ b_ub and every disc of ``discs`` (a second-order
+    cone each), by Clarabel (an interior-point conic solver, exact on the discs where polygons are
+    not) within :data:`LP_TIME_S`: ("solved", v), ("infeasible", None) or ("unsettled", None)."""
+    import clarabel
+    from scipy import sparse
+
+    tight = Discs(discs.a, discs.c, discs.r * (1.0 - CONE_TIGHTEN) - CONE_TIGHTEN, discs.g * (1.0 - CONE_TIGHTEN))
+    a_soc, b_soc = tight.cones()
+    n_eq = 0 if a_eq is None else a_eq.shape[0]
+    a = np.vstack(([a_eq] if n_eq else []) + [a_ub, a_soc])
+    b = np.concatenate(([b_eq] if n_eq else []) + [b_ub, b_soc])
+    cones = ([clarabel.ZeroConeT(n_eq)] if n_eq else []) + [clarabel.NonnegativeConeT(a_ub.shape[0])]
+    cones += [clarabel.SecondOrderConeT(3)] * discs.r.size
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    settings.time_limit = LP_TIME_S
+    nv = cost.size
+    sol = clarabel.DefaultSolver(sparse.csc_matrix((nv, nv)), np.asarray(cost, float), sparse.csc_matrix(a), b,
+                                 cones, settings).solve()
+    status = str(sol.status)
+    if status in ("Solved", "AlmostSolved"):
+        return "solved", np.asarray(sol.x)
+    if status in ("PrimalInfeasible", "AlmostPrimalInfeasible"):
+        return "infeasible", None
+    return "unsettled", None
+
+
 def joint_solve(progs: list[YoulaProgram], band_hz: float, *, objective: bool = True
                 ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """One Q meeting every programme of ``progs`` (the same taps, the same grids: one per operating
     point) with |S_o| ≤ 0.5 up to ``band_hz``; with ``objective`` the least common scale λ of every
-    bound (:meth:`YoulaProgram.solve`). The sign
-    of S(−1) of the controller-gain bound is taken the same at every point (both tried)."""
-
+    bound (:meth:`YoulaProgram.solve`). The sign of S(−1) of the controller-gain bound is taken the
+    same at every point (both tried). The variables (Q, λ, each programme's own auxiliaries), λ in
+    [0, 1]; each disc a second-order cone (:func:`settled_cone`), or where that solver does not settle,
+    a polygon LP (:func:`settled_lp`; inner for a controller, outer for a limit)."""
     p0 = progs[0]
+    nx = p0.nx
     signs = (None,) if p0.nyquist_gain is None else (1.0, -1.0)
-    n_aux = sum(pr.n_aux for pr in progs)          # each programme's own auxiliaries after (Q, λ)
-    cost = np.r_[np.zeros(p0.nx), 1.0 if objective else 0.0, np.zeros(n_aux)]
-    best = None
+    nv = nx + 1 + sum(pr.n_aux for pr in progs)          # each programme's own auxiliaries after (Q, λ)
+    cost = np.r_[np.zeros(nx), 1.0 if objective else 0.0, np.zeros(nv - nx - 1)]
+    bounds = np.zeros((1 + nv - nx - 1, nv))            # −λ ≤ 0, λ ≤ 1, −t ≤ 0
+    bounds[0, nx] = -1.0
+    bounds[1:, nx + 1:] = -np.eye(nv - nx - 1)
+    limits = np.vstack([bounds, np.eye(1, nv, nx)])
+    b_limits = np.r_[np.zeros(bounds.shape[0]), 1.0]
+    best, best_fun = None, math.inf
     for sign in signs:
-        rows, at = [], 0
+        discs, lin, b_lin, eq, at = [], [], [], [], nx + 1
         for pr in progs:
-            a, b = pr.constraints(pr.top(band_hz), sign)
-            full = np.zeros((a.shape[0], p0.nx + 1 + n_aux))
-            full[:, :p0.nx + 1] = a[:, :p0.nx + 1]
-            full[:, p0.nx + 1 + at:p0.nx + 1 + at + pr.n_aux] = a[:, p0.nx + 1:]
-            rows.append((full, b))
+            cols = np.r_[np.arange(nx + 1), at + np.arange(pr.n_aux)]
+            d, a, b = pr.constraints(pr.top(band_hz), sign)
+            discs.append(d.placed(cols, nv))
+            full = np.zeros((a.shape[0], nv))
+            full[:, cols] = a
+            lin.append(full)
+            b_lin.append(b)
+            if pr.a_eq is not None:
+                e = np.zeros((2, nv))
+                e[:, cols] = pr.a_eq
+                eq.append(e)
             at += pr.n_aux
-        eqs = [pr for pr in progs if pr.a_eq is not None]
-        a_eq = np.c_[np.vstack([pr.a_eq for pr in eqs]), np.zeros((2 * len(eqs), n_aux))] if eqs else None
-        res = settled_lp(cost, A_ub=np.vstack([a for a, _ in rows]), b_ub=np.concatenate([b for _, b in rows]),
-                         A_eq=a_eq, b_eq=np.concatenate([pr.b_eq for pr in eqs]) if eqs else None,
-                         bounds=[(None, None)] * p0.nx + [(0.0, 1.0)] + [(0.0, None)] * n_aux)
-        if res.status == 0 and (best is None or res.fun < best.fun):
-            best = res
+        disc = Discs.stack(discs)
+        a_ub, b_ub = np.vstack([*lin, limits]), np.concatenate([*b_lin, b_limits])
+        a_eq = np.vstack(eq) if eq else None
+        b_eq = np.concatenate([pr.b_eq for pr in progs if pr.a_eq is not None]) if eq else None
+        state, x = settled_cone(cost, disc, a_ub, b_ub, a_eq, b_eq)
+        if state == "unsettled":
+            sides = CONTROLLER_SIDES if p0.controller else LIMIT_SIDES
+            a_pol, b_pol = disc.polygon(sides, inner=p0.controller)
+            res = settled_lp(cost, A_ub=np.vstack([a_pol, a_ub]), b_ub=np.r_[b_pol, b_ub], A_eq=a_eq, b_eq=b_eq,
+                             bounds=[(None, None)] * nv)
+            x = res.x if res.status == 0 else None
+        if x is not None and float(cost @ x) < best_fun:
+            best, best_fun = x, float(cost @ x)
             if not objective:
                 break
     if best is None:
         return None
-    x = best.x
-    return x[:p0.taps].copy(), x[p0.taps:p0.nx].copy(), float(x[p0.nx])
+    return best[:p0.taps].copy(), best[p0.taps:nx].copy(), float(best[nx])
 
 
 def joint_band(progs: list[YoulaProgram]) -> float:
@@ -1733,7 +1822,7 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
     return pi
 
 
-DESIGN_VERSION = 8
+DESIGN_VERSION = 9
 """Changes when the design computes something else: a cached design of another version is redone."""
 REPORT_FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
 
