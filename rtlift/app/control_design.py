@@ -176,16 +176,16 @@ LIMIT_TAPS = 24
 LIMIT_SIDES = 24
 """Sides of the outer polygon that stands for a disc |x| ≤ r in the limit's programme where the cone
 solver does not settle (:func:`joint_solve`'s fallback): optimistic by at most 1/cos(π/24) − 1 = 0.86 %,
-0.07 dB. Until the fifteenth pass every limit was drawn so (12 sides until the thirteenth, 3.5 %: on
+0.07 dB. Until the fourteenth pass every limit was drawn so (12 sides until the thirteenth, 3.5 %: on
 calibration draws 20–27 the limit with the model's error spared fell from 0.498–0.632 to 0.469–0.632 Hz
 at 24 sides, docs/results/control.md, "Thirteenth pass"); now each disc is a second-order cone, exact."""
 CONTROLLER_SIDES = 12
 """Sides of the inner polygon in the internal-model controller's programme (``YoulaProgram(controller=True)``)
 where the cone solver does not settle (:func:`joint_solve`'s fallback): pessimistic by 1 − cos(π/12) =
-3.4 %, 0.3 dB. Until the fifteenth pass every design was drawn so; on plant draw 160 its joint programme
+3.4 %, 0.3 dB. Until the fourteenth pass every design was drawn so; on plant draw 160 its joint programme
 reached 0.416 / 0.469 / 0.498 Hz at 12 / 24 / 48 sides, and 24 took HiGHS up to 731 s for one LP
 ("Thirteenth pass"). As cones (exact) the joint band search takes seconds (plant draw 200: 0.595 Hz in
-3.4 s, the 12-sided polygons 0.442 Hz in 17 s; docs/results/control.md, "Fifteenth pass")."""
+3.4 s, the 12-sided polygons 0.442 Hz in 17 s; docs/results/control.md, "Fourteenth pass")."""
 
 
 PEAK_DB = 2.85
