@@ -717,3 +717,30 @@ def test_every_bound_is_met_exactly_by_the_cone_and_an_unsettled_cone_falls_back
     monkeypatch.setattr(scipy.optimize, "linprog",
                         lambda cost, method, options, **kw: calls.append(method) or SimpleNamespace(status=4))
     assert joint_solve(progs, 0.25) is None and calls == ["highs", "highs-ipm"] * 2     # both signs of S(−1)
+
+
+def test_auto_builds_the_internal_model_controller_only_where_the_training_record_reaches_its_loop(model):
+    """The default structure ("auto", :data:`DEFAULT_STRUCTURE`): the internal-model controller where the
+    model's training envelope reaches :data:`YOULA_MIN_TRAINING_HZ` and its design meets every target
+    without a caution, else the PI; :attr:`Design.choice` says which and why, and report.json keeps it.
+    The bench model's file does not say how far its record reaches (the PI); given the bench's ``random``
+    reach (1.67 Hz) the youla design; given the paper's ``sine_k0125`` reach (0.49 Hz) the PI, without
+    trying youla."""
+    from dataclasses import replace
+
+    from rtlift.app.control_design import DEFAULT_STRUCTURE, YOULA_MIN_TRAINING_HZ, youla_training_reason
+
+    assert DEFAULT_STRUCTURE == "auto" and 0.49 < YOULA_MIN_TRAINING_HZ < 1.67
+    assert "does not say" in youla_training_reason(None) and youla_training_reason({"f95_hz": 1.67}) is None
+
+    def reaching(f95: float):
+        return replace(model, provenance={"domain": {"train_envelope": {"f95_hz": f95, "share_above_1hz": 0.1}}})
+
+    broad = design_loop(reaching(1.67), limit=False)
+    assert broad.structure == "youla" and broad.choice.startswith("internal-model controller: the training record "
+                                                                  "reaches 1.67 Hz")
+    assert not broad.violations() and not broad.cautions()
+    assert Design.from_dict(report_doc(broad, "m.json")).choice == broad.choice
+    narrow = design_loop(reaching(0.49), limit=False)
+    assert narrow.structure == "pi" and narrow.reach is None
+    assert narrow.choice.startswith("PI: 95 % of the training envelope's variance lies below 0.49 Hz")

@@ -65,7 +65,8 @@ DC-gain standard deviation from the identification's covariance, when the model 
 
 The internal-model controller (``structure="youla"``, :class:`YoulaGains`, :class:`YoulaProgram`,
 :func:`joint_solve`): the limit's own Youla parameter Q as a controller, K = Q/(1 − Q P̂), one Q for
-every scheduled point (docs/DESIGN.md). Not the default (:data:`DEFAULT_STRUCTURE`). On models
+every scheduled point (docs/DESIGN.md). The default where the model's training record supports it
+(:data:`DEFAULT_STRUCTURE` "auto", :data:`YOULA_MIN_TRAINING_HZ`). On models
 trained on a broadband record (``rtlift identify --train random.csv``) it measured 0.376–0.383 Hz of band
 at ≤ 2.8 dB on calibration draws 1–3 (the PI 0.25–0.27 Hz); since the twelfth pass its programme spares the
 model's error measured on calibration draws (:data:`YOULA_S_ERROR`) and asks for the whole band that leaves.
@@ -683,6 +684,9 @@ class Design:
     training: dict[str, float] | None = None
     """How far the model's training envelope reaches (``provenance.domain.train_envelope``,
     :func:`rtlift.model.domain.envelope_reach`); None where the model file does not say."""
+    choice: str | None = None
+    """Why this structure, where ``design_loop(structure="auto")`` chose it (:data:`DEFAULT_STRUCTURE`):
+    one line ("internal-model controller: ..." or "PI: ..."); None where the structure was asked for."""
 
     @property
     def scheduled(self) -> list[PointDesign]:
@@ -792,7 +796,7 @@ class Design:
         return {"dt_s": self.dt, "period_samples": self.period, "margin_samples": self.margin,
                 "targets": asdict(self.targets), "uncertainty": asdict(self.uncertainty),
                 "observer": self.observer, "reach": self.reach, "training": self.training,
-                "summary": self.summary(), "points": pts}
+                "choice": self.choice, "summary": self.summary(), "points": pts}
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> Design:
@@ -813,7 +817,7 @@ class Design:
                   for p in doc["points"]]
         return cls(points, dt, int(doc.get("period_samples", BURST_PERIOD_SAMPLES)),
                    int(doc.get("margin_samples", MARGIN_SAMPLES)), targets, unc, doc.get("observer"),
-                   doc.get("reach"), doc.get("training"))
+                   doc.get("reach"), doc.get("training"), doc.get("choice"))
 
     def control_model(self, model: Any) -> Any:
         """``model`` with the observer settings this design was checked with (itself if none)."""
@@ -1582,15 +1586,36 @@ YOULA_STEP = 0.05
 the fraction is lowered by this much and the point designed again, down to :data:`YOULA_FLOOR`."""
 YOULA_FLOOR = 0.5
 STRUCTURES = ("auto", "pi", "pi2", "pi2j", "youla")
-DEFAULT_STRUCTURE = "pi"
-"""What ``rtlift design`` and ``rtlift control`` build unless told: the PI + lead–lag + K_x (calibration
-draws 1–3, design version 7: 0.19–0.22 Hz measured, within 0.01 Hz of its prediction). The
-internal-model controller ("youla"; "auto" picks it when its predicted band is wider, which it is on
-every model tried) measured 0.325–0.372 Hz on the same draws at :data:`YOULA_BACKOFF` 1.0
-(docs/results/control.md, "Fourth pass"), and on models trained on a broadband record 0.376–0.383 Hz
-at :data:`YOULA_BACKOFF` 0.85 ("Tenth pass"). It is not made the default: the cached designs ``rtlift
-control`` and its tests start from are the PI's, and its measurement on the reporting draws asks for
-the broadband training record, which the paper's campaign does not have."""
+DEFAULT_STRUCTURE = "auto"
+"""What ``rtlift design`` and ``rtlift control`` build unless told: "auto", the internal-model controller
+("youla") where the model's training record reaches past the loop it needs
+(:data:`YOULA_MIN_TRAINING_HZ`) and its design meets every target without a caution, else the PI +
+lead–lag + K_x; :attr:`Design.choice` says which and why. The PI was the default until the fourteenth
+pass: the youla design asks for a broadband training record (``rtlift bench record random``; ``rtlift
+identify --train``), which the paper's campaign does not have, and on a model fitted to ``sine_k0125``
+alone its margins are read where the model is extrapolated (it amplified +3.7 dB at 2 Hz where it
+predicted +2.0, docs/results/control.md, "Tenth pass"). With such a record it held every clause but one
+fade on 20 fresh reporting draws, 0.37–0.55 Hz of band against the PI's 0.20–0.29 ("Fourteenth pass")."""
+YOULA_MIN_TRAINING_HZ = 0.7
+""""auto" tries the internal-model controller only when the model's training envelope has 95 % of its
+variance below a frequency at least this (``provenance.domain.train_envelope.f95_hz``): the lowest gain
+crossover its designs had on calibration draws 20–27 was 0.72 Hz (0.72–0.85), so a record that stops
+short of this would leave its crossovers extrapolated (:meth:`Design.cautions`) and the PI is built
+straight away. The paper's ``sine_k0125`` reaches 0.49 Hz, the bench's ``random`` 1.67 Hz. Where the
+record does reach it, the youla design is still kept only without a caution or a missed target."""
+
+
+def youla_training_reason(training: dict[str, float] | None) -> str | None:
+    """Why "auto" does not try the internal-model controller on a model with this training reach
+    (:attr:`Design.training`); None where it does."""
+    if not training:
+        return ("the model file does not say how far its training record reaches (identify it again "
+                "with rtlift identify)")
+    if training["f95_hz"] < YOULA_MIN_TRAINING_HZ:
+        return (f"95 % of the training envelope's variance lies below {training['f95_hz']:.2f} Hz, short of "
+                f"the {YOULA_MIN_TRAINING_HZ:g} Hz the internal-model controller's loop needs (identify on a "
+                "broadband training record: rtlift bench record random; rtlift identify --train)")
+    return None
 
 
 def design_loop(model: Any, targets: Targets | None = None, config: ControlConfig | None = None,
@@ -1803,22 +1828,28 @@ def design_loop(model: Any, targets: Targets | None = None, config: ControlConfi
             return cont
         return out
 
-    youla = None
-    if structure in ("auto", "youla"):
-        try:
-            youla = youla_build()
-        except ValueError:
-            if structure == "youla":
-                raise
     if structure == "youla":
-        return youla
+        return youla_build()
     if structure in ("pi2", "pi2j"):
         cont = build(lambda dcl0, start: pi_at(dcl0, start, "pi2"))
         return cont if structure == "pi2" else joint(cont)
+    if structure != "auto":
+        return build(pi_at)
+    why = youla_training_reason(training)
+    if why is None:
+        try:
+            youla = youla_build()
+        except ValueError as exc:
+            why = f"the internal-model controller's {exc}"
+        else:
+            misses = youla.violations() or youla.cautions()
+            if not misses:
+                youla.choice = (f"internal-model controller: the training record reaches {training['f95_hz']:.2f} Hz, "
+                                "past its crossovers, and it meets every target")
+                return youla
+            why = f"the internal-model controller's design: {misses[0]}"
     pi = build(pi_at)
-    if youla is not None and not youla.violations() and (
-            pi.violations() or youla.summary()["f6_hz_min"] > pi.summary()["f6_hz_min"]):
-        return youla
+    pi.choice = f"PI: {why}"
     return pi
 
 

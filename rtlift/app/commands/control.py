@@ -176,7 +176,7 @@ def control_config(model, feedback: bool, kp: float | None, ti: float | None,
 
     design, source = cached_design(model, model_path, accept_warnings)
     return (design.control_config(True, model.fs_hz),
-            {"source": source, "structure": design.structure, **design.summary(),
+            {"source": source, "structure": design.structure, "choice": design.choice, **design.summary(),
              "schedule": [list(r) for r in design.schedule()],
              "observer_q_bias": (design.observer or {}).get("q_bias")})
 

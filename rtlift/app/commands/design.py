@@ -32,11 +32,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
     p.add_argument("--gm-db", type=float, default=6.0, help="gain margin at least (dB, default 6)")
     p.add_argument("--pm-deg", type=float, default=45.0, help="phase margin at least (degrees, default 45)")
-    p.add_argument("--structure", default="pi", choices=("auto", "pi", "pi2", "pi2j", "youla"),
-                   help="the controller: pi (default: PI + lead-lag + K_x), pi2 (the same with a second lead-lag), "
-                        "pi2j (pi2, then its scheduled points searched together with the half-way checks), "
-                        "youla (the internal-model controller from "
-                        "the Youla parameter) or auto (the one with the wider predicted band that meets every target)")
+    p.add_argument("--structure", default="auto", choices=("auto", "pi", "pi2", "pi2j", "youla"),
+                   help="the controller: auto (default: youla where the model's training record reaches past "
+                        "its loop and its design meets every target without a caution, else pi; the report says "
+                        "which and why), pi (PI + lead-lag + K_x), pi2 (the same with a second lead-lag), "
+                        "pi2j (pi2, then its scheduled points searched together with the half-way checks) or "
+                        "youla (the internal-model controller from the Youla parameter)")
     p.add_argument("--peak-db", type=float,
                    help="largest predicted |S| at any frequency (dB; default: the target set on the plant "
                         "family's calibration draws, docs/results/control.md)")
@@ -71,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
           f">= {gm} dB, phase margin >= {s['pm_deg_min']:.1f} deg (every crossover to Nyquist), |S| <= "
           f"{s['peak_s_db_max']:+.2f} dB, max |W T| {s['robust_max']:.2f}; 6 dB of rejection up to >= "
           f"{s['f6_hz_min']:.3f} Hz (limit for any causal controller: {limit} Hz) -> {args.out}")
+    if design.choice:
+        print(f"rtlift design: chose the {design.choice}")
     for line in s["violations"]:
         print(f"rtlift design: target missed: {line}", file=sys.stderr)
     for line in s["cautions"]:
@@ -108,6 +111,7 @@ def _markdown(design, doc: dict, model: str) -> str:
                 "report.json; K = Q/(1 - Q P)); ")
              + "in ΔCL per ΔCL. Margins from every crossover of L up to Nyquist (4 Hz) on a 2000-point grid; "
              "rows marked 'check' are half-way between scheduled points, at the interpolated gains.", "",
+             *([f"**Structure:** {design.choice}.", ""] if design.choice else []),
              "**Targets missed:** " + ("none" if not s["violations"] else ""), ""]
     if design.reach:
         r = design.reach
