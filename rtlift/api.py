@@ -209,7 +209,8 @@ def _check_init_state(init_state: bool, generic: bool, skip: int) -> None:
 
 
 def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike | None = None, skip: int = 0,
-             score_from: Sequence[int] | None = None, init_state: bool = False) -> tuple[dict[str, Any], Any]:
+             score_from: Sequence[int] | None = None, init_state: bool = False,
+             suspect: str | None = None) -> tuple[dict[str, Any], Any]:
     """What ``model`` misses (``rtlift diagnose --train --validate``): candidate effects (a lift
     model) or structures (a generic model) fitted on ``train`` and judged on ``validate``.
     Returns ``(report, augmented_model)``; the report has INTERFACES.md's keys (``baseline``,
@@ -218,8 +219,9 @@ def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike |
     ``model_augmented.json`` written there. ``skip``: generic records' unscored first samples;
     ``score_from``: per validation record, the first scored sample; ``init_state`` (generic models,
     ``--init-state``): every model runs over a record from the state estimated on its ``skip``
-    unscored samples, not from rest. The records are checked as the command checks them
-    (:mod:`rtlift.diagnose.sources`: their kind, rate, length, stems)."""
+    unscored samples, not from rest. ``suspect`` (a lift model, ``--suspect``): an effect another source of
+    evidence names, first among explanations that fit alike (``DiagnoseOptions.suspect``). The records
+    are checked as the command checks them (:mod:`rtlift.diagnose.sources`: their kind, rate, length, stems)."""
     from rtlift.diagnose.sources import records
 
     name = str(model) if isinstance(model, (str, os.PathLike)) else None
@@ -227,11 +229,11 @@ def diagnose(model: Any, train: Any, validate: Sequence[Any], *, out: PathLike |
     src = records(train, list(validate), model, is_generic(model), skip, name)
     if score_from is not None:
         src.score_from = list(score_from)
-    return _diagnose(model, src, out, skip, init_state)
+    return _diagnose(model, src, out, skip, init_state, suspect)
 
 
 def diagnose_run(model: Any, record: Any, *, split: float | None = None, out: PathLike | None = None,
-                 skip: int = 0, init_state: bool = False) -> tuple[dict[str, Any], Any]:
+                 skip: int = 0, init_state: bool = False, suspect: str | None = None) -> tuple[dict[str, Any], Any]:
     """:func:`diagnose` of one long record (``rtlift diagnose --run [--split]``): fitted on its
     first ``split`` (default 0.6), judged on the rest — every model run over the whole record
     from rest and scored from the split on. The report's records are ``<stem>_train`` and
@@ -240,15 +242,19 @@ def diagnose_run(model: Any, record: Any, *, split: float | None = None, out: Pa
 
     name = str(model) if isinstance(model, (str, os.PathLike)) else None
     model = load(model)
-    return _diagnose(model, run(record, model, is_generic(model), split, skip, name), out, skip, init_state)
+    return _diagnose(model, run(record, model, is_generic(model), split, skip, name), out, skip, init_state,
+                     suspect)
 
 
 def _diagnose(model: Any, src: Any, out: PathLike | None, skip: int,
-              init_state: bool = False) -> tuple[dict[str, Any], Any]:
+              init_state: bool = False, suspect: str | None = None) -> tuple[dict[str, Any], Any]:
     """The diagnosis of either kind on the records of ``src`` (:class:`rtlift.diagnose.sources.Sources`)."""
     from rtlift.diagnose.report import write
+    from rtlift.effects import EFFECT_NAMES
 
     _check_init_state(init_state, is_generic(model), skip)
+    if suspect is not None and (is_generic(model) or suspect not in EFFECT_NAMES):
+        raise UserError(f"--suspect {suspect}: one of a lift model's effects ({', '.join(EFFECT_NAMES)})")
 
     if out is not None:
         try:
@@ -264,7 +270,7 @@ def _diagnose(model: Any, src: Any, out: PathLike | None, skip: int,
         from rtlift.diagnose import DiagnoseOptions
         from rtlift.diagnose import diagnose as diagnose_lift
 
-        diag = diagnose_lift(model, src.train, src.validate, DiagnoseOptions(), src.score_from)
+        diag = diagnose_lift(model, src.train, src.validate, DiagnoseOptions(suspect=suspect), src.score_from)
     if src.split is not None:
         diag.report["split"] = src.split
         diag.report["scoring"] += f"; one run split at sample {src.split['train_samples'][1]}: {src.split['how']}"

@@ -56,6 +56,7 @@ import numpy as np
 from rtlift.app.diagnose_worker import DiagnoseWorker
 from rtlift.core.rate import FS_HZ
 from rtlift.core.split import SPLIT_DEFAULT
+from rtlift.effects import EFFECT_NAMES
 
 BEFORE_S = 2.0
 AFTER_S = 24.0
@@ -233,8 +234,10 @@ class Adapter:
                                  "window_samples": f"{job['start']}..{job['stop'] - 1}"})
             path = work / "window.csv"
             write_record(path, rec)
+            suspect = (job["departure"] or {}).get("suspect")
             code, stderr = self._worker.run(["diagnose", "--model", self.model_path, "--run", str(path),
-                                             "--split", str(SPLIT), "--out", str(work / "diagnosis")])
+                                             "--split", str(SPLIT), "--out", str(work / "diagnosis"),
+                                             *(["--suspect", suspect] if suspect in EFFECT_NAMES else [])])
             if code != 0:
                 raise RuntimeError((stderr.strip().splitlines() or ["diagnose failed"])[-1])
             rep = json.loads((work / "diagnosis" / "report.json").read_text())
@@ -247,7 +250,6 @@ class Adapter:
                 event["reason"] = "nothing accepted"
                 self._finish(event)
                 return
-            suspect = (event.get("departure") or {}).get("suspect")
             structure = [e["name"] for e in acc if e.get("kind") == "structure" and e["name"] != suspect]
             if structure and not self.structure:
                 event["finding"] = structure

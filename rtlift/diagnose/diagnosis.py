@@ -26,6 +26,7 @@ class DiagnoseOptions:
     max_effects: int = 3          # largest combination compared
     pool_size: int = 5            # candidates that enter the combinations
     parsimony: float = 0.02       # combinations this close to the best compete on evidence, then size
+    suspect: str | None = None    # an effect other evidence names (--adapt: the departure's): first among near-ties
 
 
 @dataclass

@@ -24,9 +24,10 @@ held-out records.
    evidence departs from the fingerprint (step 5) is confirmed at ``min_t_confirm``. Among the
    admissible combinations (the empty one included) within ``parsimony`` of the lowest
    *level-free* validation RMSE (each record's own mean error taken out,
-   :func:`~rtlift.diagnose.significance.level_free_rmse`), the one the others cannot replace
-   wins (an encompassing test on the held-out records, :meth:`.selection.Judge.encompassing`),
-   then the one ranked first by step 5, then the one with fewer parameters. Why level-free:
+   :func:`~rtlift.diagnose.significance.level_free_rmse`), the one with the suspect wins where
+   one is named (step 5), then the one the others cannot replace (an encompassing test on the
+   held-out records, :meth:`.selection.Judge.encompassing`), then the one ranked first by step 5,
+   then the one with fewer parameters. Why level-free:
    the model's own level misfit differs between record types and is unknown on a type the
    campaign lacks, and an effect that shifts the lift can win on it without being there. The
    paper's hybrid on the independent plant: clean mean residual +0.0025 on ``random``, −0.0057
@@ -40,8 +41,16 @@ held-out records.
    type at identification and this member lowers it by as much again (a z of the excess that
    falls by ``Z_DEPART`` or more); otherwise the model already
    lacked it on its own campaign, and it is ``structure``. Between near-equal combinations
-   (step 4) the one with more effects wins, then the one whose members' own evidence is
-   stronger (Σ|z|): two explanations that fit alike are told apart by what points at them.
+   (step 4) the one with the *suspect* wins first where another source of evidence names one
+   (``DiagnoseOptions.suspect``, ``rtlift diagnose --suspect``: under ``--adapt`` the live monitor's
+   departure, raised against the model's own null in time — quiet before, departed now — which a
+   window alone cannot give), then the one with more effects, then the one whose members' own
+   evidence is stronger (Σ|z|): two explanations that fit alike are told apart by what points at
+   them. On a closed loop's 26-s window after a 70 % fade (tests/data/adapt_fade_window.csv) a fade
+   and a zero drift fit alike (validation RMSE 0.00872 both, level-free 0.00787 and 0.00784): the
+   encompassing test and the drift's own evidence (z −2.6 against +0.5) chose the drift, and that
+   run's adaptation swapped in a drift; the monitor's ``hold`` test had named the fade, which the
+   window's data cannot tell from the drift.
 
 6. **Re-estimation.** With the chosen effects in, φ and the Wiener part's scale are
    re-estimated jointly on the training record (:func:`rtlift.effects.surgery.reestimate`), kept only if
@@ -127,8 +136,10 @@ class LiftCandidates:
         self.lines = input_lines_hz(train)
         self.rule = ("every member lowers the validation error significantly; within "
                      f"{100 * opt.parsimony:g} % of the lowest level-free validation RMSE (each "
-                     "record's mean error taken out), the most members whose evidence departs from "
-                     "the fingerprint, then the fewest parameters")
+                     "record's mean error taken out), "
+                     + ("" if opt.suspect is None else f"the one with the suspect named beside the record "
+                        f"({opt.suspect}), then ")
+                     + "the most members whose evidence departs from the fingerprint, then the fewest parameters")
         self._tests: dict[tuple[str, ...], dict[str, TestResult]] = {}
 
     # ------------------------------------------------------------------ the engine's questions
@@ -165,10 +176,11 @@ class LiftCandidates:
         return self.classify(node, name, search).specific.departs
 
     def rank(self, node: Node, near: list[Node], search: Search) -> tuple:
-        """The one the others cannot replace, the most effects, the strongest own evidence, the
-        fewest parameters (module docstring, 4–5)."""
+        """The one with the suspect (``options.suspect``), the one the others cannot replace, the most
+        effects, the strongest own evidence, the fewest parameters (module docstring, 4–5)."""
         kinds = [self.classify(node, m, search) for m in node.members]
-        return (-search.judge.encompassing(node, near, search), -sum(k.is_effect for k in kinds),
+        return (-(self.options.suspect in node.members), -search.judge.encompassing(node, near, search),
+                -sum(k.is_effect for k in kinds),
                 -sum(min(abs(k.specific.z), 50.0) for k in kinds), self.n_params(node))
 
     def row_why(self, verdicts: list[tuple[str, bool, str]]) -> str:

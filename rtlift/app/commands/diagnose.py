@@ -41,6 +41,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--init-state", action="store_true",
                    help="generic records: every model runs from the state estimated on a record's unscored "
                         "samples (--skip) instead of from rest")
+    p.add_argument("--suspect", metavar="EFFECT",
+                   help="a lift model's effect another source of evidence names (rtlift --adapt passes the live "
+                        "monitor's suspect): among explanations that fit alike it ranks first")
     p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p.set_defaults(func=run)
 
@@ -69,11 +72,11 @@ def run(args: argparse.Namespace) -> int:
     with working("rtlift diagnose", "fitting candidate effects, judging them, writing the report", args.quiet):
         if args.run is not None:
             rep, augmented = api.diagnose_run(args.model, args.run, split=args.split, out=args.out,
-                                              skip=args.skip, init_state=args.init_state)
+                                              skip=args.skip, init_state=args.init_state, suspect=args.suspect)
         else:
             train = args.train[0] if len(args.train) == 1 else args.train
             rep, augmented = api.diagnose(args.model, train, args.validate, out=args.out, skip=args.skip,
-                                          init_state=args.init_state)
+                                          init_state=args.init_state, suspect=args.suspect)
     print("\n".join(summary(rep, args.model, args.out, api.is_generic(augmented))))
     return 0
 
