@@ -20,7 +20,7 @@ MODEL = Path(__file__).parent / "data" / "bench_model.json"
 def test_the_channel_bound_and_the_robust_rows_hold_and_keep_the_band():
     """On the bench model's cached design (its second scheduled point, the programme alone at 0.3 Hz):
     unbounded, the parts reach > 100 (|T| itself ≤ 1 + M); bounded by B = 1 + M, each part stays
-    ≤ λ B on a grid 10× denser than the programme's (1 % for the polygon between its points), with
+    ≤ λ B on a grid 10× denser than the programme's (1 % between its points, where it is exact), with
     |S_o| ≤ 0.5 λ on the band, T(1) = 1 and Q_X(1) = 0 as before. The bounded programme also carries a
     :class:`ModelError` (a made-up envelope, 3 % to 1 Hz rising to 60 % / 30 % at 2 Hz: the rows'
     arithmetic is what is tested): where its rows are (from 0.5 Hz) |S| and |S_o| plus
