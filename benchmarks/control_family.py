@@ -29,6 +29,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit, run_cli  # noqa: E402
 from benchmarks.gust_rejection import FREQUENCIES, measure  # noqa: E402
+from rtlift.app.control_design import DEFAULT_STRUCTURE, STRUCTURES, YOULA_CHANNEL_BOUND  # noqa: E402
 
 CAMPAIGN = ("static", "single_burst", "sine_k0125")
 TRAINS = ("sine_k0125", "random")
@@ -62,8 +63,8 @@ def identified_model(n: int, tmp: str, keep: str | None = None, train: str = "si
 
 
 def one_draw(n: int, tmp: str, frequencies: tuple[float, ...], seed: int, keep: str | None = None,
-             targets: object = None, structure: str = "auto", backoff: float | None = None,
-             channel_bound: bool = False, save_design: bool = False, model_error: str | None = None,
+             targets: object = None, structure: str = DEFAULT_STRUCTURE, backoff: float | None = None,
+             channel_bound: bool = YOULA_CHANNEL_BOUND, save_design: bool = False, model_error: str | None = None,
              train: str = "sine_k0125", envelope: str = "recorded", band_hz: float | None = None,
              seeds: int = 1, reuse_design: bool = False, s_error: str | None = None) -> dict:
     from rtlift.app.control_design import design_loop, load_design
@@ -201,12 +202,14 @@ def main() -> None:
                     "reuse one found there instead of recording and identifying again")
     ap.add_argument("--peak-db", type=float, help="the design's |S| target (dB; default: the design's own)")
     ap.add_argument("--frequencies", default=",".join(f"{f:g}" for f in FREQUENCIES))
-    ap.add_argument("--structure", default="pi", choices=("auto", "pi", "pi2", "pi2j", "youla"),
-                    help="the controller the design builds (default pi; auto: the wider predicted band)")
+    ap.add_argument("--structure", default=DEFAULT_STRUCTURE, choices=STRUCTURES,
+                    help=f"the controller the design builds (default {DEFAULT_STRUCTURE}, as rtlift design: the "
+                         "internal-model controller where the model's training record supports it, else pi)")
     ap.add_argument("--backoff", type=float, help="the internal-model controller's fraction of its band "
                     "(default: the design's own)")
-    ap.add_argument("--channel-bound", action="store_true", help="the internal-model design bounds each channel's "
-                    "part of T by 1 + M (control_design.YOULA_CHANNEL_BOUND)")
+    ap.add_argument("--channel-bound", action=argparse.BooleanOptionalAction, default=YOULA_CHANNEL_BOUND,
+                    help="the internal-model design bounds each channel's part of T by 1 + M (default: the design's "
+                         f"own, control_design.YOULA_CHANNEL_BOUND = {YOULA_CHANNEL_BOUND})")
     ap.add_argument("--model-error", metavar="JSON", help="the internal-model design is robust to this envelope "
                     "of each channel's multiplicative error (benchmarks/model_error.py --envelope --out JSON; "
                     "'calibration': control_design.MODEL_ERROR_ENVELOPE)")

@@ -38,6 +38,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks._common import emit  # noqa: E402
 from benchmarks.control_loop import REFERENCES  # noqa: E402
+from rtlift.app.control_design import DEFAULT_STRUCTURE  # noqa: E402
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 FREQUENCIES = (0.05, 0.1, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0)
@@ -222,8 +223,8 @@ def main() -> None:
     ap.add_argument("--pty", metavar="F,F,...", help="also measure these frequencies live over the serial pty")
     ap.add_argument("--design", metavar="REPORT.json", help="a saved design (rtlift design's report.json or the "
                     "cache beside the model) instead of designing")
-    ap.add_argument("--structure", default="pi", choices=("auto", "pi", "youla"),
-                    help="the controller the design builds (default pi; auto: the wider predicted band)")
+    ap.add_argument("--structure", default=DEFAULT_STRUCTURE, choices=("auto", "pi", "youla"),
+                    help=f"the controller the design builds (default {DEFAULT_STRUCTURE}, as rtlift design)")
     ap.add_argument("--backoff", type=float, help="the internal-model controller's fraction of its band "
                     "(default: the design's own)")
     ap.add_argument("--save-design", metavar="JSON", help="write the design made here (report.json's form)")
