@@ -23,9 +23,10 @@ def _idle(self):
                                  stdout=subprocess.PIPE, text=True)
 
 
-def _cut_window(ad: Adapter) -> None:
+def _cut_window(ad: Adapter, suspect: str | None = "actuator_fade") -> None:
+    """A departure (naming ``suspect``) and the samples after it until its window is cut."""
     start = int(BEFORE_S * FS_HZ)
-    ad.on_departure({"sample": start + 1, "t_s": start / FS_HZ, "test": "bias", "suspect": "actuator_fade"})
+    ad.on_departure({"sample": start + 1, "t_s": start / FS_HZ, "test": "bias", "suspect": suspect})
     for i in range(start + int(AFTER_S * FS_HZ) + 1):
         ad.after_step(i, 0.02, 0.01, 0.1)
 

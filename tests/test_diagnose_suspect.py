@@ -55,29 +55,16 @@ def test_a_suspect_that_is_not_one_of_the_effects_is_one_line_and_exit_2(tmp_pat
 def test_adapt_passes_the_departure_s_suspect_to_the_window_s_diagnosis(tmp_path, monkeypatch):
     """The adapter's diagnosis command carries ``--suspect`` with the departure's suspect (an effect's
     name; none where the monitor named none)."""
-    import subprocess
-    import sys
-
-    from rtlift.app.adapt import AFTER_S, BEFORE_S, Adapter
+    from rtlift.app.adapt import Adapter
     from rtlift.app.diagnose_worker import DiagnoseWorker
-    from rtlift.core.rate import FS_HZ
-
-    class _Loop:
-        monitor = observer = None
-
-    def idle(self):
-        self.proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, text=True)
+    from tests.test_adapt_end import _cut_window, _idle, _Loop
 
     argvs = []
-    monkeypatch.setattr(DiagnoseWorker, "_start", idle)
+    monkeypatch.setattr(DiagnoseWorker, "_start", _idle)
     monkeypatch.setattr(DiagnoseWorker, "run", lambda self, argv: (argvs.append(argv), (1, "stub\n"))[1])
     for suspect in ("actuator_fade", None):
         ad = Adapter(_Loop(), MODEL, tmp_path / str(suspect), events=lambda e: None)
-        start = int(BEFORE_S * FS_HZ)
-        ad.on_departure({"sample": start + 1, "t_s": start / FS_HZ, "test": "hold", "suspect": suspect})
-        for i in range(start + int(AFTER_S * FS_HZ) + 1):
-            ad.after_step(i, 0.02, 0.01, 0.1)
+        _cut_window(ad, suspect)
         ad.close()
     assert argvs[0][-2:] == ["--suspect", "actuator_fade"]
     assert "--suspect" not in argvs[1] and argvs[1][0] == "diagnose"

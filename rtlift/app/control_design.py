@@ -1173,6 +1173,13 @@ def rejection_limit(p: np.ndarray, q: np.ndarray, dt: float, peak_db: float, *, 
                         channel_bound=channel_bound).band()
 
 
+def widened(m: np.ndarray, cols: np.ndarray, nv: int) -> np.ndarray:
+    """The rows of ``m`` on a larger variable vector: its column j is column ``cols[j]`` of ``nv``."""
+    out = np.zeros((m.shape[0], nv), m.dtype)
+    out[:, cols] = m
+    return out
+
+
 @dataclass(frozen=True)
 class Discs:
     """Bounds |c_i + a_i·v| ≤ r_i + g_i·v, one per row, on a programme's variables v = (Q_A taps, Q_X
@@ -1206,9 +1213,7 @@ class Discs:
 
     def placed(self, cols: np.ndarray, nv: int) -> Discs:
         """The same bounds on a larger variable vector: this one's variable j is ``cols[j]`` of ``nv``."""
-        a, g = np.zeros((self.a.shape[0], nv), complex), np.zeros((self.a.shape[0], nv))
-        a[:, cols], g[:, cols] = self.a, self.g
-        return Discs(a, self.c, self.r, g)
+        return Discs(widened(self.a, cols, nv), self.c, self.r, widened(self.g, cols, nv))
 
     def polygon(self, sides: int, inner: bool) -> tuple[np.ndarray, np.ndarray]:
         """The bounds as A_ub v ≤ b_ub, each disc a polygon of ``sides`` (inner: scaled by cos(π/n))."""
@@ -1451,11 +1456,8 @@ def joint_solve(progs: list[YoulaProgram], band_hz: float, *, objective: bool = 
     signs = (None,) if p0.nyquist_gain is None else (1.0, -1.0)
     nv = nx + 1 + sum(pr.n_aux for pr in progs)          # each programme's own auxiliaries after (Q, λ)
     cost = np.r_[np.zeros(nx), 1.0 if objective else 0.0, np.zeros(nv - nx - 1)]
-    bounds = np.zeros((1 + nv - nx - 1, nv))            # −λ ≤ 0, λ ≤ 1, −t ≤ 0
-    bounds[0, nx] = -1.0
-    bounds[1:, nx + 1:] = -np.eye(nv - nx - 1)
-    limits = np.vstack([bounds, np.eye(1, nv, nx)])
-    b_limits = np.r_[np.zeros(bounds.shape[0]), 1.0]
+    limits = np.vstack([-np.eye(nv)[nx:], np.eye(1, nv, nx)])     # −λ ≤ 0, −t ≤ 0; λ ≤ 1
+    b_limits = np.r_[np.zeros(nv - nx), 1.0]
     best, best_fun = None, math.inf
     for sign in signs:
         discs, lin, b_lin, eq, at = [], [], [], [], nx + 1
@@ -1463,14 +1465,10 @@ def joint_solve(progs: list[YoulaProgram], band_hz: float, *, objective: bool = 
             cols = np.r_[np.arange(nx + 1), at + np.arange(pr.n_aux)]
             d, a, b = pr.constraints(pr.top(band_hz), sign)
             discs.append(d.placed(cols, nv))
-            full = np.zeros((a.shape[0], nv))
-            full[:, cols] = a
-            lin.append(full)
+            lin.append(widened(a, cols, nv))
             b_lin.append(b)
             if pr.a_eq is not None:
-                e = np.zeros((2, nv))
-                e[:, cols] = pr.a_eq
-                eq.append(e)
+                eq.append(widened(pr.a_eq, cols, nv))
             at += pr.n_aux
         disc = Discs.stack(discs)
         a_ub, b_ub = np.vstack([*lin, limits]), np.concatenate([*b_lin, b_limits])
