@@ -124,6 +124,21 @@ def test_the_envelope_stays_within_the_actuator_limits_and_changes_only_once_per
     assert np.all(changes % PERIOD == 0)
 
 
+@pytest.mark.parametrize("feedback", [False, True])
+def test_the_first_onset_of_tracking_carries_the_first_decision(feedback):
+    """The live loop (:class:`rtlift.app.closed_loop.ControlLoop`, in process on the bench) decides
+    at its first tracked sample: the actuator fires from the first burst onset after tracking
+    starts, at most one period in (it waited for a period's average first and fired only from the
+    second onset, 100 samples in)."""
+    from rtlift.app.hil_tracking import InProcessTracking
+
+    model = load_model(MODEL)
+    run = InProcessTracking(model, LiftController(model, ControlConfig(feedback=feedback)), "steps:0.06@0", 1.0,
+                            effects=()).run()
+    _, _, env = run.traces()
+    assert 0 < np.flatnonzero(env > 0)[0] <= PERIOD
+
+
 def test_step_allocates_nothing():
     ctl = LiftController(load_model(MODEL))
     for _ in range(200):
