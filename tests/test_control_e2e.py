@@ -125,6 +125,21 @@ def test_a_replayed_controller_that_differs_from_the_log_says_where_and_exits_1(
     assert main(["replay", str(copy), "--model", str(MODEL), "--no-control"]) == 0
 
 
+def test_a_log_from_before_the_first_decision_at_once_replays_with_the_old_start(runs, tmp_path, capsys):
+    """A command log without the ``first_decision: at_start`` line (written before the loop decided
+    at its first tracked sample) is replayed with the loop deciding a period later: on this log,
+    whose loop did decide at once, that start misses the first command, and replay says so."""
+    log = runs["serial_on"]["log"]
+    copy = tmp_path / log.name
+    copy.write_bytes(log.read_bytes())
+    lines = Path(f"{log}.commands.csv").read_text().splitlines()
+    assert "# first_decision: at_start" in lines
+    Path(f"{copy}.commands.csv").write_text("\n".join(x for x in lines if x != "# first_decision: at_start") + "\n")
+    assert main(["replay", str(copy), "--model", str(MODEL)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "command " in err[0], err
+
+
 def test_feedback_tracks_better_than_feedforward_under_a_fade(runs):
     on, off = runs["serial_on"]["summary"], runs["serial_off"]["summary"]
     assert on["tracking_rmse"] < 0.75 * off["tracking_rmse"]

@@ -13,8 +13,9 @@ ahead of the device's burst onsets (status bit3 rising edge), so each command is
 the next onset; the first is decided at the first tracked sample (on the one estimate there),
 so the first onset of tracking already carries it: waiting for a period's average first left
 the actuator off for up to two periods while the reference asked for lift (on plant draw 220
-that wait alone was 0.03 of the 70 % fade's tracking ratio, 0.511 → 0.481). On the way out the actuator is switched off (``enable`` false) and that
-command's echo awaited briefly, so ``commands_applied`` stays exact.
+that wait alone was 0.03 of the 70 % fade's tracking ratio, 0.511 → 0.481). On the way out the
+actuator is switched off (``enable`` false) and that command's echo awaited briefly, so
+``commands_applied`` stays exact.
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ from rtlift.app.live import SILENCE_S, ObserverLoop
 from rtlift.app.reference import Reference
 
 SETTLE_S = 1.0
+FIRST_DECISION = ("first_decision", "at_start")
+"""The command log's metadata line saying the loop decided at its first tracked sample (module
+docstring); ``rtlift replay`` of a log without it starts the loop as before (a period later)."""
 MARGIN_SAMPLES = 10
 """Decide this many samples (25 ms) ahead of the next burst onset: ≫ the command latency."""
 STATUS_BURST_ON = 0x08
@@ -61,8 +65,12 @@ class ControlLoop:
     """One closed-loop run on an open link (module docstring)."""
 
     def __init__(self, link: Any, loop: ObserverLoop, controller: LiftController, reference: Reference,
-                 calibration: Any, fs_hz: float, tracking_samples: int | None = None) -> None:
+                 calibration: Any, fs_hz: float, tracking_samples: int | None = None, *,
+                 first_at_once: bool = True) -> None:
         self.link = link
+        self.first_at_once = first_at_once
+        """Decide at the first tracked sample (false: after a period, as logs from before
+        :data:`FIRST_DECISION` was written were made, so that ``rtlift replay`` repeats them)."""
         self.loop = loop
         self.controller = controller
         self.reference = reference
@@ -105,7 +113,7 @@ class ControlLoop:
         ctl = self.controller
         if burst and not self._burst:
             ctl.sync(self._period - MARGIN_SAMPLES)
-        elif not self.tracked:   # the first decision at once: the next onset already carries it
+        elif not self.tracked and self.first_at_once:   # the next onset already carries it
             ctl.sync(1)
         self._burst = burst
         est = self.loop.observer.estimate

@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from firmware_io.convert import Converter
     from firmware_io.links import open_link
     from rtlift.app.applied import commands_not_applied
-    from rtlift.app.closed_loop import ControlLoop
+    from rtlift.app.closed_loop import FIRST_DECISION, ControlLoop
     from rtlift.app.control import LiftController, gains_text
     from rtlift.app.link_options import link_config_from_args
     from rtlift.app.live import ObserverLoop, run_live, summary, write_summary
@@ -93,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
     link = open_link(link_config_from_args(args, log=args.log, calibration=calibration))
     link.command_log_meta = {"tool": "rtlift control", "model": args.model, "reference": args.reference,
                              "feedback": args.feedback, "gains": gains_text(config),
-                             "seconds": "" if args.seconds is None else repr(args.seconds)}
+                             "seconds": "" if args.seconds is None else repr(args.seconds),
+                             FIRST_DECISION[0]: FIRST_DECISION[1]}
     where = args.serial or args.can
     print(f"rtlift control: {link.kind} link open on {where}; Ctrl-C stops", file=sys.stderr, flush=True)
     fs = model.fs_hz

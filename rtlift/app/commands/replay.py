@@ -138,7 +138,7 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, watch, model,
                    kind: str) -> dict:
     """Feed the samples through a fresh controller as ``rtlift control`` did; compare its commands."""
     from firmware_io.commands import CAN_CMD_SEQ_MODULUS, SERIAL_CMD_SEQ_MODULUS
-    from rtlift.app.closed_loop import ControlLoop
+    from rtlift.app.closed_loop import FIRST_DECISION, ControlLoop
     from rtlift.app.control import ControlConfig, LiftController, config_from_gains_text
     from rtlift.app.reference import parse_reference
 
@@ -153,7 +153,8 @@ def _rerun_control(args, meta: dict[str, str], logged: list, loop, watch, model,
     controller = LiftController(model, config)
     recorder = _CommandRecorder(SERIAL_CMD_SEQ_MODULUS if kind == "serial" else CAN_CMD_SEQ_MODULUS)
     closed = ControlLoop(recorder, loop, controller, reference, calibration, model.fs_hz,
-                         None if seconds is None else int(round(seconds * model.fs_hz)))
+                         None if seconds is None else int(round(seconds * model.fs_hz)),
+                         first_at_once=meta.get(FIRST_DECISION[0]) == FIRST_DECISION[1])
     watch.follow(closed)     # the monitor holds off after the reference's steps, the swaps change the controller
     recorder.position = lambda: closed.received
     switched_off = bool(logged) and not logged[-1].enable
