@@ -169,13 +169,13 @@ OUTPUT_STAGES = (
 def with_effects(model: HybridModel, fade: bool = False, outputs: tuple[int, ...] = (),
                  hysteresis: int = 0) -> HybridModel:
     """``model`` (changed in place, and returned) with what the diagnosis adds: an
-    ``actuator_fade`` after any ``delay`` and before the interaction structure's own stage,
-    output stages (indices into :data:`OUTPUT_STAGES`), a hysteresis factor on the Wiener
+    ``actuator_fade`` (its clock at 0.02 s at rest) after any ``delay`` and before the interaction
+    structure's own stage, output stages (indices into :data:`OUTPUT_STAGES`), a hysteresis factor on the Wiener
     nonlinearity (1: driven by Cμ_env, a switch; 2: by the lift, a play operator)."""
     if fade:
         stages = list(model.input_stages)
         at = next((i for i, st in enumerate(stages) if st.name in STRUCTURE_STAGES), len(stages))
-        model.input_stages = (*stages[:at], ActuatorFade(0.6, 0.05, FS_HZ), *stages[at:])
+        model.input_stages = (*stages[:at], ActuatorFade(0.6, 0.05, FS_HZ, on_time0_s=0.02), *stages[at:])
     model.output_stages = tuple(OUTPUT_STAGES[i]() for i in outputs)
     if hysteresis:
         nl = model.wiener.nonlinearity

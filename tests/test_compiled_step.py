@@ -33,12 +33,12 @@ TOL = 1e-12
 
 
 def _stages(delay: int, fade: int, hold: int = 0) -> tuple:
-    """At most one ``delay`` of ``delay`` samples, then (``fade`` 1: on-time clock, 2: wall clock)
-    an ``actuator_fade`` whose time constant the test inputs reach, and (``hold`` 1: first, 2:
+    """At most one ``delay`` of ``delay`` samples, then (``fade`` 1: on-time clock, at 0.02 s at rest;
+    2: wall clock, from 0) an ``actuator_fade`` whose time constant the test inputs reach, and (``hold`` 1: first, 2:
     after the delay, 3: after the fade) an ``onset_hold``: the compiled step's stages."""
     stages = (Delay(delay / FS, FS),) if delay else ()
     if fade:
-        stages += (ActuatorFade(0.6, 0.05, FS, "on_time" if fade == 1 else "time"),)
+        stages += (ActuatorFade(0.6, 0.05, FS, *(("on_time", 0.02) if fade == 1 else ("time", 0.0))),)
     if hold:
         at = (0, len(stages) - (1 if fade else 0), len(stages))[hold - 1]
         stages = (*stages[:at], OnsetHold(FS), *stages[at:])

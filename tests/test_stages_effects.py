@@ -30,7 +30,7 @@ def make_stage(name: str, rng: np.random.Generator):
         return Delay(rng.integers(0, 30) / FS, FS)
     if name == "actuator_fade":
         return ActuatorFade(rng.uniform(0.3, 1.0), rng.uniform(0.05, 5.0), FS,
-                            str(rng.choice(ActuatorFade.CLOCKS)))
+                            str(rng.choice(ActuatorFade.CLOCKS)), float(rng.choice([0.0, rng.uniform(0.0, 5.0)])))
     if name == "sensor_resonance":
         return SensorResonance(rng.uniform(5.0, 190.0), rng.uniform(0.02, 0.7), FS)
     if name == "zero_drift_linear":
@@ -145,6 +145,27 @@ def test_fade_on_the_wall_clock_fades_while_the_actuator_rests():
     env = np.ones(400)
     assert on.simulate(cmu, env)[1][-1] == 1.0
     assert wall.simulate(cmu, env)[1][-1] == pytest.approx(0.5 + 0.5 * math.exp(-399 / 400), rel=1e-12)
+
+
+@pytest.mark.parametrize("clock", ActuatorFade.CLOCKS)
+def test_a_fade_started_at_its_clock_e0_goes_on_as_one_that_ran_that_long(clock):
+    """A fade at rest with its clock at E₀ gives what a fade from E = 0 gives once its clock has run
+    E₀ (the on-time of bursts, or wall time): the same curve, continued; reset takes it back to E₀,
+    and the model file keeps E₀."""
+    cmu, env = burst_input(np.random.default_rng(4), 4000)
+    head = int(np.argmax(np.cumsum(cmu > 0) >= 200)) + 1 if clock == "on_time" else 200   # 0.5 s of the clock
+    ran = ActuatorFade(0.6, 1.5, FS, clock)
+    ran.simulate(cmu[:head], env[:head])
+    assert ran.on_time == pytest.approx(0.5, abs=1e-12)
+    ran_for = ran.on_time
+    later = ActuatorFade(0.6, 1.5, FS, clock, on_time0_s=ran_for)
+    np.testing.assert_allclose(later.simulate(cmu[head:], env[head:])[0],
+                               ran.simulate(cmu[head:], env[head:])[0], rtol=1e-12, atol=1e-15)
+    later.reset()
+    assert later.on_time == ran_for
+    again = ActuatorFade.from_params(later.params(), FS)
+    assert again.params() == later.params() and again.on_time == ran_for
+    assert "on_time0_s" not in ActuatorFade(0.6, 1.5, FS, clock).params()      # model files as before
 
 
 def test_resonance_equals_the_bench_mode_and_has_unity_dc_gain():

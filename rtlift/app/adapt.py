@@ -37,6 +37,13 @@ cannot give on its own: a live window is a record type the fingerprint never saw
 with the static sweep's residual), so a fade that set in mid-run can read "within the
 fingerprint" there. What the monitor suspected and the diagnosis accepted is swapped in.
 
+An effect swapped in is fitted on one window; if the plant goes on changing after it (a fade still
+fading), the monitor raises it again, suspecting the same effect. That window is diagnosed from the
+model before that swap (:meth:`Adapter.diagnosed_from`), so the effect is fitted anew on it instead of
+another being stacked on top to patch its residual; a fade's clock there starts where the running
+fade's is at the window's start (:func:`fade_clock_at`, the window record's metadata), so a fade
+nearly complete is not fitted as an immediate loss. The event says ``refit``.
+
 One diagnosis at a time; departures while one runs are logged, not acted on. The window must
 still be in the ring when the swap comes (``ring_s``): a diagnosis that takes longer is
 dropped (``reason``).
@@ -54,10 +61,12 @@ from typing import Any
 import numpy as np
 
 from rtlift.app.diagnose_worker import DiagnoseWorker
+from rtlift.blocks.actuator_fade import ActuatorFade
 from rtlift.core.rate import FS_HZ
 from rtlift.core.split import SPLIT_DEFAULT
 from rtlift.effects import EFFECT_NAMES
 
+FADE = ActuatorFade.name
 BEFORE_S = 2.0
 AFTER_S = 24.0
 """The window diagnosed: 2 s before the departure, 24 s after it: 26 s, so its first 60 % (15.6 s)
@@ -124,6 +133,20 @@ def window_record(rows: np.ndarray, fs_hz: float, meta: dict[str, str]):
                   meta.get("experiment", "window"))
 
 
+def fade_clock_at(observer: Any, rows: np.ndarray, fs_hz: float) -> dict[str, str]:
+    """The window record's metadata giving the running model's fade clock at the window's first row
+    (:data:`rtlift.effects.actuator_fade.ON_TIME0_META`): its clock now (after the window's last row)
+    less what the window's rows added to it (on-time: the rows with Cμ > 0; wall time: all). Empty if
+    the running model has no fade."""
+    from rtlift.effects.actuator_fade import ON_TIME0_META
+
+    fade = next((s for s in getattr(observer.model, "input_stages", ()) if isinstance(s, ActuatorFade)), None)
+    if fade is None:
+        return {}
+    added = len(rows) if fade.clock == "time" else int(np.count_nonzero(rows[:, 0] > 0.0))
+    return {ON_TIME0_META[fade.clock]: repr(max(0.0, fade.on_time - added / fs_hz))}
+
+
 class Adapter:
     """The ``--adapt`` machinery of one loop (module docstring).
 
@@ -141,6 +164,8 @@ class Adapter:
         self.loop = loop
         self.closed = closed
         self.model_path = str(model_path)
+        self._before_last: tuple[str, frozenset[str]] | None = None
+        """(the model the last swap's window was diagnosed from, what that swap accepted)."""
         self.out_dir = Path(out_dir).resolve()
         self.fs_hz = fs_hz
         self.before = int(round(before_s * fs_hz))
@@ -206,7 +231,11 @@ class Adapter:
         rows = self.ring.rows(start, stop)
         self._busy = True
         self.count += 1
-        job = {"n": self.count, "start": start, "stop": stop, "rows": rows, "departure": self._departure}
+        suspect = (self._departure or {}).get("suspect")
+        job = {"n": self.count, "start": start, "stop": stop, "rows": rows, "departure": self._departure,
+               "model": self.diagnosed_from(suspect), "clock": {}}
+        if job["model"] != self.model_path and suspect == FADE:   # its clock, read in the loop's thread
+            job["clock"] = fade_clock_at(self.loop.observer, rows, self.fs_hz)
         self._thread = threading.Thread(target=self._diagnose, args=(job,), name="rtlift-adapt", daemon=True)
         self._thread.start()
 
@@ -230,12 +259,14 @@ class Adapter:
             work.mkdir(parents=True, exist_ok=True)
             rec = window_record(job["rows"], self.fs_hz,
                                 {"experiment": f"adapt_{n}", "source": "rtlift --adapt window",
-                                 "model": self.model_path,
+                                 "model": job["model"], **job["clock"],
                                  "window_samples": f"{job['start']}..{job['stop'] - 1}"})
             path = work / "window.csv"
             write_record(path, rec)
             suspect = (job["departure"] or {}).get("suspect")
-            code, stderr = self._worker.run(["diagnose", "--model", self.model_path, "--run", str(path),
+            if job["model"] != self.model_path:
+                event["refit"] = suspect
+            code, stderr = self._worker.run(["diagnose", "--model", job["model"], "--run", str(path),
                                              "--split", str(SPLIT), "--out", str(work / "diagnosis"),
                                              *(["--suspect", suspect] if suspect in EFFECT_NAMES else [])])
             if code != 0:
@@ -260,8 +291,8 @@ class Adapter:
                 return
             model_file = self._keep_model(work, n, job, event)
             event["model_file"] = str(model_file)
-            prepared = self._prepare({"index": None, "window_start": job["start"], "model_file": str(model_file)},
-                                     None)
+            prepared = self._prepare({"index": None, "window_start": job["start"], "model_file": str(model_file),
+                                      "diagnosed_from": job["model"]}, None)
             prepared["event"] = event
             with self._lock:
                 self._ready = prepared
@@ -269,12 +300,21 @@ class Adapter:
             event["reason"] = f"{type(exc).__name__}: {exc}"
             self._finish(event)
 
+    def diagnosed_from(self, suspect: str | None) -> str:
+        """The model a window is diagnosed from: the running one, unless the departure suspects an
+        effect the last swap put in (module docstring): then the one that swap's window was diagnosed
+        from, so the effect is fitted anew."""
+        if suspect and self._before_last is not None and suspect in self._before_last[1]:
+            return self._before_last[0]
+        return self.model_path
+
     def _keep_model(self, work: Path, n: int, job: dict[str, Any], event: dict[str, Any]) -> Path:
         from rtlift.core.jsonfile import write_json_atomic
 
         doc = json.loads((work / "diagnosis" / "model_augmented.json").read_text())
         prov = dict(doc.get("provenance") or {})
-        prov["adaptation"] = {"n": n, "running_model": self.model_path, "window_samples": [job["start"], job["stop"]],
+        prov["adaptation"] = {"n": n, "running_model": self.model_path, "diagnosed_from": job["model"],
+                              "window_samples": [job["start"], job["stop"]],
                               "departure": job["departure"], "accepted": event["accepted"],
                               "report": str(work / "diagnosis" / "report.json"), "tool": "rtlift --adapt"}
         doc["provenance"] = prov
@@ -324,6 +364,7 @@ class Adapter:
         ev.update(event="adaptation", index=index, t_s=index / self.fs_hz, window_start=int(spec["window_start"]),
                   model_file=spec["model_file"], swapped=True)
         ev.setdefault("accepted", spec.get("accepted"))
+        self._before_last = (spec.get("diagnosed_from", self.model_path), frozenset(ev.get("accepted") or ()))
         self.model_path = spec["model_file"]    # the next diagnosis starts from the running model
         self.log(f"adaptation at t={index / self.fs_hz:.2f} s: {', '.join(ev.get('accepted') or [])} "
                  f"(model {spec['model_file']})")

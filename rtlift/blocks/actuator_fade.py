@@ -14,12 +14,14 @@ class ActuatorFade(InputStage):
     """Actuators deliver less Cμ as they heat up:
 
         g(k) = f + (1 − f) exp(−E(k)/τ),   Cμ′(k) = g(k) Cμ(k),   Cμ_env′(k) = g(k) Cμ_env(k),
-        E(k + 1) = E(k) + 1/fs if Cμ(k) > 0 else E(k)        (``clock`` "on_time", E(0) = 0)
+        E(k + 1) = E(k) + 1/fs if Cμ(k) > 0 else E(k)        (``clock`` "on_time", E(0) = E₀)
         E(k + 1) = E(k) + 1/fs                                (``clock`` "time")
 
     with ``clock`` "on_time" the fade follows the burst on-time accumulated *before* sample k
     (heating by actuation), with "time" the wall time since the record started.
-    ``final_fraction`` = f ∈ [0, 1], ``time_constant_s`` = τ > 0 (seconds of the clock).
+    ``final_fraction`` = f ∈ [0, 1], ``time_constant_s`` = τ > 0 (seconds of the clock),
+    ``on_time0_s`` = E₀ ≥ 0 the clock at rest (0: the fade starts with the record; > 0: it had run
+    that long before, as when ``--adapt`` fits it again on a later window of a run).
     State: [E], the clock before the next sample.
     """
 
@@ -28,13 +30,17 @@ class ActuatorFade(InputStage):
     CLOCKS = ("on_time", "time")
 
     def __init__(self, final_fraction: float, time_constant_s: float, fs_hz: float,
-                 clock: str = "on_time") -> None:
+                 clock: str = "on_time", on_time0_s: float = 0.0) -> None:
         f = _finite(final_fraction, "actuator_fade final_fraction")
         if not 0.0 <= f <= 1.0:
             raise ValueError(f"actuator_fade final_fraction must be in [0, 1], got {f}")
         if clock not in self.CLOCKS:
             raise ValueError(f"actuator_fade clock must be one of {', '.join(self.CLOCKS)}, got {clock!r}")
         tau = _positive(time_constant_s, "actuator_fade time_constant_s")
+        e0 = _finite(on_time0_s, "actuator_fade on_time0_s")
+        if e0 < 0.0:
+            raise ValueError(f"actuator_fade on_time0_s must be >= 0, got {e0}")
+        self.on_time0_s = e0
         self.fs_hz = _positive(fs_hz, "fs_hz")
         self.clock = clock
         self._always = clock == "time"
@@ -43,7 +49,7 @@ class ActuatorFade(InputStage):
         # [on, f, τ, 1/fs, clock is "time"] and its state [E], the arrays themselves, so that a fit
         # that sets f or τ (rtlift.effects.actuator_fade) is seen by the compiled model at once
         self._par = np.array([1.0, f, tau, self.dt, float(self._always)])
-        self._state = np.zeros(1)
+        self._state = np.array([e0])
 
     final_fraction = property(lambda self: float(self._par[1]),
                               lambda self, v: self._par.__setitem__(1, float(v)))
@@ -51,6 +57,10 @@ class ActuatorFade(InputStage):
                                lambda self, v: self._par.__setitem__(2, float(v)))
     on_time = property(lambda self: float(self._state[0]), lambda self, v: self._state.__setitem__(0, float(v)))
     """E, the clock before the next sample (s)."""
+
+    def reset(self) -> None:
+        """At rest: the clock at E₀."""
+        self.on_time = self.on_time0_s
 
     def adopt_state(self, view: np.ndarray) -> None:
         """Hold the clock E in ``view`` (one float64, already holding it) from now on: the compiled
@@ -64,11 +74,14 @@ class ActuatorFade(InputStage):
     @classmethod
     def from_params(cls, params: dict[str, Any], fs_hz: float) -> ActuatorFade:
         return cls(float(params["final_fraction"]), float(params["time_constant_s"]), fs_hz,
-                   str(params.get("clock", "on_time")))
+                   str(params.get("clock", "on_time")), float(params.get("on_time0_s", 0.0)))
 
     def params(self) -> dict[str, Any]:
-        return {"final_fraction": self.final_fraction, "time_constant_s": self.time_constant_s,
-                "clock": self.clock}
+        out: dict[str, Any] = {"final_fraction": self.final_fraction, "time_constant_s": self.time_constant_s,
+                               "clock": self.clock}
+        if self.on_time0_s:
+            out["on_time0_s"] = self.on_time0_s
+        return out
 
     def step(self, cmu: float, env: float) -> tuple[float, float]:
         par, state = self._par, self._state

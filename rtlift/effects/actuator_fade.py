@@ -1,7 +1,9 @@
 """The ``actuator_fade`` effect: actuators deliver less Cμ as they heat up over accumulated burst on-time.
 
 Fit: (f, τ) by Levenberg–Marquardt on the full augmented model, for both clocks (burst on-time:
-heating by actuation; wall time), the better kept. Evidence: the residual's gain drift against
+heating by actuation; wall time), the better kept. The clock starts at the record's start at
+:data:`ON_TIME0_META`'s value for that clock (0 without it): a window of a run whose fade had been
+running (``--adapt`` fitting it again) says how long. Evidence: the residual's gain drift against
 the print's. Stage :class:`rtlift.blocks.actuator_fade.ActuatorFade`.
 """
 
@@ -21,6 +23,17 @@ from rtlift.model.hybrid import HybridModel
 from rtlift.residual.fingerprint import Departure, coef_departure
 from rtlift.residual.stats import TestResult
 
+ON_TIME0_META = {"on_time": "actuator_fade_on_time0_s", "time": "actuator_fade_time0_s"}
+"""The record metadata giving the fade's clock at the record's start (s), per clock."""
+
+
+def clock_at_start(train: Record, clock: str) -> float:
+    """The fade's clock E₀ at ``train``'s start for ``clock`` (its metadata; 0 without it)."""
+    try:
+        return max(0.0, float(train.meta.get(ON_TIME0_META[clock], 0.0)))
+    except (TypeError, ValueError):
+        return 0.0
+
 
 class ActuatorFadeEffect(Effect):
     """g(k) = f + (1 − f) exp(−E(k)/τ) on Cμ and Cμ_env, E the burst on-time (or wall time)."""
@@ -38,7 +51,7 @@ class ActuatorFadeEffect(Effect):
         lo_tau, hi_tau = 0.05, 500.0
         fits: dict[str, Any] = {}
         for clock in ActuatorFade.CLOCKS:
-            model = augment(base, input_stage=ActuatorFade(1.0, 1.0, ctx.fs, clock))
+            model = augment(base, input_stage=ActuatorFade(1.0, 1.0, ctx.fs, clock, clock_at_start(train, clock)))
             stage = next(s for s in model.input_stages if type(s) is ActuatorFade)
 
             def resid(theta: np.ndarray, stage: ActuatorFade = stage, model: HybridModel = model) -> np.ndarray:
@@ -57,7 +70,7 @@ class ActuatorFadeEffect(Effect):
         # burst on-time) stays unless the wall clock fits the training record clearly better
         clock = "time" if fits["time"].cost < 0.98 * fits["on_time"].cost else "on_time"
         res = fits[clock]
-        stage = ActuatorFade(float(res.x[0]), float(math.exp(res.x[1])), ctx.fs, clock)
+        stage = ActuatorFade(float(res.x[0]), float(math.exp(res.x[1])), ctx.fs, clock, clock_at_start(train, clock))
         bound = at_bound(stage.final_fraction, 0.0, 1.0, "final_fraction") or \
             at_bound(math.log(stage.time_constant_s), math.log(lo_tau), math.log(hi_tau), "log time_constant_s")
         return Fitted(self.name, augment(base, input_stage=stage), stage.params(), on_bound=bound)
