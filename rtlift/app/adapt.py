@@ -252,6 +252,8 @@ class Adapter:
         from rtlift.core.records import write_record
 
         n = job["n"]
+        job.setdefault("model", self.model_path)    # a job cut without a refit (as the tests make one)
+        job.setdefault("clock", {})
         work = self.out_dir / f"adapt_{n}"
         event: dict[str, Any] = {"event": "diagnosis", "n": n, "window_start": job["start"],
                                  "window_stop": job["stop"], "departure": job["departure"]}
