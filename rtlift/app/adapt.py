@@ -231,11 +231,10 @@ class Adapter:
         rows = self.ring.rows(start, stop)
         self._busy = True
         self.count += 1
+        job = {"n": self.count, "start": start, "stop": stop, "rows": rows, "departure": self._departure}
         suspect = (self._departure or {}).get("suspect")
-        job = {"n": self.count, "start": start, "stop": stop, "rows": rows, "departure": self._departure,
-               "model": self.diagnosed_from(suspect), "clock": {}}
-        if job["model"] != self.model_path and suspect == FADE:   # its clock, read in the loop's thread
-            job["clock"] = fade_clock_at(self.loop.observer, rows, self.fs_hz)
+        if suspect == FADE and self.diagnosed_from(suspect) != self.model_path:   # a refit: the running
+            job["clock"] = fade_clock_at(self.loop.observer, rows, self.fs_hz)     # fade's clock, read here
         self._thread = threading.Thread(target=self._diagnose, args=(job,), name="rtlift-adapt", daemon=True)
         self._thread.start()
 
@@ -252,8 +251,8 @@ class Adapter:
         from rtlift.core.records import write_record
 
         n = job["n"]
-        job.setdefault("model", self.model_path)    # a job cut without a refit (as the tests make one)
-        job.setdefault("clock", {})
+        suspect = (job["departure"] or {}).get("suspect")
+        job["model"] = self.diagnosed_from(suspect)   # no swap comes between the cut and here (busy)
         work = self.out_dir / f"adapt_{n}"
         event: dict[str, Any] = {"event": "diagnosis", "n": n, "window_start": job["start"],
                                  "window_stop": job["stop"], "departure": job["departure"]}
@@ -261,11 +260,10 @@ class Adapter:
             work.mkdir(parents=True, exist_ok=True)
             rec = window_record(job["rows"], self.fs_hz,
                                 {"experiment": f"adapt_{n}", "source": "rtlift --adapt window",
-                                 "model": job["model"], **job["clock"],
+                                 "model": job["model"], **job.get("clock", {}),
                                  "window_samples": f"{job['start']}..{job['stop'] - 1}"})
             path = work / "window.csv"
             write_record(path, rec)
-            suspect = (job["departure"] or {}).get("suspect")
             if job["model"] != self.model_path:
                 event["refit"] = suspect
             code, stderr = self._worker.run(["diagnose", "--model", job["model"], "--run", str(path),
